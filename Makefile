@@ -1,0 +1,38 @@
+# The two commands a user needs: `make demo` and `make test`.
+# Both create .venv on first use and install everything, system packages included.
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: demo test system-deps emulator clean
+
+demo: $(STAMP) emulator
+	$(VENV)/bin/plush-opt demo --out out/demo
+
+test: $(STAMP) emulator
+	$(PY) -m pytest -q tests
+
+# CHOLMOD headers for scikit-sparse and a C++ compiler for the board emulator.
+system-deps:
+	@if [ ! -f /usr/include/suitesparse/cholmod.h ] || ! command -v g++ >/dev/null; then \
+	  echo "installing system packages: libsuitesparse-dev g++"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev g++ >/dev/null || \
+	  { echo "error: could not install libsuitesparse-dev and g++ (need apt-get and root or sudo)" >&2; exit 1; }; \
+	fi
+
+$(STAMP): pyproject.toml | system-deps
+	@[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+emulator:
+	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw; fi
+
+clean:
+	rm -rf $(VENV) out build *.egg-info
+	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw clean; fi

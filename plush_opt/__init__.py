@@ -1,0 +1,3 @@
+"""plush_opt: optimisation-centric control of tendon-driven plush robots."""
+
+__version__ = "0.1.0"
