@@ -1,0 +1,329 @@
+"""Quasi-static equilibria: local minimisers of E(x; c).
+
+Two backends on the same energy:
+
+* ``newton`` (default): Newton on the exact sparse Hessian, CHOLMOD
+  factorisation (symbolic analysis once per model), backtracking line
+  search that never accepts a non-admissible pose (some J <= 0) or a
+  non-finite energy, a multiple of the identity added when the Hessian is
+  not positive definite, and an escape along the most negative curvature
+  direction when the gradient vanishes at a saddle.
+* ``ipopt``: IPOPT minimising the CasADi expression of E, for cross-checks.
+
+Both return an :class:`Equilibrium` that is *certified* by the same test:
+``converged`` only if the residual |grad_x E| is within tolerance relative
+to the force scale and the Hessian is positive definite (Cholesky succeeds).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import weakref
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .errors import SolverError
+from .linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from .model import Evaluation, Model
+
+log = logging.getLogger(__name__)
+
+BACKENDS = ("newton", "ipopt")
+
+
+@dataclass(frozen=True)
+class EquilibriumOptions:
+    """Options of the equilibrium solvers.
+
+    Attributes
+    ----------
+    backend : 'newton' (default) or 'ipopt'.
+    gtol : relative residual tolerance: converged when
+        |grad_x E| <= gtol * force_scale.
+    max_iterations : Newton iterations (IPOPT: its max_iter).
+    armijo : sufficient-decrease constant of the line search.
+    max_backtracks : halvings of the step before the line search gives up.
+    escape_saddles : at a saddle (gradient zero, Hessian indefinite), step
+        along the most negative curvature direction and continue.
+    max_escapes : how many saddles may be escaped in one solve.
+    eigenvalue : compute the smallest Hessian eigenvalue at the end (a few
+        extra solves with the final factor).
+    ipopt : raw IPOPT options (backend 'ipopt'), passed through.
+    """
+
+    backend: str = "newton"
+    gtol: float = 1e-10
+    max_iterations: int = 200
+    armijo: float = 1e-4
+    max_backtracks: int = 60
+    escape_saddles: bool = True
+    max_escapes: int = 5
+    eigenvalue: bool = True
+    ipopt: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if not (0 < self.gtol < 1):
+            raise ValueError(f"gtol: expected 0 < gtol < 1, got {self.gtol!r}")
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations: expected >= 1, got {self.max_iterations!r}")
+        if not (0 < self.armijo < 0.5):
+            raise ValueError(f"armijo: expected 0 < armijo < 0.5, got {self.armijo!r}")
+
+
+@dataclass(frozen=True)
+class Equilibrium:
+    """The result of an equilibrium solve.
+
+    Attributes
+    ----------
+    x : (n_dofs,) flat pose, interleaved [x0, y0, x1, y1, ...].
+    contraction : (n_winches,) the contractions it was solved at.
+    converged : residual within tolerance and Hessian positive definite.
+    status : short human-readable reason.
+    energy : E(x; c).
+    residual_norm : |grad_x E(x; c)|, 2-norm.
+    force_scale : the force size the residual is judged against.
+    positive_definite : the Hessian at x has a Cholesky factor.
+    min_eigenvalue : smallest Hessian eigenvalue (None if not computed).
+    iterations, t_wall : Newton (or IPOPT) iterations and seconds.
+    backend : 'newton' or 'ipopt'.
+    saddle_escapes : saddles escaped on the way.
+    factor : Cholesky factor of the Hessian at x (for sensitivities), or None.
+    """
+
+    x: np.ndarray
+    contraction: np.ndarray
+    converged: bool
+    status: str
+    energy: float
+    residual_norm: float
+    force_scale: float
+    positive_definite: bool
+    min_eigenvalue: float | None
+    iterations: int
+    t_wall: float
+    backend: str
+    saddle_escapes: int = 0
+    factor: Factor | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def nodes(self) -> np.ndarray:
+        """(n_nodes, 2) pose."""
+        return self.x.reshape(-1, 2)
+
+    @property
+    def relative_residual(self) -> float:
+        return self.residual_norm / self.force_scale if self.force_scale > 0 else np.inf
+
+
+def solve_equilibrium(model: Model, contraction, x0=None,
+                      options: EquilibriumOptions | None = None) -> Equilibrium:
+    """Equilibrium of ``model`` at ``contraction`` (n_winches,), from ``x0``
+    (flat or (n_nodes, 2); default the rest pose). ``x0`` must be admissible."""
+    options = options or EquilibriumOptions()
+    c = np.array(contraction, dtype=np.float64).reshape(-1)
+    if c.shape != (model.n_winches,):
+        raise SolverError(f"contraction: expected {model.n_winches} values, got {c.size}")
+    x = model.X.copy() if x0 is None else np.array(x0, dtype=np.float64).reshape(-1)
+    if x.shape != (model.n_dofs,):
+        raise SolverError(f"x0: expected {model.n_dofs} coordinates, got {x.size}")
+    if options.backend == "ipopt":
+        return _solve_ipopt(model, c, x, options)
+    return _solve_newton(model, c, x, options)
+
+
+# --------------------------------------------------------------------------
+# Newton
+# --------------------------------------------------------------------------
+
+def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
+    """Round-off allowance for comparing energies near convergence."""
+    size = abs(ev_energy)
+    if model.has_gravity:
+        size += abs(model.f_gravity @ x)
+    return 1e-12 * size + 1e-300
+
+
+def _regularised_factor(model: Model, H) -> Factor:
+    """Cholesky of H + shift I with the smallest shift (by factors of 10)
+    that makes it positive definite."""
+    diag = np.abs(H.diagonal())
+    shift = 1e-8 * max(float(diag.mean()), 1e-300)
+    for _ in range(40):
+        try:
+            return model.factorizer.factor(H, shift)
+        except NotPositiveDefinite:
+            shift *= 10
+    raise SolverError("Hessian regularisation failed: no shift made it positive definite")
+
+
+def _finish(model, c, x, ev: Evaluation, factor, converged, status, it, t0, options,
+            backend="newton", escapes=0) -> Equilibrium:
+    pd = factor is not None and factor.shift == 0.0
+    min_eig = None
+    if pd and options.eigenvalue:
+        min_eig = factor.min_eigenvalue()
+    elif options.eigenvalue and ev.hessian is not None:
+        min_eig, _ = smallest_eigenpair(ev.hessian)
+    residual = float(np.linalg.norm(ev.gradient)) if ev.gradient is not None else np.inf
+    return Equilibrium(
+        x=x, contraction=c, converged=bool(converged and pd), status=status,
+        energy=ev.energy, residual_norm=residual, force_scale=ev.force_scale,
+        positive_definite=pd, min_eigenvalue=min_eig, iterations=it,
+        t_wall=time.perf_counter() - t0, backend=backend, saddle_escapes=escapes,
+        factor=factor if pd else None)
+
+
+def _try_factor(model: Model, H) -> Factor | None:
+    try:
+        return model.factorizer.factor(H)
+    except NotPositiveDefinite:
+        return None
+
+
+def _escape_saddle(model: Model, c, x, ev: Evaluation) -> tuple[np.ndarray, Evaluation] | None:
+    """Step from a saddle along its most negative curvature direction.
+
+    The sign is fixed (largest component positive) so the outcome is
+    deterministic; both signs are tried, the lower energy wins.
+    """
+    lam, v = smallest_eigenpair(ev.hessian)
+    if lam >= 0:
+        return None
+    v = v * np.sign(v[np.argmax(np.abs(v))])
+    h = np.sqrt(np.mean(model.rest_area))
+    best = None
+    for s in h * 2.0 ** -np.arange(0, 30):
+        for sign in (1.0, -1.0):
+            xt = x + sign * s * v / np.abs(v).max()
+            et = model.evaluate(xt, c, order=0)
+            if et.admissible and np.isfinite(et.energy) and et.energy < ev.energy - _energy_slack(model, ev.energy, x):
+                if best is None or et.energy < best[0] - _energy_slack(model, et.energy, xt):
+                    best = (et.energy, xt)
+        if best is not None:
+            break
+    if best is None:
+        return None
+    log.info("escaped a saddle (lambda_min = %.3g) by a step of %.3g", lam, s)
+    return best[1], model.evaluate(best[1], c, order=2)
+
+
+def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
+    t0 = time.perf_counter()
+    ev = model.evaluate(x, c, order=2)
+    if not ev.admissible:
+        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
+                           np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
+                           "newton")
+    escapes = 0
+    status = f"iteration limit ({options.max_iterations}) reached"
+    converged = False
+    factor = None
+    it = 0
+    while True:
+        g, H = ev.gradient, ev.hessian
+        factor = _try_factor(model, H)
+        small = np.linalg.norm(g) <= options.gtol * ev.force_scale
+        if small and factor is not None:
+            converged = True
+            status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
+            break
+        if small:
+            if options.escape_saddles and escapes < options.max_escapes:
+                escaped = _escape_saddle(model, c, x, ev)
+                if escaped is not None:
+                    x, ev = escaped
+                    escapes += 1
+                    continue
+            status = "saddle: the gradient vanishes but the Hessian is not positive definite"
+            break
+        if it >= options.max_iterations:
+            break
+        it += 1
+        step_factor = factor if factor is not None else _regularised_factor(model, H)
+        dx = -step_factor.solve(g)
+        slope = float(g @ dx)
+        slack = _energy_slack(model, ev.energy, x)
+        alpha = 1.0
+        accepted = None
+        for k in range(options.max_backtracks):
+            xt = x + alpha * dx
+            et = model.evaluate(xt, c, order=2 if k == 0 else 0)
+            if et.admissible and np.isfinite(et.energy) and \
+                    et.energy <= ev.energy + options.armijo * alpha * slope + slack:
+                accepted = (xt, et if k == 0 else model.evaluate(xt, c, order=2))
+                break
+            alpha *= 0.5
+        if accepted is None:
+            status = "line search failed: no admissible step decreases the energy"
+            break
+        x, ev = accepted
+    return _finish(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
+
+
+# --------------------------------------------------------------------------
+# IPOPT
+# --------------------------------------------------------------------------
+
+_IPOPT_DEFAULTS = {
+    "ipopt.print_level": 0,
+    "ipopt.sb": "yes",
+    "print_time": False,
+    "show_eval_warnings": False,
+    "ipopt.tol": 1e-12,
+    "ipopt.acceptable_tol": 1e-10,
+    "ipopt.hessian_approximation": "exact",
+}
+
+_ipopt_cache: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+
+
+def _ipopt_solver(model: Model, options: EquilibriumOptions):
+    opts = dict(_IPOPT_DEFAULTS)
+    opts["ipopt.max_iter"] = options.max_iterations
+    opts.update(options.ipopt)
+    key = repr(sorted(opts.items()))
+    cache = _ipopt_cache.setdefault(model, {})
+    if key not in cache:
+        nlp = {"x": model.x_sym, "p": model.c_sym, "f": model.E_sym}
+        cache[key] = ca.nlpsol("equilibrium", "ipopt", nlp, opts)
+    return cache[key]
+
+
+def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
+    """Minimise E with IPOPT, then certify with the Newton backend's test.
+
+    IPOPT treats a non-finite energy (log J of an inverted element) as an
+    evaluation error and cuts its step back, so it stays admissible.
+    """
+    t0 = time.perf_counter()
+    if not model.admissible(x):
+        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
+                           np.inf, np.inf, np.nan, False, None, 0, 0.0, "ipopt")
+    solver = _ipopt_solver(model, options)
+    sol = solver(x0=x, p=c)
+    stats = solver.stats()
+    xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
+    ev = model.evaluate(xs, c, order=2)
+    if not ev.admissible:
+        return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
+                           np.inf, np.inf, np.nan, False, None, stats.get("iter_count", 0),
+                           time.perf_counter() - t0, "ipopt")
+    factor = _try_factor(model, ev.hessian)
+    small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
+    ok = stats["success"] and small and factor is not None
+    if ok:
+        status = "converged"
+    elif factor is None:
+        status = f"ipopt: {stats['return_status']}; Hessian not positive definite (saddle or maximum)"
+    elif not small:
+        status = f"ipopt: {stats['return_status']}; residual above tolerance"
+    else:
+        status = f"ipopt: {stats['return_status']}"
+    return _finish(model, c, xs, ev, factor, ok, status, int(stats.get("iter_count", 0)), t0,
+                   options, "ipopt")

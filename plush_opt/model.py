@@ -1,0 +1,474 @@
+"""Scene + Mesh -> Model: the total energy E(x; c) and its derivatives.
+
+Each energy term is defined once, as a small CasADi kernel:
+
+* ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates;
+* ``seg``  length of one tendon segment from its 4 end coordinates;
+* ``U``    the C2 unilateral tendon energy of one tendon from its stretch.
+
+Two evaluators are built from those kernels, and tests check they agree:
+
+* the CasADi expression ``E(x, c)`` (MX graph of ``map``-ped kernels, so it
+  does not grow with the mesh), with CasADi's gradient, exact sparse
+  Hessian and mixed derivative. IPOPT (equilibrium cross-check, bilevel
+  control) works on this expression;
+* the fast path :meth:`Model.evaluate`: the kernels' own gradients and
+  Hessians (derived by CasADi per element / per segment), mapped over all
+  elements at once, then scattered into a CSC matrix whose pattern and
+  scatter indices are computed once per mesh. Newton uses this.
+
+Flat vectors interleave coordinates: ``[x0, y0, x1, y1, ...]``.
+A term the scene does not have (gravity, tendons) is not built.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import SceneError
+from .linalg import Factorizer
+from .mesh import Mesh
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------
+# Kernels: the single definition of each energy term.
+# --------------------------------------------------------------------------
+
+def _neo_hookean_kernels():
+    """psi(xe, Dinv, w, mu, lam): w * Psi(F) of one element, and its derivatives.
+
+    ``xe`` = [xa, ya, xb, yb, xc, yc], ``Dinv`` = Dm^-1 column-major,
+    ``w`` = thickness * rest area.
+    """
+    xe = ca.SX.sym("xe", 6)
+    Dinv = ca.SX.sym("Dinv", 4)
+    w = ca.SX.sym("w")
+    mu = ca.SX.sym("mu")
+    lam = ca.SX.sym("lam")
+    d = ca.horzcat(xe[2:4] - xe[0:2], xe[4:6] - xe[0:2])
+    F = d @ ca.reshape(Dinv, 2, 2)
+    J = ca.det(F)
+    logJ = ca.log(J)
+    psi = w * (mu / 2 * (ca.sumsqr(F) - 2) - mu * logJ + lam / 2 * logJ**2)
+    g = ca.gradient(psi, xe)
+    H = ca.densify(ca.hessian(psi, xe)[0])
+    args, names = [xe, Dinv, w, mu, lam], ["xe", "Dinv", "w", "mu", "lam"]
+    energy = ca.Function("psi", args, [psi], names, ["psi"])
+    derivs = ca.Function("psi_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"])
+    return energy, derivs
+
+
+def _segment_kernels():
+    """seg(xs): length of the segment [xa, ya, xb, yb], and its derivatives."""
+    xs = ca.SX.sym("xs", 4)
+    length = ca.norm_2(xs[2:4] - xs[0:2])
+    g = ca.gradient(length, xs)
+    H = ca.densify(ca.hessian(length, xs)[0])
+    length_fn = ca.Function("seg", [xs], [length], ["xs"], ["length"])
+    derivs = ca.Function("seg_derivs", [xs], [length, g, H], ["xs"], ["length", "grad", "hess"])
+    return length_fn, derivs
+
+
+def _tendon_kernels():
+    """U(G, K, eps): C2 unilateral spring energy, tension U' and U''."""
+    G = ca.SX.sym("G")
+    K = ca.SX.sym("K")
+    eps = ca.SX.sym("eps")
+    U = ca.if_else(G <= -eps, 0,
+                   ca.if_else(G < eps, K * (G + eps) ** 3 / (6 * eps),
+                              K * G**2 + K * eps**2 / 3))
+    dU = ca.if_else(G <= -eps, 0,
+                    ca.if_else(G < eps, K * (G + eps) ** 2 / (2 * eps), 2 * K * G))
+    d2U = ca.if_else(G <= -eps, 0,
+                     ca.if_else(G < eps, K * (G + eps) / eps, 2 * K))
+    energy = ca.Function("U", [G, K, eps], [U], ["G", "K", "eps"], ["U"])
+    derivs = ca.Function("U_derivs", [G, K, eps], [U, dU, d2U],
+                         ["G", "K", "eps"], ["U", "tension", "dtension"])
+    return energy, derivs
+
+
+_PSI, _PSI_DERIVS = _neo_hookean_kernels()
+_SEG, _SEG_DERIVS = _segment_kernels()
+_U, _U_DERIVS = _tendon_kernels()
+
+
+def _dofs(nodes: np.ndarray) -> np.ndarray:
+    """Interleaved dof indices of node indices: (..., k) -> (..., 2k)."""
+    nodes = np.asarray(nodes, dtype=np.int64)
+    return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], -1)
+
+
+class _Mapped:
+    """A CasADi Function mapped over ``count`` columns, evaluated into numpy
+    arrays through its buffer interface (no DM conversion per call)."""
+
+    def __init__(self, fn: ca.Function, count: int, constants: dict[int, np.ndarray]):
+        self.fn = fn.map(count, "serial")
+        self.count = count
+        self.buf, self._eval = self.fn.buffer()
+        self._keep = []
+        for i, value in constants.items():
+            arr = np.ascontiguousarray(value, dtype=np.float64)
+            self._keep.append(arr)
+            self.buf.set_arg(i, memoryview(arr))
+
+    def __call__(self, arg0: np.ndarray, n_out: int) -> list[np.ndarray]:
+        arg0 = np.ascontiguousarray(arg0, dtype=np.float64)
+        outs = [np.empty(self.fn.nnz_out(i)) for i in range(n_out)]
+        self.buf.set_arg(0, memoryview(arg0))
+        for i, out in enumerate(outs):
+            self.buf.set_res(i, memoryview(out))
+        self._eval()
+        return outs
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """E, grad_x E and the sparse Hessian at one pose.
+
+    ``force_scale`` is the size of the forces in balance (norm of the
+    tendon, pin and gravity forces, at least the elastic force of a unit
+    strain on one element): residuals are judged relative to it.
+    """
+
+    energy: float
+    gradient: np.ndarray | None
+    hessian: sp.csc_matrix | None
+    force_scale: float
+    admissible: bool
+
+
+class Model:
+    """The energy of one scene on one mesh. Built once; evaluations at any
+    pose and contraction leave it unchanged.
+
+    Attributes
+    ----------
+    scene, mesh : what it was built from.
+    n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
+    X : (n_dofs,) rest positions, flat.
+    E, grad_E, hess_E, mixed_E : CasADi Functions of (x, c):
+        energy, gradient (n_dofs), exact sparse Hessian (n_dofs x n_dofs)
+        and d2E/dx dc (n_dofs x n_winches).
+    """
+
+    def __init__(self, scene: Scene, mesh: Mesh):
+        self.scene = scene
+        self.mesh = mesh
+        self.n_nodes = mesh.n_nodes
+        self.n_dofs = 2 * mesh.n_nodes
+        self.n_elems = mesh.n_elems
+        self.n_winches = len(scene.winches)
+        self.n_tendons = len(scene.tendons)
+        self.winch_names = scene.winch_names
+        self.X = np.ascontiguousarray(mesh.X, dtype=np.float64).reshape(-1)
+        self.lower = scene.lower
+        self.upper = scene.upper
+        self._check_pins()
+
+        mat = scene.material
+        self.mu, self.lam, self.thickness = mat.mu, mat.lam, mat.thickness
+        tri = mesh.triangles
+        XN = mesh.X
+        Dm = np.stack([XN[tri[:, 1]] - XN[tri[:, 0]], XN[tri[:, 2]] - XN[tri[:, 0]]], axis=2)
+        self.rest_area = np.linalg.det(Dm) / 2
+        Dinv = np.linalg.inv(Dm)
+        # column-major 2x2 per element, one element per row
+        self._Dinv = np.ascontiguousarray(Dinv.transpose(0, 2, 1).reshape(-1, 4))
+        self._elem_dofs = _dofs(tri)                      # (n_elems, 6)
+        self._elem_weight = mat.thickness * self.rest_area
+        # mapped kernels take one element per column; a C-ordered
+        # (n_elems, k) array is exactly that column-major (k, n_elems) buffer
+        consts = {1: self._Dinv, 2: self._elem_weight,
+                  3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
+        self._psi = _Mapped(_PSI_DERIVS, self.n_elems, consts)
+        self._psi_energy = _Mapped(_PSI, self.n_elems, consts)
+
+        # pins
+        self.pin_stiffness = scene.pin_stiffness
+        self.pin_nodes = np.asarray(mesh.pin_nodes, dtype=np.int64)
+        self._pin_dofs = _dofs(self.pin_nodes[:, None]).reshape(-1)
+
+        # gravity: E_grav = -f_grav . x with nodal weights m_i g
+        self.has_gravity = scene.gravity is not None
+        if self.has_gravity:
+            mass = mat.density * self._elem_weight / 3
+            nodal = np.bincount(tri.ravel(), weights=np.repeat(mass, 3), minlength=self.n_nodes)
+            self.f_gravity = (nodal[:, None] * np.asarray(scene.gravity)[None, :]).reshape(-1)
+        else:
+            self.f_gravity = None
+
+        self._build_tendons()
+        self._build_pattern()
+        self._build_casadi()
+        # symbolic Cholesky analysis, computed on the first factorisation
+        # and reused for every Hessian of this model (fixed pattern)
+        self.factorizer = Factorizer()
+
+    # -- construction -------------------------------------------------------
+
+    def _check_pins(self):
+        pinned = np.unique(self.mesh.pin_nodes)
+        if pinned.size < 2:
+            missing = 2 - pinned.size
+            raise SceneError(
+                f"{self.scene.source}: pins: {pinned.size} distinct pinned node(s) leave the body "
+                f"free to rotate (a singular Hessian); {missing} more pin(s) at distinct points are needed")
+
+    def _build_tendons(self):
+        scene, mesh = self.scene, self.mesh
+        self.has_tendons = self.n_tendons > 0
+        self.tendon_stiffness = scene.tendon_stiffness
+        self.tendon_smoothing = scene.tendon_smoothing
+        widx = {name: i for i, name in enumerate(self.winch_names)}
+        self.tendon_winch = np.array([widx[t.winch] for t in scene.tendons], dtype=np.int64)
+        paths = [np.asarray(p, dtype=np.int64) for p in mesh.tendon_nodes]
+        self.tendon_paths = paths
+        seg_a = np.concatenate([p[:-1] for p in paths]) if paths else np.zeros(0, np.int64)
+        seg_b = np.concatenate([p[1:] for p in paths]) if paths else np.zeros(0, np.int64)
+        self._seg_tendon = np.concatenate(
+            [np.full(len(p) - 1, t) for t, p in enumerate(paths)]) if paths else np.zeros(0, np.int64)
+        self._seg_dofs = np.concatenate([_dofs(seg_a[:, None]), _dofs(seg_b[:, None])], axis=1) \
+            if paths else np.zeros((0, 4), np.int64)
+        self.n_segments = len(seg_a)
+        # assembly length a_t = l_t(X)
+        if self.has_tendons:
+            seglen = np.linalg.norm(self.X[self._seg_dofs[:, 2:]] - self.X[self._seg_dofs[:, :2]], axis=1)
+            self.assembly_length = np.bincount(self._seg_tendon, weights=seglen, minlength=self.n_tendons)
+            self._seg = _Mapped(_SEG_DERIVS, self.n_segments, {})
+            self._U = _Mapped(_U_DERIVS, self.n_tendons,
+                              {1: np.full(self.n_tendons, scene.tendon_stiffness),
+                               2: np.full(self.n_tendons, scene.tendon_smoothing)})
+            # each tendon's local dof list (padded with -1) and where each
+            # segment's 4 dofs sit in it, for the dense l' l'^T block
+            self._tendon_local = max(2 * len(p) for p in paths)
+            local = np.full((self.n_tendons, self._tendon_local), -1, dtype=np.int64)
+            for t, p in enumerate(paths):
+                local[t, : 2 * len(p)] = _dofs(p[None, :])[0]
+            self._tendon_dofs = local
+            seg_local = np.concatenate([2 * (np.arange(len(p) - 1)) for p in paths])
+            self._seg_local_flat = (self._seg_tendon[:, None] * self._tendon_local
+                                    + seg_local[:, None] + np.arange(4)[None, :])
+        else:
+            self.assembly_length = np.zeros(0)
+
+    def _build_pattern(self):
+        """The Hessian's CSC pattern and, for each contribution, its slot in
+        the CSC data array (computed once; each evaluation is a bincount)."""
+        n = self.n_dofs
+        rows, cols = [], []
+        e = self._elem_dofs
+        rows.append(np.repeat(e, 6, axis=1).ravel())
+        cols.append(np.tile(e, (1, 6)).ravel())
+        rows.append(self._pin_dofs)
+        cols.append(self._pin_dofs)
+        if self.has_tendons:
+            s = self._seg_dofs
+            rows.append(np.repeat(s, 4, axis=1).ravel())
+            cols.append(np.tile(s, (1, 4)).ravel())
+            L = self._tendon_dofs
+            r = np.repeat(L, L.shape[1], axis=1)
+            c = np.tile(L, (1, L.shape[1]))
+            self._outer_valid = ((r >= 0) & (c >= 0)).ravel()
+            rows.append(r.ravel()[self._outer_valid])
+            cols.append(c.ravel()[self._outer_valid])
+        rows = np.concatenate(rows)
+        cols = np.concatenate(cols)
+        keys = cols * n + rows
+        unique_keys, slot = np.unique(keys, return_inverse=True)
+        ucols, urows = np.divmod(unique_keys, n)
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=n))])
+        self._indptr = indptr.astype(np.int32)
+        self._indices = urows.astype(np.int32)
+        self.hessian_nnz = len(unique_keys)
+        n_e = e.shape[0] * 36
+        n_p = len(self._pin_dofs)
+        self._slot_elem = slot[:n_e]
+        self._slot_pin = slot[n_e:n_e + n_p]
+        rest = slot[n_e + n_p:]
+        if self.has_tendons:
+            n_s = self.n_segments * 16
+            self._slot_seg = rest[:n_s]
+            self._slot_outer = rest[n_s:]
+
+    def _build_casadi(self):
+        """The energy as one CasADi expression of (x, c), and its derivatives."""
+        x = ca.MX.sym("x", self.n_dofs)
+        c = ca.MX.sym("c", self.n_winches)
+        xe = ca.reshape(x[self._elem_dofs.ravel().tolist()], 6, self.n_elems)
+        psi = _PSI.map(self.n_elems, "serial")(
+            xe, ca.DM(self._Dinv.T), ca.DM(self._elem_weight).T,
+            ca.DM.ones(1, self.n_elems) * self.mu, ca.DM.ones(1, self.n_elems) * self.lam)
+        E = ca.sum2(psi)
+        dp = x[self._pin_dofs.tolist()] - ca.DM(self.X[self._pin_dofs])
+        E += self.pin_stiffness / 2 * ca.sumsqr(dp)
+        if self.has_tendons:
+            xs = ca.reshape(x[self._seg_dofs.ravel().tolist()], 4, self.n_segments)
+            seglen = _SEG.map(self.n_segments, "serial")(xs)
+            S = ca.DM(sp.csr_matrix((np.ones(self.n_segments),
+                                     (self._seg_tendon, np.arange(self.n_segments))),
+                                    shape=(self.n_tendons, self.n_segments)))
+            length = S @ seglen.T
+            W = ca.DM(sp.csr_matrix((np.ones(self.n_tendons),
+                                     (np.arange(self.n_tendons), self.tendon_winch)),
+                                    shape=(self.n_tendons, self.n_winches)))
+            G = length - ca.DM(self.assembly_length) + W @ c
+            U = _U.map(self.n_tendons, "serial")(G.T, self.tendon_stiffness, self.tendon_smoothing)
+            E += ca.sum2(U)
+        if self.has_gravity:
+            E -= ca.dot(ca.DM(self.f_gravity), x)
+        self.x_sym, self.c_sym, self.E_sym = x, c, E
+        g = ca.gradient(E, x)
+        H = ca.jacobian(g, x)
+        M = ca.jacobian(g, c)
+        self.E = ca.Function("E", [x, c], [E], ["x", "c"], ["E"])
+        self.grad_E = ca.Function("grad_E", [x, c], [g], ["x", "c"], ["grad"])
+        self.hess_E = ca.Function("hess_E", [x, c], [H], ["x", "c"], ["hess"])
+        self.mixed_E = ca.Function("mixed_E", [x, c], [M], ["x", "c"], ["d2E_dxdc"])
+
+    # -- evaluation ----------------------------------------------------------
+
+    def _c(self, c) -> np.ndarray:
+        c = np.asarray(c, dtype=np.float64).reshape(-1)
+        if c.shape != (self.n_winches,):
+            raise ValueError(f"contraction has {c.size} entries, the scene has {self.n_winches} winches")
+        return c
+
+    def jacobians(self, x) -> np.ndarray:
+        """J = det F of every element at flat pose ``x``, (n_elems,)."""
+        xe = np.asarray(x, dtype=np.float64).reshape(-1)[self._elem_dofs]
+        d1 = xe[:, 2:4] - xe[:, 0:2]
+        d2 = xe[:, 4:6] - xe[:, 0:2]
+        return (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / (2 * self.rest_area)
+
+    def admissible(self, x) -> bool:
+        """No element inverted or degenerate (J > 0 everywhere) and x finite."""
+        x = np.asarray(x, dtype=np.float64)
+        return bool(np.all(np.isfinite(x)) and np.all(self.jacobians(x) > 0))
+
+    def tendon_state(self, x, c) -> dict[str, np.ndarray]:
+        """Per tendon: ``length`` l_t, ``stretch`` G = l_t - (a_t - c_w),
+        ``tension`` U'(G), ``dtension`` U''(G), and per segment the length
+        gradient (for assembly). Arrays (n_tendons,)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        c = self._c(c)
+        if not self.has_tendons:
+            z = np.zeros(0)
+            return {"length": z, "stretch": z, "tension": z, "dtension": z}
+        seglen, seggrad, seghess = self._seg(x[self._seg_dofs], 3)
+        length = np.bincount(self._seg_tendon, weights=seglen, minlength=self.n_tendons)
+        G = length - self.assembly_length + c[self.tendon_winch]
+        U, dU, d2U = self._U(G, 3)
+        return {"length": length, "stretch": G, "energy": U, "tension": dU, "dtension": d2U,
+                "seg_grad": seggrad.reshape(-1, 4), "seg_hess": seghess.reshape(-1, 16)}
+
+    def energy(self, x, c) -> float:
+        """E(x; c), +inf where the pose is not admissible."""
+        return self.evaluate(x, c, order=0).energy
+
+    def evaluate(self, x, c, order: int = 2) -> Evaluation:
+        """E (order 0), plus grad_x E (order 1), plus the Hessian (order 2).
+
+        The pose is admissible when every element has J > 0; otherwise the
+        energy is +inf and no derivatives are returned.
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        c = self._c(c)
+        if not self.admissible(x):
+            return Evaluation(np.inf, None, None, np.nan, False)
+        n = self.n_dofs
+        xe = x[self._elem_dofs]                          # (n_elems, 6)
+        if order == 0:
+            (psi,) = self._psi_energy(xe, 1)
+            energy = psi.sum()
+        else:
+            psi, ge, He = self._psi(xe, 3)
+            energy = psi.sum()
+        dp = x[self._pin_dofs] - self.X[self._pin_dofs]
+        energy += 0.5 * self.pin_stiffness * dp @ dp
+        if self.has_gravity:
+            energy -= self.f_gravity @ x
+        if self.has_tendons:
+            ts = self.tendon_state(x, c)
+            energy += ts["energy"].sum()
+        energy = float(energy)
+        if order == 0 or not np.isfinite(energy):
+            return Evaluation(energy, None, None, np.nan, np.isfinite(energy))
+
+        # forces, term by term (their sizes give the residual's scale)
+        g = np.bincount(self._elem_dofs.ravel(), weights=ge, minlength=n)
+        f_pin = np.zeros(n)
+        f_pin[self._pin_dofs] = self.pin_stiffness * dp
+        g += f_pin
+        scales = [np.linalg.norm(f_pin), self.mu * self.thickness * np.sqrt(np.mean(self.rest_area))]
+        if self.has_gravity:
+            g -= self.f_gravity
+            scales.append(np.linalg.norm(self.f_gravity))
+        if self.has_tendons:
+            tension = ts["tension"]
+            seg_g = ts["seg_grad"] * tension[self._seg_tendon][:, None]
+            f_t = np.bincount(self._seg_dofs.ravel(), weights=seg_g.ravel(), minlength=n)
+            g += f_t
+            scales.append(np.linalg.norm(f_t))
+        force_scale = float(max(scales))
+        if order == 1:
+            return Evaluation(energy, g, None, force_scale, True)
+
+        data = np.bincount(self._slot_elem, weights=He.reshape(self.n_elems, 36).ravel(),
+                           minlength=self.hessian_nnz)
+        data += np.bincount(self._slot_pin, weights=np.full(len(self._pin_dofs), self.pin_stiffness),
+                            minlength=self.hessian_nnz)
+        if self.has_tendons:
+            # U' l'' per segment, and U'' l' l'^T per tendon
+            seg_h = ts["seg_hess"] * tension[self._seg_tendon][:, None]
+            data += np.bincount(self._slot_seg, weights=seg_h.ravel(), minlength=self.hessian_nnz)
+            lgrad = self.length_gradient_local(ts["seg_grad"])
+            outer = ts["dtension"][:, None, None] * lgrad[:, :, None] * lgrad[:, None, :]
+            data += np.bincount(self._slot_outer, weights=outer.ravel()[self._outer_valid],
+                                minlength=self.hessian_nnz)
+        H = sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n))
+        return Evaluation(energy, g, H, force_scale, True)
+
+    def length_gradient_local(self, seg_grad: np.ndarray) -> np.ndarray:
+        """dl_t/dx on each tendon's local dof list, (n_tendons, local)."""
+        flat = np.bincount(self._seg_local_flat.ravel(), weights=seg_grad.ravel(),
+                           minlength=self.n_tendons * self._tendon_local)
+        return flat.reshape(self.n_tendons, self._tendon_local)
+
+    def length_gradient(self, x) -> np.ndarray:
+        """dl_t/dx for every tendon, dense (n_dofs, n_tendons) (the routing
+        matrix A of the paper, at pose x)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        out = np.zeros((self.n_dofs, self.n_tendons))
+        if self.has_tendons:
+            (_, seggrad, _) = self._seg(x[self._seg_dofs], 3)
+            for k in range(4):
+                np.add.at(out, (self._seg_dofs[:, k], self._seg_tendon), seggrad.reshape(-1, 4)[:, k])
+        return out
+
+    def mixed(self, x, c) -> np.ndarray:
+        """d2E/dx dc, dense (n_dofs, n_winches): column w is
+        sum over tendons t of winch w of U''(G_t) dl_t/dx."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        out = np.zeros((self.n_dofs, self.n_winches))
+        if not self.has_tendons:
+            return out
+        ts = self.tendon_state(x, c)
+        weight = ts["dtension"][self._seg_tendon][:, None] * ts["seg_grad"]
+        winch = self.tendon_winch[self._seg_tendon]
+        for k in range(4):
+            np.add.at(out, (self._seg_dofs[:, k], winch), weight[:, k])
+        return out
+
+
+def build_model(scene: Scene, mesh: Mesh) -> Model:
+    """Build the energy model of ``scene`` on ``mesh`` (once per scene)."""
+    return Model(scene, mesh)
