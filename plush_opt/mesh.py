@@ -3,9 +3,25 @@ pins, via points and extra points, and point location for targets."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+import triangle as _triangle
+from scipy.spatial import cKDTree
+
+from .errors import SceneError
+from .scene import (POINT_TOL, Scene, classify_points, diameter, distance_to_segments,
+                    locate_in_triangles, ring_area)
+
+DEFAULT_MIN_ANGLE = 20.0     # Triangle's own default for quality meshing, degrees
+MAX_ELEMS = 4_000_000        # refuse to start a mesh that would be larger than this
+
+
+def _frozen(a, dtype) -> np.ndarray:
+    arr = np.ascontiguousarray(np.asarray(a, dtype=dtype))
+    arr.setflags(write=False)
+    return arr
 
 
 @dataclass(frozen=True)
@@ -34,6 +50,17 @@ class Mesh:
     target_beta: np.ndarray
     point_nodes: np.ndarray
 
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
+        set_("X", _frozen(np.reshape(self.X, (-1, 2)), np.float64))
+        set_("triangles", _frozen(np.reshape(self.triangles, (-1, 3)), np.int64))
+        set_("pin_nodes", _frozen(np.reshape(self.pin_nodes, -1), np.int64))
+        set_("tendon_nodes", tuple(_frozen(np.reshape(t, -1), np.int64)
+                                   for t in self.tendon_nodes))
+        set_("target_triangles", _frozen(np.reshape(self.target_triangles, -1), np.int64))
+        set_("target_beta", _frozen(np.reshape(self.target_beta, (-1, 3)), np.float64))
+        set_("point_nodes", _frozen(np.reshape(self.point_nodes, -1), np.int64))
+
     @property
     def n_nodes(self) -> int:
         return self.X.shape[0]
@@ -42,7 +69,285 @@ class Mesh:
     def n_elems(self) -> int:
         return self.triangles.shape[0]
 
+    @property
+    def diameter(self) -> float:
+        """Largest distance between two nodes (length units)."""
+        return diameter(self.X)
 
-def build_mesh(scene, max_area: float | None = None) -> Mesh:
-    """Mesh a scene. ``max_area`` overrides the scene's (mesh-resolution sweeps)."""
-    raise NotImplementedError("mesher under construction")
+    @property
+    def areas(self) -> np.ndarray:
+        """Rest area of each triangle, (n_elems,) float64, all positive."""
+        p = self.X[self.triangles]
+        d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+
+    def locate(self, points, tol: float | None = None):
+        """Rest triangle holding each point and its barycentric weights.
+
+        Parameters
+        ----------
+        points : (m, 2) array_like, rest coordinates.
+        tol : float, optional
+            Distance (length units) within which a point just outside the
+            mesh still counts as on it; default 1e-9 x diameter.
+
+        Returns
+        -------
+        tri : (m,) int64, triangle index, -1 for points outside the mesh.
+        beta : (m, 3) float64, weights in the order of ``triangles[tri]``
+            (NaN rows for points outside); ``beta @ X[triangles[tri]]`` is the point.
+        """
+        if tol is None:
+            tol = POINT_TOL * self.diameter
+        return locate_in_triangles(self.X[self.triangles], points, tol)
+
+    def __eq__(self, other):
+        if not isinstance(other, Mesh):
+            return NotImplemented
+        return (all(np.array_equal(getattr(self, k), getattr(other, k))
+                    for k in ("X", "triangles", "pin_nodes", "target_triangles",
+                              "target_beta", "point_nodes"))
+                and len(self.tendon_nodes) == len(other.tendon_nodes)
+                and all(np.array_equal(a, b) for a, b in zip(self.tendon_nodes,
+                                                             other.tendon_nodes)))
+
+    __hash__ = None
+
+
+def _forced_points(scene: Scene):
+    """All points that must become nodes, in a fixed order, with their key paths."""
+    chunks = [(f"pins.at[{i}]", p) for i, p in enumerate(scene.pin_points)]
+    for t, tendon in enumerate(scene.tendons):
+        chunks += [(f"tendons.list[{t}].path[{j}]", p) for j, p in enumerate(tendon.path)]
+    chunks += [(f"points[{i}]", p) for i, p in enumerate(scene.points)]
+    keys = [k for k, _ in chunks]
+    pts = np.array([p for _, p in chunks], dtype=np.float64).reshape(-1, 2)
+    return keys, pts
+
+
+def _num(x: float) -> str:
+    """A number as Triangle's switch parser reads it (no exponent)."""
+    return np.format_float_positional(float(x), trim="-")
+
+
+def _hole_seed(hole: np.ndarray) -> np.ndarray:
+    """A point strictly inside a simple polygon: centroid of its largest triangle."""
+    n = len(hole)
+    seg = np.stack([np.arange(n), (np.arange(n) + 1) % n], axis=1)
+    t = _triangle.triangulate({"vertices": np.array(hole), "segments": seg}, "pzQ")
+    p = t["vertices"][t["triangles"]]
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    return p[int(np.argmax(area))].mean(axis=0)
+
+
+def _merge_close(pts: np.ndarray, tol: float) -> np.ndarray:
+    """rep[j]: index of the earlier point ``j`` merges into (itself if none)."""
+    rep = np.arange(len(pts))
+    if len(pts) < 2:
+        return rep
+    pairs = cKDTree(pts).query_pairs(tol, p=2.0, output_type="ndarray")
+    pairs = pairs[np.hypot(*(pts[pairs[:, 0]] - pts[pairs[:, 1]]).T) < tol] if len(pairs) else pairs
+    for i, j in sorted((min(p), max(p)) for p in pairs.tolist()):
+        if rep[j] == j and rep[i] == i:
+            rep[j] = i
+    return rep
+
+
+def _mesh_outline(scene: Scene, max_area, tol):
+    """Triangulate the outline; returns X, triangles and the node of every forced point."""
+    rings = [scene.outline, *scene.holes]
+    ring_pts = np.concatenate(rings)
+    n_ring = len(ring_pts)
+    offsets = np.cumsum([0] + [len(r) for r in rings])
+    seg_a = np.concatenate([np.arange(len(r)) + o for r, o in zip(rings, offsets)])
+    seg_b = np.concatenate([(np.arange(len(r)) + 1) % len(r) + o for r, o in zip(rings, offsets)])
+
+    keys, forced = _forced_points(scene)
+    rep = _merge_close(forced, tol)
+    node_of = np.full(len(forced), -1, dtype=np.int64)
+
+    extra = []                                # new input vertices (beyond the rings)
+    on_segment = {}                           # ring segment -> [(t, vertex)]
+    uniq = np.flatnonzero(rep == np.arange(len(forced)))
+    if uniq.size:
+        dist_v, near_v = cKDTree(ring_pts).query(forced[uniq])
+        dist_s, seg, par = distance_to_segments(forced[uniq], ring_pts[seg_a], ring_pts[seg_b])
+        for u, dv, nv, ds, s, t in zip(uniq, dist_v, near_v, dist_s, seg, par):
+            if dv < tol:
+                node_of[u] = nv
+                continue
+            node_of[u] = n_ring + len(extra)
+            extra.append(forced[u])
+            if ds <= tol:
+                on_segment.setdefault(int(s), []).append((float(t), int(node_of[u])))
+    node_of = node_of[rep]
+
+    segments = []
+    for s, (a, b) in enumerate(zip(seg_a, seg_b)):
+        chain = [int(a)] + [v for _, v in sorted(on_segment.get(s, []))] + [int(b)]
+        segments += list(zip(chain[:-1], chain[1:]))
+    vertices = np.vstack([ring_pts, np.array(extra).reshape(-1, 2)])
+
+    min_angle = DEFAULT_MIN_ANGLE if scene.min_angle is None else scene.min_angle
+    opts = "pzQ"
+    if min_angle > 0:
+        opts += "q" + _num(min_angle)
+    if max_area is not None:
+        opts += "a" + _num(max_area)
+    pslg = {"vertices": vertices, "segments": np.array(segments, dtype=np.int32)}
+    if scene.holes:
+        pslg["holes"] = np.array([_hole_seed(h) for h in scene.holes])
+    out = _triangle.triangulate(pslg, opts)
+    X = np.asarray(out["vertices"], dtype=np.float64)
+    tris = np.asarray(out["triangles"], dtype=np.int64)
+    # Triangle keeps input vertices first and in order; check rather than trust.
+    if not (len(X) >= len(vertices) and np.array_equal(X[:len(vertices)], vertices)):
+        dist, node_of_v = cKDTree(X).query(vertices)
+        node_of = node_of_v[node_of]
+        if len(forced) and np.max(dist[np.unique(node_of)], initial=0.0) > tol:
+            raise SceneError(f"{scene.source}: mesh: the mesher moved an input point")
+    return X, tris, node_of, keys
+
+
+def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
+    """Mesh a scene.
+
+    Parameters
+    ----------
+    scene : Scene
+    max_area : float, optional
+        Largest triangle area (length units squared); overrides
+        ``scene.max_area`` (mesh-resolution sweeps). Ignored for explicit meshes.
+
+    Returns
+    -------
+    Mesh
+        Deterministic: the same scene and ``max_area`` give the same mesh.
+
+    Raises
+    ------
+    SceneError
+        A pin box that catches no node, a forced point of an explicit mesh
+        that is not a node, a target outside the mesh, or a mesh that would
+        be unreasonably large.
+    """
+    src = scene.source
+    tol = scene.tolerance
+    if scene.outline is not None:
+        if max_area is None:
+            max_area = scene.max_area
+        elif not (isinstance(max_area, (int, float)) and math.isfinite(max_area) and max_area > 0):
+            raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
+        if max_area is not None:
+            body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+            if body / max_area > MAX_ELEMS:
+                raise SceneError(f"{src}: mesh.max_area: {max_area:g} would give more than "
+                                 f"{body / max_area:.3g} triangles (limit {MAX_ELEMS})")
+        X, tris, node_of, keys = _mesh_outline(scene, max_area, tol)
+    else:
+        X, tris = scene.nodes, scene.triangles
+        keys, forced = _forced_points(scene)
+        node_of = np.zeros(len(forced), dtype=np.int64)
+        if len(forced):
+            dist, node_of = cKDTree(X).query(forced)
+            bad = np.flatnonzero(dist > tol)
+            if bad.size:
+                j = int(bad[0])
+                raise SceneError(f"{src}: {keys[j]}: point ({forced[j, 0]!r}, {forced[j, 1]!r}) "
+                                 "is not a node of the explicit mesh")
+
+    # counter-clockwise in X
+    p = X[tris]
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    cw = d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0] < 0
+    tris = tris.copy()
+    tris[cw] = tris[cw][:, [0, 2, 1]]
+
+    # drop nodes no triangle uses (keep the order of the rest)
+    used = np.zeros(len(X), dtype=bool)
+    used[tris.reshape(-1)] = True
+    if not used.all():
+        new = np.cumsum(used) - 1
+        if len(node_of) and not used[node_of].all():
+            j = int(np.flatnonzero(~used[node_of])[0])
+            raise SceneError(f"{src}: {keys[j]}: point is not part of the mesh")
+        X, tris, node_of = X[used], new[tris], new[node_of]
+
+    n_pin = len(scene.pin_points)
+    pins = node_of[:n_pin]
+    pos = n_pin
+    tendon_nodes = []
+    for t, tendon in enumerate(scene.tendons):
+        nodes = node_of[pos:pos + len(tendon.path)]
+        pos += len(tendon.path)
+        same = np.flatnonzero(nodes[1:] == nodes[:-1])
+        if same.size:
+            j = int(same[0]) + 1
+            raise SceneError(f"{src}: tendons.list[{t}].path[{j}]: via point is the same node "
+                             f"as path[{j - 1}]")
+        tendon_nodes.append(nodes)
+    point_nodes = node_of[pos:]
+
+    if scene.pin_box is not None:
+        x0, y0, x1, y1 = scene.pin_box
+        inbox = np.flatnonzero((X[:, 0] >= x0 - tol) & (X[:, 0] <= x1 + tol)
+                               & (X[:, 1] >= y0 - tol) & (X[:, 1] <= y1 + tol))
+        if inbox.size == 0:
+            raise SceneError(f"{src}: pins.box: catches no mesh node")
+        pins = np.concatenate([pins, inbox])
+    pin_nodes = np.unique(pins)
+
+    at = np.array([t.at for t in scene.targets]).reshape(-1, 2)
+    target_tri, target_beta = locate_in_triangles(X[tris], at, tol)
+    bad = np.flatnonzero(target_tri < 0)
+    if bad.size:
+        k = int(bad[0])
+        raise SceneError(f"{src}: targets[{k}].at: point ({at[k, 0]!r}, {at[k, 1]!r}) "
+                         "lies outside the mesh")
+
+    return Mesh(X=X, triangles=tris, pin_nodes=pin_nodes, tendon_nodes=tuple(tendon_nodes),
+                target_triangles=target_tri, target_beta=target_beta, point_nodes=point_nodes)
+
+
+def mesh_for_nodes(scene: Scene, target_nodes: int, *, rel_tol: float = 0.05,
+                   max_iter: int = 16) -> Mesh:
+    """Mesh an outline scene with about ``target_nodes`` nodes.
+
+    Adjusts ``max_area`` (secant steps on log(area) vs log(n_nodes), kept
+    inside a bracket) until the node count is within ``rel_tol`` of the
+    target, and returns the closest mesh found. Deterministic.
+
+    Raises
+    ------
+    SceneError
+        For an explicit mesh (its resolution is fixed) or a bad target.
+    """
+    if scene.outline is None:
+        raise SceneError(f"{scene.source}: mesh: an explicit mesh cannot be resized")
+    if not (isinstance(target_nodes, (int, np.integer)) and target_nodes >= 3):
+        raise SceneError(f"{scene.source}: target_nodes must be an integer >= 3, "
+                         f"got {target_nodes!r}")
+    body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+    lo, hi = 0.0, math.inf              # bracket on max_area: lo too fine, hi too coarse
+    area = body / (2.0 * target_nodes)  # a triangulation has about twice as many elements
+    best = None
+    for _ in range(max_iter):
+        mesh = build_mesh(scene, max_area=area)
+        n = mesh.n_nodes
+        if best is None or abs(n - target_nodes) < abs(best.n_nodes - target_nodes):
+            best = mesh
+        if abs(n - target_nodes) <= rel_tol * target_nodes:
+            break
+        if n > target_nodes:
+            lo = max(lo, area)
+        else:
+            hi = min(hi, area)
+        guess = area * n / target_nodes   # n ~ 1 / area
+        if not lo < guess < hi:
+            guess = math.sqrt(lo * hi) if math.isfinite(hi) and lo > 0 else (
+                area * 2.0 if n > target_nodes else area / 2.0)
+        if guess == area:
+            break
+        area = guess
+    return best
