@@ -1,0 +1,1 @@
+"""Inverse control: contractions that bring the equilibrium to targets."""

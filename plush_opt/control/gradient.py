@@ -1,0 +1,420 @@
+"""Method 1: the sensitivity-driven outer loop on the winch contractions.
+
+Each iteration, at the current certified equilibrium x(c):
+
+1. gradient dO/dc from the implicit sensitivity (the Newton factor of H is
+   reused: no new factorisation), and for a Gauss-Newton direction also
+   dx/dc (one solve per free winch with the same factor);
+2. a direction on the reparametrised variables xi (c = f(xi) within the
+   bounds), or on c itself with plain clipping (the baseline);
+3. a backtracking line search on O, each trial contraction solved by a
+   warm-started equilibrium (first-order predictor x + dx/dc dc);
+4. the trial is accepted only if its equilibrium is certified (converged,
+   positive definite Hessian) and O decreased.
+
+:class:`Controller` is anytime: :meth:`Controller.iterates` yields every
+accepted iterate, each a stable equilibrium within bounds that can go to
+the robot at once. Between iterates a caller may change the targets or
+freeze/unfreeze winches; the loop continues from where it is.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..errors import SolverError
+from ..model import Model
+from ..objective import Targets
+from ..sensitivity import objective_gradient, state_sensitivity
+from .bounds import Reparametrisation
+
+log = logging.getLogger(__name__)
+
+DIRECTIONS = ("gauss-newton", "gradient")
+BOUNDS = ("reparam", "clip")
+
+
+@dataclass(frozen=True)
+class ControlOptions:
+    """Options of the gradient loop.
+
+    Attributes
+    ----------
+    bounds : 'reparam' (c = f(xi), the default) or 'clip' (step on c, then
+        clip to the bounds: the simple baseline).
+    direction : 'gauss-newton' (Levenberg-Marquardt on the target
+        residuals, uses dx/dc) or 'gradient' (steepest descent, one adjoint
+        solve per iterate, Barzilai-Borwein step length).
+    max_iterations : accepted iterates at most.
+    max_time : seconds at most (None: no limit).
+    ftol : stop when the relative decrease of O stays below ftol for
+        ``patience`` consecutive iterates.
+    gtol : stop when the projected gradient |P dO/dc| times the mean bound
+        range is below gtol * max(O, objective_floor).
+    objective_floor : O below this (length^2) counts as targets reached.
+    patience : see ftol.
+    blend : width of the reparametrisation's blend zone, as a fraction
+        of each winch's range.
+    slope_floor : smallest f' used in the search direction (so a winch on
+        a bound can come back).
+    max_step : largest change of one winch's xi per iterate, as a fraction
+        of its range (keeps the loop in the basin it starts in and every
+        streamed iterate a modest move for the robot).
+    max_backtracks : line-search trials per iterate.
+    equilibrium : options of every equilibrium solve.
+    """
+
+    bounds: str = "reparam"
+    direction: str = "gauss-newton"
+    max_iterations: int = 100
+    max_time: float | None = None
+    ftol: float = 1e-9
+    gtol: float = 1e-7
+    objective_floor: float = 1e-14
+    patience: int = 2
+    blend: float = 0.02
+    slope_floor: float = 0.1
+    max_step: float = 0.2
+    max_backtracks: int = 12
+    equilibrium: EquilibriumOptions = field(
+        default_factory=lambda: EquilibriumOptions(eigenvalue=False))
+
+    def __post_init__(self):
+        if self.bounds not in BOUNDS:
+            raise ValueError(f"bounds: expected one of {BOUNDS}, got {self.bounds!r}")
+        if self.direction not in DIRECTIONS:
+            raise ValueError(f"direction: expected one of {DIRECTIONS}, got {self.direction!r}")
+        if self.max_iterations < 0:
+            raise ValueError(f"max_iterations: expected >= 0, got {self.max_iterations!r}")
+        if not 0 < self.slope_floor <= 1:
+            raise ValueError(f"slope_floor: expected 0 < slope_floor <= 1, got {self.slope_floor!r}")
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One accepted iterate: a certified equilibrium within bounds.
+
+    Attributes
+    ----------
+    iteration : 0 for the starting equilibrium.
+    contraction : (n_winches,) contractions (length units).
+    equilibrium : the certified equilibrium at ``contraction``.
+    objective : O at the equilibrium.
+    gradient : (n_winches,) dO/dc (zero for frozen winches).
+    active_bounds : names of winches held at a bound by the gradient.
+    t_wall : seconds since the loop started.
+    equilibrium_solves, newton_iterations : cumulative counts.
+    """
+
+    iteration: int
+    contraction: np.ndarray
+    equilibrium: Equilibrium
+    objective: float
+    gradient: np.ndarray
+    active_bounds: tuple[str, ...]
+    t_wall: float
+    equilibrium_solves: int
+    newton_iterations: int
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.equilibrium.x
+
+
+@dataclass(frozen=True)
+class ControlResult:
+    """The outcome of a control run: the last accepted iterate, why it
+    stopped, and the history of every accepted iterate."""
+
+    converged: bool
+    status: str
+    final: Iterate
+    history: tuple[Iterate, ...]
+    method: str
+    t_wall: float
+
+    @property
+    def contraction(self) -> np.ndarray:
+        return self.final.contraction
+
+    @property
+    def equilibrium(self) -> Equilibrium:
+        return self.final.equilibrium
+
+    @property
+    def objective(self) -> float:
+        return self.final.objective
+
+
+class Controller:
+    """The anytime gradient loop for one model.
+
+    Parameters
+    ----------
+    model : the energy model.
+    targets : where body points should go.
+    contraction : (n_winches,) start (default: the scene's), within bounds.
+    frozen : (n_winches,) bool, winches that keep their contraction
+        (default: the scene's ``frozen`` flags).
+    x0 : a starting pose near the equilibrium at ``contraction`` (optional).
+    options : :class:`ControlOptions`.
+    """
+
+    def __init__(self, model: Model, targets: Targets, contraction=None, frozen=None,
+                 x0=None, options: ControlOptions | None = None):
+        self.model = model
+        self.options = options or ControlOptions()
+        self.targets = targets
+        c = model.scene.contraction if contraction is None else np.array(contraction, dtype=np.float64)
+        if c.shape != (model.n_winches,):
+            raise SolverError(f"contraction: expected {model.n_winches} values, got {c.size}")
+        if np.any(c < model.lower) or np.any(c > model.upper):
+            raise SolverError("contraction: outside the winch bounds "
+                              f"{list(zip(model.lower.tolist(), model.upper.tolist()))}: {c.tolist()}")
+        self.frozen = model.scene.frozen.copy() if frozen is None else np.array(frozen, dtype=bool)
+        self.reparam = Reparametrisation.for_bounds(model.lower, model.upper, self.options.blend)
+        self.xi = self.reparam.inverse(c) if self.options.bounds == "reparam" else c.copy()
+        self.contraction = c.copy()
+        self.status = "not started"
+        self.converged = False
+        self.history: list[Iterate] = []
+        self._x0 = x0
+        self._solves = 0
+        self._newton = 0
+        self._t0 = None
+        self._mu = 1e-3          # Levenberg-Marquardt damping
+        self._bb_step = None     # Barzilai-Borwein step (gradient direction)
+        self._eq: Equilibrium | None = None
+        self._dirty = False      # targets or frozen set changed since the last iterate
+
+    # -- what a caller may change between iterates ------------------------
+
+    def set_targets(self, targets: Targets) -> None:
+        """New targets; the loop continues from the current pose."""
+        self.targets = targets
+        self._reset_memory()
+
+    def set_frozen(self, name_or_index, frozen: bool = True) -> None:
+        """Freeze (or release) a winch: a frozen winch keeps its contraction bit for bit."""
+        i = name_or_index if isinstance(name_or_index, (int, np.integer)) \
+            else self.model.winch_names.index(name_or_index)
+        self.frozen[i] = bool(frozen)
+        self._reset_memory()
+
+    def _reset_memory(self):
+        self._mu = 1e-3
+        self._bb_step = None
+        self.status = "running"
+        self.converged = False
+        self._dirty = bool(self.history)
+
+    # -- the loop ---------------------------------------------------------
+
+    def _solve(self, c, x0) -> Equilibrium:
+        eq = solve_equilibrium(self.model, c, x0, self.options.equilibrium)
+        self._solves += 1
+        self._newton += eq.iterations
+        return eq
+
+    def _f(self, xi):
+        if self.options.bounds == "reparam":
+            return self.reparam.f(xi)
+        return np.clip(xi, self.model.lower, self.model.upper)
+
+    def _iterate(self, eq: Equilibrium, grad_c: np.ndarray) -> Iterate:
+        it = Iterate(len(self.history), eq.contraction.copy(), eq, self.targets.value(eq.x),
+                     grad_c, self._active(eq.contraction, grad_c), time.perf_counter() - self._t0,
+                     self._solves, self._newton)
+        self.history.append(it)
+        return it
+
+    def _active(self, c, grad_c) -> tuple[str, ...]:
+        """Winches whose bound stops them from going where the gradient points."""
+        tol = (self.model.upper - self.model.lower) * (self.options.blend if self.options.bounds == "reparam" else 1e-12)
+        up = (c >= self.model.upper - tol) & (grad_c < 0)
+        lo = (c <= self.model.lower + tol) & (grad_c > 0)
+        names = self.model.winch_names
+        return tuple(names[i] for i in np.flatnonzero((up | lo) & ~self.frozen))
+
+    def _gradient(self, eq: Equilibrium, need_jacobian: bool):
+        """dO/dc (adjoint) and, for Gauss-Newton, the residual Jacobian."""
+        free = np.flatnonzero(~self.frozen)
+        if need_jacobian:
+            dxdc = state_sensitivity(self.model, eq, columns=free)
+            B = self.targets.selection(self.model.n_dofs)
+            J = (np.repeat(np.sqrt(self.targets.weight), 2)[:, None] * (B @ dxdc))
+            r = self.targets.residual(eq.x)
+            grad = J.T @ r
+            grad[self.frozen] = 0.0
+            return grad, J, dxdc
+        grad = objective_gradient(self.model, eq, self.targets.gradient(eq.x))
+        grad[self.frozen] = 0.0
+        return grad, None, None
+
+    def _start(self) -> Iterate:
+        self._t0 = time.perf_counter()
+        eq = self._solve(self.contraction, self._x0)
+        if not eq.converged:
+            raise SolverError(f"the starting equilibrium is not certified: {eq.status}")
+        self._eq = eq
+        self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
+        self.status = "running"
+        return self._iterate(eq, self._grad)
+
+    def iterates(self):
+        """Run the loop, yielding every accepted :class:`Iterate` (the first
+        is the starting equilibrium). Stops with ``self.status`` and
+        ``self.converged`` set; :meth:`result` collects the run."""
+        opts = self.options
+        if not self.history:
+            yield self._start()
+        stall = 0
+        steps = 0
+        while True:
+            if self._dirty:
+                # same certified pose, re-scored for the new targets / frozen set
+                self._dirty = False
+                self._grad, self._J, self._dxdc = self._gradient(
+                    self._eq, opts.direction == "gauss-newton")
+                stall = 0
+                yield self._iterate(self._eq, self._grad)
+            last = self.history[-1]
+            reason = self._stop_reason(last, stall, steps)
+            if reason is not None:
+                self.converged, self.status = reason
+                return
+            step = self._step(last)
+            if step is None:
+                return
+            steps += 1
+            if step.objective > last.objective * (1 - opts.ftol):
+                stall += 1
+            else:
+                stall = 0
+            yield step
+
+    def _stop_reason(self, last: Iterate, stall: int, steps: int):
+        opts = self.options
+        names = self.model.winch_names
+        free = ~self.frozen
+        bound_note = (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else "")
+        if self.targets.n_targets == 0:
+            return True, "no targets"
+        if not free.any():
+            return True, "every winch is frozen"
+        if last.objective <= opts.objective_floor:
+            return True, "targets reached" + bound_note
+        proj = last.gradient.copy()
+        proj[[names.index(n) for n in last.active_bounds]] = 0.0
+        span = float(np.mean(self.model.upper - self.model.lower))
+        if np.all(last.gradient[free] == 0.0):
+            slack = [names[i] for i in np.flatnonzero(free)]
+            return False, ("no free winch moves the targets (zero gradient: all tendons of "
+                           f"{', '.join(slack)} slack)")
+        if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, opts.objective_floor):
+            return True, "stationary: projected gradient below tolerance" + bound_note
+        if stall >= opts.patience:
+            return True, "objective stopped decreasing (relative decrease below ftol)" + bound_note
+        if steps >= opts.max_iterations:
+            return False, f"iteration limit ({opts.max_iterations}) reached" + bound_note
+        if opts.max_time is not None and last.t_wall >= opts.max_time:
+            return False, f"time limit ({opts.max_time:g} s) reached" + bound_note
+        return None
+
+    def _direction(self, last: Iterate, mu: float) -> np.ndarray:
+        """A step on xi (or on c for clipping) for the free winches."""
+        free = ~self.frozen
+        slope = (np.maximum(self.reparam.df(self.xi), self.options.slope_floor)
+                 if self.options.bounds == "reparam" else np.ones_like(self.xi))
+        g = last.gradient * slope
+        step = np.zeros_like(self.xi)
+        if self.options.direction == "gauss-newton":
+            J = self._J[:, free] * slope[free][None, :]
+            A = J.T @ J
+            A = A + mu * np.diag(np.diag(A)) + mu * 1e-6 * max(np.trace(A), 1e-300) * np.eye(A.shape[0])
+            step[free] = -np.linalg.solve(A, g[free])
+        else:
+            if self._bb_step is None:
+                span = float(np.mean(self.model.upper - self.model.lower))
+                self._bb_step = 0.1 * span / max(np.linalg.norm(g[free]), 1e-300)
+            step[free] = -self._bb_step * g[free]
+        limit = self.options.max_step * (self.model.upper - self.model.lower)
+        ratio = np.max(np.abs(step) / limit)
+        return step / ratio if ratio > 1 else step
+
+    def _step(self, last: Iterate) -> Iterate | None:
+        opts = self.options
+        gn = opts.direction == "gauss-newton"
+        for attempt in range(opts.max_backtracks):
+            step = self._direction(last, self._mu)
+            if not gn:
+                step = step * 0.5 ** attempt
+            xi_t = self.xi + step
+            if opts.bounds == "reparam":
+                xi_t = self.reparam.clamp(xi_t)
+            else:
+                xi_t = np.clip(xi_t, self.model.lower, self.model.upper)
+            xi_t[self.frozen] = self.xi[self.frozen]
+            c_t = self._f(xi_t)
+            c_t[self.frozen] = self.contraction[self.frozen]      # bit-identical
+            if np.array_equal(c_t, self.contraction):
+                self.converged, self.status = True, self._at_bounds_status(last)
+                return None
+            x0 = self._predict(c_t)
+            eq = self._solve(c_t, x0)
+            if eq.converged and self.targets.value(eq.x) < last.objective:
+                self._accept(xi_t, eq, last)
+                if gn:
+                    self._mu = max(self._mu / 3, 1e-12) if attempt == 0 else self._mu
+                return self._iterate(eq, self._grad)
+            if gn:
+                self._mu *= 10
+        self.converged = False
+        self.status = ("cannot decrease the objective further: line search failed"
+                       + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
+        return None
+
+    def _at_bounds_status(self, last: Iterate) -> str:
+        return ("stationary: every free winch is held at a bound"
+                + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
+
+    def _predict(self, c_t):
+        """First-order predictor x + dx/dc (c_t - c), if it is admissible."""
+        x = self._eq.x
+        if self._dxdc is not None:
+            xp = x + self._dxdc @ (c_t - self.contraction)
+            if self.model.admissible(xp):
+                return xp
+        return x
+
+    def _accept(self, xi_t, eq, last):
+        grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
+        if self.options.direction == "gradient":
+            # Barzilai-Borwein: s^T s / s^T y on xi
+            s = xi_t - self.xi
+            y = grad - last.gradient
+            sy = float(s @ y)
+            if sy > 0:
+                self._bb_step = float(s @ s) / sy
+        self.xi = xi_t
+        self.contraction = eq.contraction.copy()
+        self._eq = eq
+        self._grad = grad
+
+    def result(self) -> ControlResult:
+        """Run to the end (if not done yet) and collect the outcome."""
+        for _ in self.iterates():
+            pass
+        return ControlResult(self.converged, self.status, self.history[-1], tuple(self.history),
+                             self.options.bounds, time.perf_counter() - self._t0)
+
+
+def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,
+                  options: ControlOptions | None = None) -> ControlResult:
+    """Run the gradient loop to the end (see :class:`Controller`)."""
+    return Controller(model, targets, contraction, frozen, x0, options).result()

@@ -1,0 +1,111 @@
+"""The control objective O(x) = 1/2 sum_k w_k |y_k(x) - q_k|^2.
+
+A target is a body point given in rest coordinates: it lives in a rest
+triangle with barycentric weights beta, so y_k(x) = sum_i beta_k,i x_{e_k,i}
+does not depend on where the mesh happens to have nodes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import scipy.sparse as sp
+
+from .errors import SceneError
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Targets located in a mesh.
+
+    Attributes
+    ----------
+    triangles : (n_targets,) int, rest triangle of each target.
+    nodes : (n_targets, 3) int, that triangle's nodes.
+    beta : (n_targets, 3) barycentric weights (sum to 1).
+    to : (n_targets, 2) where each point should go (length units).
+    weight : (n_targets,) w_k > 0.
+    """
+
+    triangles: np.ndarray
+    nodes: np.ndarray
+    beta: np.ndarray
+    to: np.ndarray
+    weight: np.ndarray
+
+    def __post_init__(self):
+        for name, dtype, shape in (("triangles", np.int64, (-1,)), ("nodes", np.int64, (-1, 3)),
+                                   ("beta", np.float64, (-1, 3)), ("to", np.float64, (-1, 2)),
+                                   ("weight", np.float64, (-1,))):
+            arr = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=dtype).reshape(shape))
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if np.any(self.weight <= 0):
+            raise SceneError("targets: every weight must be > 0")
+
+    @property
+    def n_targets(self) -> int:
+        return self.triangles.shape[0]
+
+    @classmethod
+    def from_mesh(cls, mesh, scene) -> "Targets":
+        """The scene's targets, located by the mesher."""
+        tri = np.asarray(mesh.target_triangles, dtype=np.int64)
+        return cls(tri, mesh.triangles[tri], mesh.target_beta,
+                   [t.to for t in scene.targets] or np.zeros((0, 2)),
+                   [t.weight for t in scene.targets])
+
+    @classmethod
+    def empty(cls) -> "Targets":
+        return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0))
+
+    def replace_to(self, to) -> "Targets":
+        return Targets(self.triangles, self.nodes, self.beta, to, self.weight)
+
+    def selection(self, n_dofs: int) -> sp.csr_matrix:
+        """B = dy/dx, sparse (2 n_targets, n_dofs): y.ravel() = B x."""
+        k = self.n_targets
+        rows = np.stack([np.repeat(2 * np.arange(k), 3), np.repeat(2 * np.arange(k) + 1, 3)], 1)
+        cols = np.stack([2 * self.nodes.ravel(), 2 * self.nodes.ravel() + 1], 1)
+        vals = np.stack([self.beta.ravel(), self.beta.ravel()], 1)
+        return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * k, n_dofs))
+
+    def y(self, x) -> np.ndarray:
+        """Current positions of the target points, (n_targets, 2)."""
+        nodes = np.asarray(x, dtype=np.float64).reshape(-1, 2)
+        return np.einsum("kj,kjd->kd", self.beta, nodes[self.nodes])
+
+    def residual(self, x) -> np.ndarray:
+        """sqrt(w_k) (y_k - q_k), flat (2 n_targets,)."""
+        return (np.sqrt(self.weight)[:, None] * (self.y(x) - self.to)).reshape(-1)
+
+    def value(self, x) -> float:
+        r = self.residual(x)
+        return 0.5 * float(r @ r)
+
+    def gradient(self, x) -> np.ndarray:
+        """dO/dx, flat (n_dofs,)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        d = self.weight[:, None] * (self.y(x) - self.to)          # (k, 2)
+        g = np.zeros(x.size)
+        contrib = self.beta[:, :, None] * d[:, None, :]            # (k, 3, 2)
+        np.add.at(g.reshape(-1, 2), self.nodes, contrib)
+        return g
+
+    def errors(self, x) -> np.ndarray:
+        """|y_k - q_k| per target, (n_targets,)."""
+        return np.linalg.norm(self.y(x) - self.to, axis=1)
+
+    def rms_error(self, x) -> float:
+        e = self.errors(x)
+        return float(np.sqrt(np.mean(e**2))) if e.size else 0.0
+
+    def expression(self, x: ca.MX) -> ca.MX:
+        """O as a CasADi expression of the flat pose (bilevel control)."""
+        if self.n_targets == 0:
+            return ca.MX(0)
+        B = ca.DM(self.selection(x.shape[0]))
+        r = ca.diag(ca.DM(np.repeat(np.sqrt(self.weight), 2))) @ (B @ x - ca.DM(self.to.reshape(-1)))
+        return 0.5 * ca.sumsqr(r)
