@@ -1,0 +1,170 @@
+// Portable core of the plush winch board protocol (hw/PROTOCOL.md).
+//
+// Everything the protocol decides lives here: line framing, parsing,
+// argument validation, soft limits, the host watchdog and the per-axis
+// state. It has no Arduino dependency (only <stdint.h>, <stddef.h>), no
+// heap and no floating point, so the same file is compiled into the AVR
+// firmware and into the host emulator.
+//
+// The caller owns the motors:
+//
+//   loop:
+//     while a byte b is available:
+//       if (const char* reply = core.feed(b, now_ms)) write(reply);
+//     for each axis a: core.set_position(a, encoder_count[a]);
+//     core.update(now_ms);                       // watchdog
+//     for each axis a:
+//       if core.enabled(a): drive towards core.setpoint_raw(a)
+//                           at most at core.speed_limit(a) ticks/s
+//       else:               brake
+//
+// Positions given to set_position() are raw encoder counts; the core keeps
+// the offset set by ZERO, so setpoint_raw() is in the same raw counts.
+#ifndef PLUSH_PROTOCOL_CORE_H
+#define PLUSH_PROTOCOL_CORE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+namespace plush {
+
+// Fixed sizes. They are not configurable per translation unit on purpose:
+// the class layout must be the same in every file that includes this.
+const uint8_t kMaxAxes = 8;
+const uint8_t kProtocolVersion = 1;
+const size_t kMaxLine = 120;            // characters, terminator excluded
+const uint32_t kMaxSeq = 65535;
+const int32_t kMaxTicks = 1000000000L;  // |target|, |limit| <= this
+const int32_t kMaxSpeed = 1000000L;     // ticks/s
+const uint32_t kMinWatchdogMs = 20;
+const uint32_t kMaxWatchdogMs = 60000;
+
+// Error codes of "ERR <code> <message>" replies; the table in
+// hw/PROTOCOL.md and plush_opt/board/protocol.py must match.
+enum ErrorCode {
+  E_MALFORMED = 1,        // bad characters, no sequence number, no command
+  E_TOO_LONG = 2,         // line longer than kMaxLine characters
+  E_UNKNOWN_COMMAND = 3,  // command word not known
+  E_BAD_ARGUMENT = 4,     // wrong number of arguments or not a valid number
+  E_BAD_AXIS = 5,         // axis index >= number of winches
+  E_OUT_OF_LIMITS = 6,    // target outside the axis' soft limits
+  E_BUSY = 7,             // ZERO or LIMIT on an axis that is moving
+  E_CONFLICT = 8          // LIMIT would exclude the target of an enabled axis
+};
+
+enum StopReason { STOP_COMMAND = 0, STOP_WATCHDOG = 1, STOP_HANGUP = 2 };
+
+struct CoreConfig {
+  const char* board_name;        // reported by ID, [a-z0-9-]+
+  const char* firmware_version;  // reported by ID, e.g. "1.0.0"
+  uint8_t n_axes;                // 1..kMaxAxes
+  int32_t deadband;              // |target - position| <= deadband: not moving
+  uint32_t watchdog_ms;          // timeout at power-up
+  int32_t default_speed;         // speed limit at power-up, ticks/s
+};
+
+class ProtocolCore {
+ public:
+  explicit ProtocolCore(const CoreConfig& config);
+
+  // Feed one received byte. Returns a complete reply line (ending in "\n")
+  // when this byte completed a line that needs one, else a null pointer.
+  // The pointer stays valid until the next call of feed().
+  const char* feed(uint8_t byte, uint32_t now_ms);
+
+  // Run the watchdog. Call after set_position() in every control cycle.
+  void update(uint32_t now_ms);
+
+  // The measured position of an axis, raw encoder counts.
+  void set_position(uint8_t axis, int32_t raw_ticks);
+
+  // What the motor should do.
+  int32_t setpoint_raw(uint8_t axis) const;
+  bool enabled(uint8_t axis) const;
+  int32_t speed_limit(uint8_t axis) const;
+
+  // Stop every axis: target := position, drive disabled (brake).
+  void stop_all(StopReason reason);
+  // The host went away (serial hang-up): same as a stop.
+  void hangup() { stop_all(STOP_HANGUP); }
+
+  // Introspection (emulator state file, tests, debugging).
+  uint8_t n_axes() const { return n_axes_; }
+  int32_t position(uint8_t axis) const;  // after ZERO offset
+  int32_t target(uint8_t axis) const;
+  int32_t offset(uint8_t axis) const;
+  int32_t limit_lo(uint8_t axis) const;
+  int32_t limit_hi(uint8_t axis) const;
+  bool moving(uint8_t axis) const;
+  bool any_moving() const;
+  uint32_t watchdog_ms() const { return watchdog_ms_; }
+  uint32_t watchdog_trips() const { return stops_[STOP_WATCHDOG]; }
+  uint32_t stop_count(StopReason reason) const { return stops_[reason]; }
+  uint32_t lines() const { return lines_; }
+  uint32_t errors() const { return errors_; }
+
+ private:
+  struct Axis {
+    int32_t raw;      // last raw encoder count
+    int32_t offset;   // raw count that reads as 0
+    int32_t target;   // in zeroed ticks
+    int32_t lo, hi;   // soft limits, zeroed ticks
+    int32_t speed;    // ticks/s
+    bool enabled;
+  };
+
+  static const uint8_t kMaxTokens = 2 + kMaxAxes;  // seq, command, arguments
+  static const size_t kReplySize = 320;
+
+  const char* handle_line();
+  const char* reply_too_long();
+
+  // Commands; each writes the reply and returns it.
+  const char* cmd_id(uint8_t nargs);
+  const char* cmd_ping(uint8_t nargs);
+  const char* cmd_get(uint8_t nargs);
+  const char* cmd_set(uint8_t nargs);
+  const char* cmd_setall(uint8_t nargs);
+  const char* cmd_stop(uint8_t nargs);
+  const char* cmd_zero(uint8_t nargs);
+  const char* cmd_limit(uint8_t nargs);
+  const char* cmd_speed(uint8_t nargs);
+  const char* cmd_wdog(uint8_t nargs);
+
+  // Argument parsing: 0 on success, else the error code.
+  int parse_axis(const char* token, uint8_t* axis) const;
+
+  // Reply construction.
+  void begin_ok();
+  const char* finish();
+  const char* error(int code, const char* message);
+  const char* error_noseq(int code, const char* message);
+  void put(const char* s);
+  void put_char(char c);
+  void put_int(int32_t v);
+  void put_uint(uint32_t v);
+
+  CoreConfig config_;
+  uint8_t n_axes_;
+  Axis axes_[kMaxAxes];
+  uint32_t watchdog_ms_;
+  uint32_t last_rx_ms_;
+  uint32_t stops_[3];
+  uint32_t lines_;
+  uint32_t errors_;
+
+  char line_[kMaxLine + 1];
+  size_t line_len_;
+  bool overflow_;
+
+  const char* tokens_[kMaxTokens];
+  uint8_t n_tokens_;
+  uint32_t seq_;
+
+  char reply_[kReplySize];
+  size_t reply_len_;
+};
+
+}  // namespace plush
+
+#endif  // PLUSH_PROTOCOL_CORE_H
