@@ -142,11 +142,17 @@ def solve_equilibrium(model: Model, contraction, x0=None,
 # --------------------------------------------------------------------------
 
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
-    """Round-off allowance for comparing energies near convergence."""
-    size = abs(ev_energy)
+    """Round-off allowance for comparing energies near convergence.
+
+    The Neo-Hookean density is a small difference of O(mu) terms
+    (tr F^T F - 2 against 2 ln J), so E carries an absolute round-off of
+    about machine epsilon times mu, lambda and the body volume, however
+    small E itself is.
+    """
+    size = abs(ev_energy) + model.energy_roundoff_scale
     if model.has_gravity:
         size += abs(model.f_gravity @ x)
-    return 1e-12 * size + 1e-300
+    return 1e-13 * size
 
 
 def _regularised_factor(model: Model, H) -> Factor:
@@ -254,9 +260,17 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
         for k in range(options.max_backtracks):
             xt = x + alpha * dx
             et = model.evaluate(xt, c, order=2 if k == 0 else 0)
-            if et.admissible and np.isfinite(et.energy) and \
-                    et.energy <= ev.energy + options.armijo * alpha * slope + slack:
+            if not (et.admissible and np.isfinite(et.energy)):
+                alpha *= 0.5
+                continue
+            if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
                 accepted = (xt, et if k == 0 else model.evaluate(xt, c, order=2))
+                break
+            if k == 0 and et.energy <= ev.energy + 100 * slack and \
+                    np.linalg.norm(et.gradient) < 0.5 * np.linalg.norm(g):
+                # energy differences at round-off level: judge the full
+                # Newton step by the residual it leaves instead
+                accepted = (xt, et)
                 break
             alpha *= 0.5
         if accepted is None:

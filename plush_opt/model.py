@@ -185,6 +185,9 @@ class Model:
         self._Dinv = np.ascontiguousarray(Dinv.transpose(0, 2, 1).reshape(-1, 4))
         self._elem_dofs = _dofs(tri)                      # (n_elems, 6)
         self._elem_weight = mat.thickness * self.rest_area
+        # energy of a unit strain over the body: sets the absolute round-off
+        # of E (the solvers compare energies against it)
+        self.energy_roundoff_scale = float((mat.mu + mat.lam) * self._elem_weight.sum())
         # mapped kernels take one element per column; a C-ordered
         # (n_elems, k) array is exactly that column-major (k, n_elems) buffer
         consts = {1: self._Dinv, 2: self._elem_weight,

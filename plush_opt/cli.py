@@ -1,0 +1,314 @@
+"""The ``plush-opt`` command line.
+
+Every error a user can cause ends as one line on stderr and a non-zero
+exit status, never a traceback (``--debug`` shows it):
+
+    0  success              2  bad input (file, option)
+    3  solver did not converge (the result is still written, honestly)
+    4  hardware error       130  interrupted
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import logging
+import os
+import sys
+import time
+from pathlib import Path
+
+from .errors import HardwareError, PlushError, SceneError, SolverError
+
+log = logging.getLogger("plush_opt")
+
+EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERRUPT = 0, 2, 3, 4, 130
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
+
+
+def _contraction_arg(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        v = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a number") from None
+    if v != v or v in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a finite number")
+    return name, v
+
+
+# --------------------------------------------------------------------------
+# solve
+# --------------------------------------------------------------------------
+
+def _add_solve(sub):
+    p = sub.add_parser("solve", help="solve a problem file: forward pose, or control to its targets",
+                       description="Without targets (or with --method forward): the equilibrium "
+                       "at the given contractions. With targets: winch contractions that bring "
+                       "the equilibrium to them.")
+    p.add_argument("problem", type=Path, help="problem file (YAML, format plush-opt/1)")
+    p.add_argument("--contraction", "-c", action="append", type=_contraction_arg, default=[],
+                   metavar="NAME=VALUE", help="contraction of a winch (forward input, or where "
+                   "control starts); repeatable")
+    p.add_argument("--freeze", action="append", default=[], metavar="NAME",
+                   help="freeze a winch during control (keeps its contraction); repeatable")
+    p.add_argument("--method", choices=("forward", "reparam", "clip", "bilevel"), default=None,
+                   help="forward: equilibrium only; reparam (default with targets): the gradient "
+                   "loop with reparametrised bounds; clip: the same loop clipping c; "
+                   "bilevel: IPOPT on the KKT formulation")
+    p.add_argument("--equilibrium", choices=("newton", "ipopt"), default="newton",
+                   help="equilibrium backend (default newton; ipopt for cross-checks)")
+    p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
+    p.add_argument("--plot", type=Path, help="write a PNG of the pose here")
+    p.add_argument("--trace", type=Path, help="write the control iterate history (CSV) here")
+    p.add_argument("--max-iterations", type=int, default=None, help="control iterations at most")
+    p.add_argument("--max-time", type=float, default=None, help="control seconds at most")
+    p.set_defaults(func=cmd_solve)
+
+
+def _contractions(scene, pairs) -> "list[float]":
+    import numpy as np
+    c = scene.contraction.copy()
+    names = scene.winch_names
+    for name, value in pairs:
+        if name not in names:
+            raise SceneError(f"--contraction {name}={value:g}: no winch named {name!r} "
+                             f"(winches: {', '.join(names)})")
+        i = names.index(name)
+        lo, hi = scene.winches[i].bounds
+        if not lo <= value <= hi:
+            raise SceneError(f"--contraction {name}={value:g}: outside the winch's bounds [{lo:g}, {hi:g}]")
+        c[i] = value
+    return np.asarray(c)
+
+
+def _frozen(scene, names):
+    frozen = scene.frozen.copy()
+    for name in names:
+        if name not in scene.winch_names:
+            raise SceneError(f"--freeze {name}: no winch named {name!r} "
+                             f"(winches: {', '.join(scene.winch_names)})")
+        frozen[scene.winch_names.index(name)] = True
+    return frozen
+
+
+def write_trace(path, model, targets, history) -> None:
+    """Iterate history as CSV, written atomically."""
+    from .results import write_text_atomic
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    names = list(model.winch_names)
+    w.writerow(["iteration", "t_wall_s", "objective", "rms_target_error"]
+               + [f"c_{n}" for n in names] + [f"dO_dc_{n}" for n in names]
+               + ["active_bounds", "equilibrium_solves", "newton_iterations", "residual_norm"])
+    for h in history:
+        w.writerow([h.iteration, f"{h.t_wall:.6f}", repr(h.objective), repr(targets.rms_error(h.x)),
+                    *[repr(float(c)) for c in h.contraction], *[repr(float(g)) for g in h.gradient],
+                    " ".join(h.active_bounds), h.equilibrium_solves, h.newton_iterations,
+                    repr(h.equilibrium.residual_norm)])
+    write_text_atomic(path, buf.getvalue())
+
+
+def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, equilibrium="newton",
+                  max_iterations=None, max_time=None):
+    """Load, mesh, model and solve one problem; returns (model, targets, doc, history).
+
+    The shared path of ``solve`` and ``demo``.
+    """
+    from .control.gradient import ControlOptions, Controller
+    from .equilibrium import EquilibriumOptions, solve_equilibrium
+    from .mesh import build_mesh
+    from .model import build_model
+    from .objective import Targets
+    from .results import result_dict
+
+    t0 = time.perf_counter()
+    scene = load(problem)
+    mesh = build_mesh(scene)
+    model = build_model(scene, mesh)
+    targets = Targets.from_mesh(mesh, scene)
+    c = _contractions(scene, contraction_pairs)
+    frozen = _frozen(scene, freeze)
+    if method is None:
+        method = "reparam" if targets.n_targets else "forward"
+    if method != "forward" and not targets.n_targets:
+        raise SceneError(f"{scene.source}: targets: --method {method} needs targets; the file has none")
+    eq_opts = EquilibriumOptions(backend=equilibrium)
+    history = ()
+    t_solve = time.perf_counter()
+    if method == "forward":
+        eq = solve_equilibrium(model, c, options=eq_opts)
+        converged, status, iterations = eq.converged, eq.status, eq.iterations
+        extra = {}
+    elif method in ("reparam", "clip"):
+        opts = ControlOptions(bounds=method, equilibrium=EquilibriumOptions(backend=equilibrium,
+                                                                            eigenvalue=False))
+        if max_iterations is not None:
+            opts = _replace(opts, max_iterations=max_iterations)
+        if max_time is not None:
+            opts = _replace(opts, max_time=max_time)
+        ctl = Controller(model, targets, c, frozen, options=opts)
+        for it in ctl.iterates():
+            log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
+                     ", ".join(f"{n}={v:.4f}" for n, v in zip(model.winch_names, it.contraction)))
+        res = ctl.result()
+        # the final pose again with the eigenvalue, for the result file
+        eq = solve_equilibrium(model, res.contraction, res.equilibrium.x, eq_opts)
+        converged = res.converged and eq.converged
+        status = res.status if eq.converged else f"{res.status}; final pose: {eq.status}"
+        iterations = len(res.history) - 1
+        history = res.history
+        extra = {"control": {"equilibrium_solves": res.final.equilibrium_solves,
+                             "newton_iterations": res.final.newton_iterations,
+                             "active_bounds": list(res.final.active_bounds),
+                             "frozen": [n for n, f in zip(model.winch_names, frozen) if f]}}
+    else:
+        from .control.bilevel import BilevelOptions, solve_bilevel
+        res = solve_bilevel(model, targets, c, frozen, options=BilevelOptions())
+        eq = res.equilibrium
+        converged, status, iterations = res.converged, res.status, res.iterations
+        extra = {"bilevel": res.info}
+    t_end = time.perf_counter()
+    doc = result_dict(model, targets, eq, method=method, converged=converged, status=status,
+                      total_s=t_end - t0, solve_s=t_end - t_solve, iterations=iterations,
+                      extra=extra)
+    return model, targets, eq, doc, history
+
+
+def _replace(opts, **kw):
+    import dataclasses
+    return dataclasses.replace(opts, **kw)
+
+
+def load(problem: Path):
+    from .scene import load_scene
+    return load_scene(problem)
+
+
+def cmd_solve(args) -> int:
+    from .results import write_json_atomic
+    model, targets, eq, doc, history = solve_problem(
+        args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
+        args.max_iterations, args.max_time)
+    if args.out:
+        write_json_atomic(args.out, doc)
+    if args.plot:
+        from .plot import plot_pose
+        _use_agg()
+        plot_pose(args.plot, model, eq.x, eq.contraction, targets if targets.n_targets else None)
+    if args.trace:
+        if history:
+            write_trace(args.trace, model, targets, history)
+        else:
+            raise SceneError("--trace: only a control run has an iterate history")
+    cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
+    summary = (f"{doc['problem']}: {doc['method']}: {doc['status']}; {cs}; "
+               f"objective {doc['objective']:.6g}; residual {doc['residual_norm']:.3g}; "
+               f"{doc['timing']['total_s']:.3f} s")
+    print(summary)
+    if not doc["converged"]:
+        print(f"plush-opt: not converged: {doc['status']}", file=sys.stderr)
+        return EXIT_SOLVER
+    return EXIT_OK
+
+
+def _use_agg():
+    import matplotlib
+    if not os.environ.get("DISPLAY") and matplotlib.get_backend().lower() != "agg":
+        matplotlib.use("Agg")
+
+
+# --------------------------------------------------------------------------
+# demo
+# --------------------------------------------------------------------------
+
+def _add_demo(sub):
+    p = sub.add_parser("demo", help="the main job on the default problem (what `make demo` runs)")
+    p.add_argument("--problem", type=Path, default=None, help="default: problems/gripper.yaml")
+    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
+    p.set_defaults(func=cmd_demo)
+
+
+def default_problem() -> Path:
+    return Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"
+
+
+def cmd_demo(args) -> int:
+    from .plot import plot_pose, plot_trace
+    from .results import write_json_atomic
+    _use_agg()
+    problem = args.problem or default_problem()
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"demo: solving {problem.name} (control to its targets)")
+    model, targets, eq, doc, history = solve_problem(problem)
+    write_json_atomic(out / "result.json", doc)
+    plot_pose(out / "pose.png", model, eq.x, eq.contraction, targets)
+    plot_trace(out / "trace.png", history, title=f"{model.scene.name}: control iterates")
+    write_trace(out / "trace.csv", model, targets, history)
+    err = targets.errors(eq.x)
+    print(f"demo: {doc['status']}; {len(history) - 1} iterates, "
+          f"{doc['control']['equilibrium_solves']} equilibrium solves, {doc['timing']['total_s']:.2f} s")
+    print("demo: contractions " + ", ".join(f"{n} = {v:.3f} mm" for n, v in doc["contractions"].items()))
+    print(f"demo: target errors {', '.join(f'{e:.2f}' for e in err)} mm; "
+          f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
+    print(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
+    return EXIT_OK if doc["converged"] else EXIT_SOLVER
+
+
+# --------------------------------------------------------------------------
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+    parser = _Parser(prog="plush-opt", description="Optimisation-centric control of plush robots.")
+    parser.add_argument("--version", action="version", version=f"plush-opt {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    _add_solve(sub)
+    _add_demo(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("plush-opt: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPT
+    except (SceneError, argparse.ArgumentTypeError) as exc:
+        if args.debug:
+            raise
+        print(f"plush-opt: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except HardwareError as exc:
+        if args.debug:
+            raise
+        print(f"plush-opt: hardware error: {exc}", file=sys.stderr)
+        return EXIT_HARDWARE
+    except (SolverError, PlushError) as exc:
+        if args.debug:
+            raise
+        print(f"plush-opt: solver error: {exc}", file=sys.stderr)
+        return EXIT_SOLVER
+    except OSError as exc:
+        if args.debug:
+            raise
+        print(f"plush-opt: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        return EXIT_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

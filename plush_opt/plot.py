@@ -1,0 +1,109 @@
+"""Figures of poses and control runs (matplotlib; never imported by solvers)."""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection, PolyCollection
+
+REST_COLOR = "#b0b0b0"
+BODY_COLOR = "#f3d9b1"   # felt
+EDGE_COLOR = "#8a6d4b"
+PIN_COLOR = "#222222"
+TARGET_COLOR = "#d62728"
+TENDON_CMAP = "viridis"
+
+
+def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=True,
+              tension_max=None, colorbar=True):
+    """Draw rest pose (faint), deformed mesh, tendons coloured by tension,
+    pins and targets on ``ax``. Returns the artists that change with x
+    (for interactive updates)."""
+    X = model.X.reshape(-1, 2)
+    xn = np.asarray(x, dtype=np.float64).reshape(-1, 2)
+    tri = model.mesh.triangles
+    artists = {}
+    if show_rest:
+        ax.add_collection(PolyCollection(X[tri], facecolors="none", edgecolors=REST_COLOR,
+                                         linewidths=0.3, alpha=0.6, zorder=1))
+    body = PolyCollection(xn[tri], facecolors=BODY_COLOR, edgecolors=EDGE_COLOR,
+                          linewidths=0.35, zorder=2)
+    ax.add_collection(body)
+    artists["body"] = body
+
+    state = model.tendon_state(xn.reshape(-1), contraction)
+    tension = state["tension"]
+    vmax = tension_max if tension_max is not None else max(float(tension.max(initial=0.0)), 1e-9)
+    segs = [xn[p] for p in model.tendon_paths]
+    tendons = LineCollection(segs, cmap=TENDON_CMAP, linewidths=2.2, zorder=4)
+    tendons.set_array(tension)
+    tendons.set_clim(0.0, vmax)
+    ax.add_collection(tendons)
+    artists["tendons"] = tendons
+    if colorbar and model.n_tendons:
+        cb = ax.figure.colorbar(tendons, ax=ax, fraction=0.04, pad=0.02)
+        cb.set_label("tendon tension [N]")
+        artists["colorbar"] = cb
+    ends = np.array([xn[p[0]] for p in model.tendon_paths]) if model.n_tendons else np.zeros((0, 2))
+    artists["stoppers"] = ax.plot(ends[:, 0], ends[:, 1], "o", ms=3.5, color="#444", zorder=5)[0]
+
+    pins = xn[model.pin_nodes]
+    ax.plot(X[model.pin_nodes, 0], X[model.pin_nodes, 1], "^", ms=5, color=PIN_COLOR,
+            zorder=6, label="pins")
+    artists["pins"] = pins
+    if targets is not None and targets.n_targets:
+        y = targets.y(xn.reshape(-1))
+        q = targets.to
+        artists["target_lines"] = LineCollection(np.stack([y, q], axis=1), colors=TARGET_COLOR,
+                                                 linestyles="dotted", linewidths=1.0, zorder=6)
+        ax.add_collection(artists["target_lines"])
+        artists["targets"] = ax.plot(q[:, 0], q[:, 1], "x", color=TARGET_COLOR, ms=9, mew=2,
+                                     zorder=7, label="targets")[0]
+        artists["points"] = ax.plot(y[:, 0], y[:, 1], "o", mfc="white", mec=TARGET_COLOR, ms=5,
+                                    zorder=7, label="target points")[0]
+    allpts = np.vstack([X, xn] + ([targets.to] if targets is not None and targets.n_targets else []))
+    lo, hi = allpts.min(axis=0), allpts.max(axis=0)
+    pad = 0.06 * (hi - lo).max()
+    ax.set_xlim(lo[0] - pad, hi[0] + pad)
+    ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [mm]")
+    ax.set_ylabel("y [mm]")
+    if title:
+        ax.set_title(title, fontsize=10)
+    return artists
+
+
+def contraction_label(model, contraction) -> str:
+    return ", ".join(f"{n} = {c:.2f} mm" for n, c in zip(model.winch_names, contraction))
+
+
+def plot_pose(path, model, x, contraction, targets=None, title=None):
+    """Write a PNG of one pose."""
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=120)
+    draw_pose(ax, model, x, contraction, targets,
+              title=title or f"{model.scene.name}: {contraction_label(model, contraction)}")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def plot_trace(path, history, title=None):
+    """Objective against iterate and against wall time of a control run."""
+    it = [h.iteration for h in history]
+    obj = np.array([max(h.objective, 1e-300) for h in history])
+    t = [h.t_wall for h in history]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6), dpi=120)
+    a.semilogy(it, obj, "o-", ms=3)
+    a.set_xlabel("iterate")
+    a.set_ylabel("objective O [mm$^2$]")
+    b.semilogy(t, obj, "o-", ms=3)
+    b.set_xlabel("wall time [s]")
+    b.set_ylabel("objective O [mm$^2$]")
+    for ax in (a, b):
+        ax.grid(True, which="both", alpha=0.3)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

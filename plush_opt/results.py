@@ -1,0 +1,121 @@
+"""Result files (``plush-opt-result/1``): self-contained JSON, written atomically.
+
+The file holds the model (rest mesh, material, pins, tendons, winches,
+targets) as well as the solution, so anyone can rebuild E and O from it
+with numpy alone (tests/spec_checker.py does exactly that).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .equilibrium import Equilibrium
+from .model import Model
+from .objective import Targets
+
+FORMAT = "plush-opt-result/1"
+METHODS = ("forward", "reparam", "bilevel", "clip")
+
+
+def model_dict(model: Model, targets: Targets) -> dict:
+    """The spec's ``model`` section."""
+    scene = model.scene
+    mat = scene.material
+    return {
+        "rest_nodes": model.X.reshape(-1, 2).tolist(),
+        "triangles": model.mesh.triangles.tolist(),
+        "material": {"mu": mat.mu, "lambda": mat.lam, "thickness": mat.thickness,
+                     "density": mat.density},
+        "gravity": None if scene.gravity is None else list(map(float, scene.gravity)),
+        "pins": {"stiffness": scene.pin_stiffness, "nodes": model.pin_nodes.tolist()},
+        "tendons": {
+            "stiffness": scene.tendon_stiffness,
+            "smoothing": scene.tendon_smoothing,
+            "list": [{"name": t.name, "winch": t.winch, "nodes": p.tolist(),
+                      "assembly_length": float(a)}
+                     for t, p, a in zip(scene.tendons, model.tendon_paths, model.assembly_length)],
+        },
+        "winches": [{"name": w.name, "bounds": [float(w.bounds[0]), float(w.bounds[1])],
+                     "frozen": bool(f)}
+                    for w, f in zip(scene.winches, scene.frozen)],
+        "targets": [{"triangle": int(e), "barycentric": b.tolist(), "to": q.tolist(),
+                     "weight": float(w)}
+                    for e, b, q, w in zip(targets.triangles, targets.beta, targets.to, targets.weight)],
+    }
+
+
+def _finite(v):
+    """JSON has no inf/nan: report them as null."""
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
+                converged: bool, status: str, total_s: float, solve_s: float,
+                iterations: int, extra: dict | None = None) -> dict:
+    """The spec's result document for one solve."""
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    tension = model.tendon_state(eq.x, eq.contraction)["tension"]
+    doc = {
+        "format": FORMAT,
+        "problem": model.scene.name,
+        "method": method,
+        "converged": bool(converged),
+        "status": status,
+        "contractions": {n: float(c) for n, c in zip(model.winch_names, eq.contraction)},
+        "nodes": eq.x.reshape(-1, 2).tolist(),
+        "objective": float(targets.value(eq.x)) if targets.n_targets else 0.0,
+        "residual_norm": _finite(eq.residual_norm),
+        "min_hessian_eigenvalue": _finite(eq.min_eigenvalue),
+        "timing": {"total_s": float(total_s), "solve_s": float(solve_s),
+                   "iterations": int(iterations)},
+        "model": model_dict(model, targets),
+        # extras (allowed by the spec)
+        "equilibrium": {
+            "backend": eq.backend, "converged": bool(eq.converged), "status": eq.status,
+            "energy": _finite(eq.energy), "force_scale": _finite(eq.force_scale),
+            "relative_residual": _finite(eq.relative_residual),
+            "positive_definite": bool(eq.positive_definite),
+            "newton_iterations": int(eq.iterations),
+        },
+        "tendon_tension": {t.name: float(v) for t, v in zip(model.scene.tendons, tension)},
+        "target_error": targets.errors(eq.x).tolist(),
+    }
+    if extra:
+        doc.update(extra)
+    return doc
+
+
+def write_json_atomic(path, doc: dict) -> Path:
+    """Write ``doc`` as JSON to ``path`` atomically (see :func:`write_text_atomic`)."""
+    return write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+
+
+def write_text_atomic(path, text: str) -> Path:
+    """Write ``text`` to ``path`` so that a crash leaves either the old file
+    or the complete new one, never a partial file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return path
