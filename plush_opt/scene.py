@@ -218,13 +218,20 @@ class _YamlRefused(yaml.YAMLError):
         self.mark = mark
 
 
-# YAML 1.1 (PyYAML) reads 1e-9 and 2.0e11 as strings; users mean numbers.
+# A float with an exponent, as YAML 1.2 and JSON write it.
 _FLOAT_12 = re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$")
 
 
-class _Loader(yaml.SafeLoader):
-    """Safe loader that refuses anchors and aliases (no "billion laughs"),
-    merge keys and duplicate keys, and reads ``1e-9`` as a number."""
+class _Resolver(yaml.resolver.Resolver):
+    """YAML 1.1 (PyYAML) reads 1e-9 and 2.0e11 as strings; users mean numbers."""
+
+
+_Resolver.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+
+
+class _Guard:
+    """Refuses anchors and aliases (so no "billion laughs"), merge keys and
+    duplicate keys while composing and constructing."""
 
     def compose_node(self, parent, index):
         event = self.peek_event()
@@ -252,7 +259,34 @@ class _Loader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-_Loader.add_implicit_resolver("tag:yaml.org,2002:float", _FLOAT_12, list("-+0123456789."))
+class _Loader(_Guard, yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser,
+              yaml.composer.Composer, yaml.constructor.SafeConstructor, _Resolver):
+    """Pure-Python safe loader with the guards."""
+
+    def __init__(self, stream):
+        yaml.reader.Reader.__init__(self, stream)
+        yaml.scanner.Scanner.__init__(self)
+        yaml.parser.Parser.__init__(self)
+        yaml.composer.Composer.__init__(self)
+        yaml.constructor.SafeConstructor.__init__(self)
+        _Resolver.__init__(self)
+
+
+try:
+    from yaml._yaml import CParser as _CParser
+except ImportError:                      # PyYAML built without libyaml
+    _CParser = None
+else:
+    class _CLoader(_Guard, yaml.composer.Composer, _CParser, yaml.constructor.SafeConstructor,
+                   _Resolver):
+        """libyaml scans and parses (fast); composing stays in Python so the
+        guards see every event."""
+
+        def __init__(self, stream):
+            _CParser.__init__(self, stream)
+            yaml.composer.Composer.__init__(self)
+            yaml.constructor.SafeConstructor.__init__(self)
+            _Resolver.__init__(self)
 
 
 def _duplicate_key_path(node) -> str | None:
@@ -277,7 +311,7 @@ def _duplicate_key_path(node) -> str | None:
 
 
 def _parse_yaml(text: str, source: str):
-    loader = _Loader(text)
+    loader = (_Loader if _CParser is None else _CLoader)(text)
     try:
         node = loader.get_single_node()
         if node is None:
@@ -293,7 +327,7 @@ def _parse_yaml(text: str, source: str):
         mark = exc.problem_mark or exc.context_mark
         line = f"line {mark.line + 1}: " if mark is not None else ""
         what = " ".join(p for p in (exc.context, exc.problem) if p)
-        raise SceneError(f"{source}: {line}YAML syntax error: {what}") from None
+        raise SceneError(f"{source}: {line}invalid YAML: {what}") from None
     except yaml.YAMLError as exc:
         raise SceneError(f"{source}: YAML error: {exc}") from None
     except RecursionError:
@@ -606,8 +640,8 @@ def _mesh_section(ck: _Check, mesh) -> dict:
                 hole = ck.points(h, hp, min_len=3)
                 _check_ring(ck, hole, hp)
                 holes.append(hole)
-        _check_ring_layout(ck, outline, holes)
-        out.update(outline=outline, holes=holes)
+        out.update(outline=outline, holes=holes, diameter=diameter(outline))
+        _check_ring_layout(ck, outline, holes, POINT_TOL * out["diameter"])
         if "max_area" in has:
             out["max_area"] = ck.number(mesh["max_area"], "mesh.max_area", gt=0)
         if "min_angle" in has:
@@ -616,7 +650,6 @@ def _mesh_section(ck: _Check, mesh) -> dict:
                 ck.fail("mesh.min_angle", f"must be <= {MAX_MIN_ANGLE:g} degrees (the mesher "
                         f"may not terminate above), got {_fmt(a)}")
             out["min_angle"] = a
-        out["diameter"] = diameter(outline)
         return out
     if "nodes" not in has and "triangles" not in has:
         ck.fail("mesh", "give mesh.outline, or mesh.nodes and mesh.triangles")
@@ -828,20 +861,19 @@ def diameter(points) -> float:
         d = pts[-1] - pts[0]
         s = pts @ d
         return float(np.hypot(*(pts[np.argmax(s)] - pts[np.argmin(s)])))
-    # rotating calipers over the hull's antipodal pairs
-    h = hull.tolist()
-    n = len(h)
-
-    def area2(a, b, c):
-        return abs((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
-
-    best, j = 0.0, 1
-    for i in range(n):
-        a, b = h[i], h[(i + 1) % n]
-        while area2(a, b, h[(j + 1) % n]) > area2(a, b, h[j]):
-            j = (j + 1) % n
-        best = max(best, math.dist(a, h[j]), math.dist(b, h[j]))
-    return best
+    # Antipodal pairs of the convex hull: for each edge, the vertex where the
+    # edge direction turned by pi falls (edge angles increase around a convex
+    # counter-clockwise polygon); the diameter is attained at such a pair.
+    n = len(hull)
+    edge = np.roll(hull, -1, axis=0) - hull
+    ang = np.unwrap(np.arctan2(edge[:, 1], edge[:, 0]))
+    ext = np.concatenate([ang, ang + 2 * np.pi, ang + 4 * np.pi])
+    j = np.searchsorted(ext, ang + np.pi)
+    i = np.arange(n)
+    cand_i = np.concatenate([i, i + 1, i, i + 1, i, i + 1]) % n
+    cand_j = np.concatenate([j, j, j - 1, j - 1, j + 1, j + 1]) % n
+    d = hull[cand_i] - hull[cand_j]
+    return float(np.sqrt(np.max(np.einsum("ij,ij->i", d, d))))
 
 
 def ring_area(ring: np.ndarray) -> float:
@@ -876,11 +908,11 @@ def _check_ring(ck: _Check, ring: np.ndarray, path: str):
         ck.fail(path, f"not a simple polygon: edge {a} (from point {a}) crosses or touches "
                 f"edge {b} (from point {b})")
     area = abs(ring_area(ring))
-    if not area > 1e-12 * diameter(ring) ** 2:
+    if not area > 1e-12 * float(np.sum(np.ptp(ring, axis=0) ** 2)):
         ck.fail(path, "polygon has zero area")
 
 
-def _check_ring_layout(ck: _Check, outline: np.ndarray, holes: list):
+def _check_ring_layout(ck: _Check, outline: np.ndarray, holes: list, tol: float):
     """Holes strictly inside the outline and disjoint from each other."""
     if not holes:
         return
@@ -890,7 +922,6 @@ def _check_ring_layout(ck: _Check, outline: np.ndarray, holes: list):
         (ra, _), (rb, _) = sorted(hit)
         other = "the outline" if ra == 0 else f"mesh.holes[{ra - 1}]"
         ck.fail(_idx("mesh.holes", rb - 1), f"crosses or touches {other}")
-    tol = POINT_TOL * diameter(outline)
     for i, h in enumerate(holes):
         if classify_points(h[:1], [outline], tol)[0] <= 0:
             ck.fail(_idx("mesh.holes", i), "lies outside the outline (holes must be strictly "
