@@ -25,6 +25,7 @@ FORMAT = "plush-opt/1"
 MAX_FILE_BYTES = 1 << 20          # 1 MiB: problem files are small; refuse before parsing
 POINT_TOL = 1e-9                  # coincidence tolerance, relative to the body diameter
 MAX_MIN_ANGLE = 34.0              # Triangle may not terminate above about 34 degrees
+MAX_COORD = 1e12                  # keeps squared lengths and areas far from overflow
 
 
 def _points(a, ncols=2) -> np.ndarray:
@@ -499,7 +500,12 @@ class _Check:
             value = list(value)
         if not isinstance(value, (list, tuple)) or len(value) != 2:
             self.fail(path, f"expected a point [x, y], got {_describe(value)}")
-        return (self.number(value[0], _idx(path, 0)), self.number(value[1], _idx(path, 1)))
+        xy = (self.number(value[0], _idx(path, 0)), self.number(value[1], _idx(path, 1)))
+        for i, v in enumerate(xy):
+            if abs(v) > MAX_COORD:
+                self.fail(_idx(path, i), f"{_fmt(v)} is too large (coordinates are limited to "
+                          f"{MAX_COORD:g} in magnitude)")
+        return xy
 
     def points(self, value, path, *, min_len=1) -> np.ndarray:
         value = self.seq(value, path, min_len=min_len, what="list of points [[x, y], ...]")
@@ -590,8 +596,9 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
         if bad.size:
             j = int(bad[0]) + 1
             ck.fail(_idx(_key(_idx("tendons.list", i), "path"), j),
-                    f"point {_fmt_point(t.path[j])} repeats the previous via point; "
-                    "consecutive via points must be distinct")
+                    f"point {_fmt_point(t.path[j])} repeats the previous via point (closer "
+                    f"than {tol:.3g} = 1e-9 x body diameter); consecutive via points must be "
+                    "distinct")
     if geo["nodes"] is not None:
         _check_points_are_nodes(ck, geo["nodes"], forced, tol)
         tri_pts = geo["nodes"][geo["triangles"]]
@@ -754,6 +761,8 @@ def _material_section(ck: _Check, mat) -> Material:
         lam = ck.number(mat["lambda"], "material.lambda", gt=0)
     else:
         ck.fail("material", "give youngs_modulus and poisson_ratio, or mu and lambda")
+    if not (math.isfinite(mu) and math.isfinite(lam)):
+        ck.fail("material", f"the Lame parameters overflow (mu = {mu:g}, lambda = {lam:g})")
     thickness = ck.number(mat["thickness"], "material.thickness", gt=0)
     density = _opt(mat, "density")
     if density is not None:
@@ -771,6 +780,10 @@ def _pins_section(ck: _Check, pins):
         if not isinstance(box, (list, tuple)) or len(box) != 4:
             ck.fail("pins.box", f"expected [xmin, ymin, xmax, ymax], got {_describe(box)}")
         box = np.array([ck.number(v, _idx("pins.box", i)) for i, v in enumerate(box)])
+        big = np.flatnonzero(np.abs(box) > MAX_COORD)
+        if big.size:
+            ck.fail(_idx("pins.box", int(big[0])), f"{_fmt(box[big[0]])} is too large "
+                    f"(coordinates are limited to {MAX_COORD:g} in magnitude)")
         if box[0] > box[2]:
             ck.fail("pins.box", f"xmin {_fmt(box[0])} > xmax {_fmt(box[2])}")
         if box[1] > box[3]:
@@ -922,13 +935,29 @@ def _check_ring_layout(ck: _Check, outline: np.ndarray, holes: list, tol: float)
         (ra, _), (rb, _) = sorted(hit)
         other = "the outline" if ra == 0 else f"mesh.holes[{ra - 1}]"
         ck.fail(_idx("mesh.holes", rb - 1), f"crosses or touches {other}")
-    for i, h in enumerate(holes):
-        if classify_points(h[:1], [outline], tol)[0] <= 0:
+    # no edges cross, so one vertex tells where a whole hole lies
+    first = np.array([h[0] for h in holes])
+    where = classify_points(first, [outline], tol)
+    for i in range(len(holes)):
+        if where[i] == 0:
+            ck.fail(_idx("mesh.holes", i), "touches the outline (holes must be strictly inside)")
+        if where[i] < 0:
             ck.fail(_idx("mesh.holes", i), "lies outside the outline (holes must be strictly "
                     "inside)")
-        for j, g in enumerate(holes):
-            if j != i and classify_points(h[:1], [g], tol)[0] >= 0:
-                ck.fail(_idx("mesh.holes", i), f"lies inside mesh.holes[{j}]")
+    # hole i in (or touching) hole j needs its first vertex in j's box
+    lo = np.array([h.min(axis=0) for h in holes]) - tol
+    hi = np.array([h.max(axis=0) for h in holes]) + tol
+    order = np.argsort(lo[:, 0], kind="stable")
+    for i in range(len(holes)):
+        p = first[i]
+        cand = order[:np.searchsorted(lo[order, 0], p[0], side="right")]
+        cand = cand[(cand != i) & (hi[cand, 0] >= p[0]) & (lo[cand, 1] <= p[1])
+                    & (hi[cand, 1] >= p[1])]
+        for j in np.sort(cand):
+            w = classify_points(p[None], [holes[j]], tol)[0]
+            if w >= 0:
+                what = "touches" if w == 0 else "lies inside"
+                ck.fail(_idx("mesh.holes", i), f"{what} mesh.holes[{int(j)}]")
 
 
 def _segments(rings):
