@@ -476,7 +476,7 @@ def problems(draw):
     n = draw(st.integers(3, 12))
     cx, cy = draw(st.floats(-100, 100)), draw(st.floats(-100, 100))
     scale = draw(st.floats(0.5, 200))
-    gaps = np.array(draw(st.lists(st.floats(0.2, 1.0), min_size=n, max_size=n)))
+    gaps = np.array(draw(st.lists(st.floats(0.6, 1.0), min_size=n, max_size=n)))  # each < pi
     angles = 2 * np.pi * np.cumsum(gaps) / gaps.sum()
     radii = scale * np.array(draw(st.lists(st.floats(0.5, 1.0), min_size=n, max_size=n)))
     outline = np.c_[cx + radii * np.cos(angles), cy + radii * np.sin(angles)]
@@ -610,3 +610,12 @@ def test_message_names_key_and_index_like_the_docs():
     d["tendons"]["list"][1]["path"][1] = [81.0, 3.0]
     msg = raises(d, re.escape("tendons.list[1].path[1]"))
     assert msg == "t.yaml: tendons.list[1].path[1]: point (81.0, 3.0) lies outside the body"
+
+
+def test_docs_example_loads_and_meshes():
+    from pathlib import Path
+    text = (Path(__file__).parent.parent / "docs" / "problem-format.md").read_text()
+    example = text.split("```yaml\n", 1)[1].split("```", 1)[0]
+    s = scene_from_dict(yaml.load(example, Loader=yaml.SafeLoader), "example.yaml")
+    assert s.name == "finger" and s.contraction.tolist() == [0.0, 4.0]
+    assert build_mesh(s).n_nodes > 50
