@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import yaml
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from .errors import SceneError
 
@@ -204,8 +205,6 @@ class Scene:
     __hash__ = None
 
 
-
-
 # ---------------------------------------------------------------------------
 # Reading the YAML
 # ---------------------------------------------------------------------------
@@ -296,7 +295,7 @@ def _duplicate_key_path(node) -> str | None:
     while stack:
         node, path = stack.pop()
         if isinstance(node, yaml.MappingNode):
-            seen = {}
+            seen, children = {}, []
             for key_node, value_node in node.value:
                 if isinstance(key_node, yaml.ScalarNode):
                     key = (key_node.tag, key_node.value)
@@ -305,9 +304,10 @@ def _duplicate_key_path(node) -> str | None:
                         return (f"line {key_node.start_mark.line + 1}: {sub}: duplicate key "
                                 f"(first on line {seen[key] + 1})")
                     seen[key] = key_node.start_mark.line
-                    stack.append((value_node, sub))
+                    children.append((value_node, sub))
+            stack.extend(reversed(children))       # visit in document order
         elif isinstance(node, yaml.SequenceNode):
-            stack.extend((v, _idx(path, i)) for i, v in enumerate(node.value))
+            stack.extend(reversed([(v, _idx(path, i)) for i, v in enumerate(node.value)]))
     return None
 
 
@@ -711,7 +711,6 @@ def _check_explicit_mesh(ck: _Check, nodes: np.ndarray, tris: np.ndarray):
         i = int(np.flatnonzero(~used)[0])
         ck.fail(_idx("mesh.nodes", i), "node is not used by any triangle")
     tol = POINT_TOL * diameter(nodes)
-    from scipy.spatial import cKDTree
     pairs = cKDTree(nodes).query_pairs(tol, output_type="ndarray")
     if len(pairs):
         i, j = sorted(map(int, pairs[np.lexsort((pairs[:, 0], pairs[:, 1]))][0]))
@@ -719,7 +718,6 @@ def _check_explicit_mesh(ck: _Check, nodes: np.ndarray, tris: np.ndarray):
 
 
 def _check_points_are_nodes(ck: _Check, nodes, forced, tol):
-    from scipy.spatial import cKDTree
     tree = cKDTree(nodes)
     for key, pts in forced:
         if len(pts) == 0:
@@ -867,7 +865,6 @@ def diameter(points) -> float:
     pts = np.unique(np.asarray(points, dtype=np.float64).reshape(-1, 2), axis=0)
     if len(pts) < 2:
         return 0.0
-    from scipy.spatial import ConvexHull, QhullError
     try:
         hull = pts[ConvexHull(pts).vertices]       # counter-clockwise
     except QhullError:                             # all on one line

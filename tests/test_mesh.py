@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from plush_opt.errors import SceneError
 from plush_opt.mesh import Mesh, build_mesh, mesh_for_nodes
@@ -238,3 +240,30 @@ def test_shipped_problems_mesh(problems_dir):
         mesh = build_mesh(s)
         assert isinstance(mesh, Mesh) and np.all(mesh.areas > 0), path.name
         assert len(mesh.tendon_nodes) == len(s.tendons)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.data())
+def test_explicit_mesh_from_any_orientation_and_order(data):
+    base = build_mesh(scene(max_area=40.0, holes=None))
+    flips = np.array(data.draw(st.lists(st.booleans(), min_size=base.n_elems,
+                                        max_size=base.n_elems)))
+    rolls = np.array(data.draw(st.lists(st.integers(0, 2), min_size=base.n_elems,
+                                        max_size=base.n_elems)))
+    tris = base.triangles.copy()
+    tris[flips] = tris[flips][:, [0, 2, 1]]
+    tris = np.array([np.roll(t, r) for t, r in zip(tris, rolls)])
+    d = problem()
+    d["mesh"] = {"nodes": base.X.tolist(), "triangles": tris.tolist()}
+    mesh = build_mesh(scene_from_dict(d, "x.yaml"))
+    np.testing.assert_array_equal(mesh.X, base.X)
+    assert np.all(mesh.areas > 0)
+    # the same triangles, each counter-clockwise (up to a rotation of its corners)
+    assert np.array_equal(np.sort(mesh.triangles, axis=1), np.sort(tris, axis=1))
+    np.testing.assert_allclose(mesh.areas, base.areas, rtol=1e-12)
+    for a, b in zip(mesh.tendon_nodes, base.tendon_nodes):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(mesh.pin_nodes, base.pin_nodes)
+    np.testing.assert_allclose(
+        np.einsum("kj,kjd->kd", mesh.target_beta, mesh.X[mesh.triangles[mesh.target_triangles]]),
+        [t["at"] for t in d["targets"]], atol=1e-12)

@@ -619,3 +619,28 @@ def test_docs_example_loads_and_meshes():
     s = scene_from_dict(yaml.load(example, Loader=yaml.SafeLoader), "example.yaml")
     assert s.name == "finger" and s.contraction.tolist() == [0.0, 4.0]
     assert build_mesh(s).n_nodes > 50
+
+
+@pytest.mark.parametrize("name", ["billion_laughs.yaml", "duplicate_key.yaml", "merge_key.yaml",
+                                  "syntax_error.yaml", "via_outside.yaml"])
+def test_pure_python_yaml_path_gives_the_same_errors(bad_dir, monkeypatch, name):
+    import plush_opt.scene as scene_module
+    path = bad_dir / name
+    with pytest.raises(SceneError) as fast:
+        load_scene(path)
+    monkeypatch.setattr(scene_module, "_CParser", None)       # as without libyaml
+    with pytest.raises(SceneError) as slow:
+        load_scene(path)
+    expect = path.read_text().splitlines()[0][len("# expect: "):]
+    assert re.search(expect, str(slow.value)), str(slow.value)
+    if name != "syntax_error.yaml":                            # parsers word these differently
+        assert str(slow.value) == str(fast.value)
+
+
+def test_numpy_input_is_accepted():
+    d = valid()
+    d["mesh"]["outline"] = np.array(d["mesh"]["outline"], dtype=float)
+    d["tendons"]["list"][0]["path"] = np.array(d["tendons"]["list"][0]["path"])
+    d["material"]["thickness"] = np.float64(30.0)
+    d["winches"][1]["frozen"] = np.bool_(True)
+    assert load(d) == load(valid())
