@@ -191,6 +191,8 @@ class Controller:
         self._bb_step = None     # Barzilai-Borwein step (gradient direction)
         self._eq: Equilibrium | None = None
         self._dirty = False      # targets or frozen set changed since the last iterate
+        self._finished = False
+        self._taken_up: set[int] = set()   # winches whose slack was reeled in at this stall
 
     # -- what a caller may change between iterates ------------------------
 
@@ -275,28 +277,92 @@ class Controller:
             yield self._start()
         stall = 0
         steps = 0
+        self._finished = False
         while True:
             if self._dirty:
                 # same certified pose, re-scored for the new targets / frozen set
                 self._dirty = False
+                self._taken_up = set()
                 self._grad, self._J, self._dxdc = self._gradient(
                     self._eq, opts.direction == "gauss-newton")
                 stall = 0
                 yield self._iterate(self._eq, self._grad)
             last = self.history[-1]
             reason = self._stop_reason(last, stall, steps)
-            if reason is not None:
-                self.converged, self.status = reason
-                return
-            step = self._step(last)
+            step = self._step(last) if reason is None else None
             if step is None:
+                if reason is not None:
+                    self.converged, self.status = reason
+                if not self._out_of_budget(steps, last):
+                    taken = self._take_up_slack(last)
+                    if taken is not None:
+                        stall = 0
+                        yield taken
+                        continue
+                self.status += self._slack_note(last)
+                self._finished = True
                 return
             steps += 1
             if step.objective > last.objective * (1 - opts.ftol):
                 stall += 1
             else:
                 stall = 0
+                self._taken_up = set()
             yield step
+
+    def _out_of_budget(self, steps: int, last: Iterate) -> bool:
+        opts = self.options
+        return (steps >= opts.max_iterations or last.objective <= opts.objective_floor
+                or (opts.max_time is not None and last.t_wall >= opts.max_time))
+
+    def _slack_winches(self, last: Iterate) -> list[int]:
+        """Free winches with zero gradient because all their tendons are slack."""
+        G = self.model.tendon_state(last.x, last.contraction)["stretch"]
+        eps = self.model.tendon_smoothing
+        out = []
+        for w in np.flatnonzero(~self.frozen):
+            mine = self.model.tendon_winch == w
+            if last.gradient[w] == 0.0 and mine.any() and np.all(G[mine] <= -eps):
+                out.append(int(w))
+        return out
+
+    def _slack_note(self, last: Iterate) -> str:
+        slack = self._slack_winches(last)
+        if not slack:
+            return ""
+        names = ", ".join(self.model.winch_names[w] for w in slack)
+        return f"; winch {names}: all tendons slack (zero gradient)"
+
+    def _take_up_slack(self, last: Iterate) -> Iterate | None:
+        """Reel in the slack of winches whose tendons are all slack.
+
+        A slack tendon exerts no force, so its winch has a zero gradient and
+        the loop cannot tell whether pulling would help. Contracting it until
+        its tightest tendon just enters the smoothing zone (G = -0.9 eps)
+        leaves the pose practically unchanged but gives the winch a gradient.
+        Done once per winch until the loop makes progress again.
+        """
+        G = self.model.tendon_state(last.x, last.contraction)["stretch"]
+        eps = self.model.tendon_smoothing
+        c = last.contraction.copy()
+        for w in self._slack_winches(last):
+            if w in self._taken_up:
+                continue
+            self._taken_up.add(w)
+            mine = self.model.tendon_winch == w
+            c[w] = min(c[w] + float(np.min(-G[mine] - eps)) + 0.1 * eps, self.model.upper[w])
+        if np.array_equal(c, last.contraction):
+            return None
+        eq = self._solve(c, last.x)
+        if not eq.converged:
+            return None
+        self.xi = self.reparam.inverse(c) if self.options.bounds == "reparam" else c.copy()
+        self.contraction = c
+        self._eq = eq
+        self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
+        self.status = "running"
+        log.info("took up the slack of %s", [self.model.winch_names[w] for w in np.flatnonzero(c != last.contraction)])
+        return self._iterate(eq, self._grad)
 
     def _stop_reason(self, last: Iterate, stall: int, steps: int):
         opts = self.options
@@ -408,8 +474,9 @@ class Controller:
 
     def result(self) -> ControlResult:
         """Run to the end (if not done yet) and collect the outcome."""
-        for _ in self.iterates():
-            pass
+        if not self._finished:
+            for _ in self.iterates():
+                pass
         return ControlResult(self.converged, self.status, self.history[-1], tuple(self.history),
                              self.options.bounds, time.perf_counter() - self._t0)
 

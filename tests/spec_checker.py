@@ -1,0 +1,162 @@
+"""An independent checker of result files, written from the spec alone.
+
+It uses numpy only and does not import plush_opt: it rebuilds E(x; c) and
+O(x) from the result's ``model`` section with hand-written formulas, and
+checks that the reported pose is a certified equilibrium.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+REQUIRED = ("format", "problem", "method", "converged", "status", "contractions", "nodes",
+            "objective", "residual_norm", "min_hessian_eigenvalue", "timing", "model")
+
+
+def _elements(model):
+    X = np.asarray(model["rest_nodes"], float)
+    tri = np.asarray(model["triangles"], int)
+    Dm = np.stack([X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]]], axis=2)
+    return X, tri, Dm
+
+
+def tendon_energy(G, K, eps):
+    G = np.asarray(G, float)
+    return np.where(G <= -eps, 0.0,
+                    np.where(G < eps, K * (G + eps) ** 3 / (6 * eps), K * G**2 + K * eps**2 / 3))
+
+
+def tendon_tension(G, K, eps):
+    G = np.asarray(G, float)
+    return np.where(G <= -eps, 0.0, np.where(G < eps, K * (G + eps) ** 2 / (2 * eps), 2 * K * G))
+
+
+def energy_and_gradient(doc, x):
+    """E and grad_x E, (n_nodes, 2), from the spec's formulas."""
+    m = doc["model"]
+    X, tri, Dm = _elements(m)
+    mat = m["material"]
+    mu, lam, th = mat["mu"], mat["lambda"], mat["thickness"]
+    A = np.linalg.det(Dm) / 2
+    Dinv = np.linalg.inv(Dm)
+    ds = np.stack([x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]]], axis=2)
+    F = ds @ Dinv
+    J = np.linalg.det(F)
+    if np.any(J <= 0):
+        return np.inf, None
+    lnJ = np.log(J)
+    psi = mu / 2 * (np.einsum("eij,eij->e", F, F) - 2) - mu * lnJ + lam / 2 * lnJ**2
+    E = float(np.sum(th * A * psi))
+    FinvT = np.linalg.inv(F).transpose(0, 2, 1)
+    P = mu * (F - FinvT) + lam * lnJ[:, None, None] * FinvT      # first Piola-Kirchhoff
+    Hm = (th * A)[:, None, None] * P @ Dinv.transpose(0, 2, 1)   # forces on nodes b, c
+    g = np.zeros_like(x)
+    np.add.at(g, tri[:, 1], Hm[:, :, 0])
+    np.add.at(g, tri[:, 2], Hm[:, :, 1])
+    np.add.at(g, tri[:, 0], -Hm[:, :, 0] - Hm[:, :, 1])
+    pins = m["pins"]
+    kp = pins["stiffness"]
+    pn = np.asarray(pins["nodes"], int)
+    E += kp / 2 * float(np.sum((x[pn] - X[pn]) ** 2))
+    np.add.at(g, pn, kp * (x[pn] - X[pn]))
+    K, eps = m["tendons"]["stiffness"], m["tendons"]["smoothing"]
+    for t in m["tendons"]["list"]:
+        nodes = np.asarray(t["nodes"], int)
+        seg = x[nodes[1:]] - x[nodes[:-1]]
+        seglen = np.linalg.norm(seg, axis=1)
+        rest = t["assembly_length"] - doc["contractions"][t["winch"]]
+        G = seglen.sum() - rest
+        E += float(tendon_energy(G, K, eps))
+        unit = seg / seglen[:, None] * tendon_tension(G, K, eps)
+        np.add.at(g, nodes[1:], unit)
+        np.add.at(g, nodes[:-1], -unit)
+    if m["gravity"] is not None:
+        gv = np.asarray(m["gravity"], float)
+        w = mat["density"] * th * A / 3
+        E -= float(np.sum(w[:, None] * (x[tri[:, 0]] + x[tri[:, 1]] + x[tri[:, 2]]) @ gv))
+        np.add.at(g, tri.ravel(), -np.repeat(w, 3)[:, None] * gv[None, :])
+    return E, g
+
+
+def objective(doc, x):
+    m = doc["model"]
+    tri = np.asarray(m["triangles"], int)
+    O = 0.0
+    for t in m["targets"]:
+        y = np.asarray(t["barycentric"], float) @ x[tri[t["triangle"]]]
+        O += 0.5 * t["weight"] * float(np.sum((y - np.asarray(t["to"], float)) ** 2))
+    return O
+
+
+def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
+    """Raise AssertionError with a reason if the result breaks the spec."""
+    doc = doc_or_path
+    if not isinstance(doc, dict):
+        with open(doc_or_path) as fh:
+            doc = json.load(fh)
+    for key in REQUIRED:
+        assert key in doc, f"missing key {key!r}"
+    assert doc["format"] == "plush-opt-result/1", doc["format"]
+    assert doc["method"] in ("forward", "reparam", "bilevel"), doc["method"]
+    for key in ("total_s", "solve_s", "iterations"):
+        assert key in doc["timing"], f"timing.{key} missing"
+    m = doc["model"]
+    X, tri, Dm = _elements(m)
+    assert np.all(np.linalg.det(Dm) > 0), "triangles are not counter-clockwise in rest_nodes"
+    x = np.asarray(doc["nodes"], float)
+    assert x.shape == X.shape, "nodes and rest_nodes differ in shape"
+    for t in m["tendons"]["list"]:
+        nodes = np.asarray(t["nodes"], int)
+        a = np.linalg.norm(np.diff(X[nodes], axis=0), axis=1).sum()
+        assert abs(a - t["assembly_length"]) <= 1e-9 * max(a, 1), f"assembly_length of {t['name']}"
+        assert t["winch"] in doc["contractions"], f"tendon {t['name']}: unknown winch"
+    for w in m["winches"]:
+        lo, hi = w["bounds"]
+        c = doc["contractions"][w["name"]]
+        assert lo <= c <= hi, f"winch {w['name']}: contraction {c} outside [{lo}, {hi}]"
+    for t in m["targets"]:
+        b = np.asarray(t["barycentric"], float)
+        assert abs(b.sum() - 1) < 1e-9 and np.all(b >= -1e-9), "barycentric weights"
+
+    E, g = energy_and_gradient(doc, x)
+    assert np.isfinite(E), "pose not admissible (some J <= 0)"
+    rnorm = float(np.linalg.norm(g))
+    assert abs(rnorm - doc["residual_norm"]) <= 1e-6 * max(1.0, np.abs(g).max() * 10) + 1e-9, \
+        f"residual_norm {doc['residual_norm']} but the spec's gradient has norm {rnorm}"
+    O = objective(doc, x)
+    assert abs(O - doc["objective"]) <= 1e-9 * max(1.0, abs(O)), f"objective {doc['objective']} != {O}"
+
+    if doc["converged"]:
+        # residual small against the forces in balance
+        scale = max(np.linalg.norm(_internal_force_scale(doc, x)), 1e-300)
+        assert rnorm <= rel_residual * scale, f"residual {rnorm} not small against force scale {scale}"
+        # Hessian by central differences of the gradient: positive definite
+        n = x.size
+        H = np.empty((n, n))
+        flat = x.reshape(-1)
+        size = np.ptp(X, axis=0).max()
+        h = hessian_step * size
+        for i in range(n):
+            xp = flat.copy()
+            xp[i] += h
+            xm = flat.copy()
+            xm[i] -= h
+            H[:, i] = (energy_and_gradient(doc, xp.reshape(-1, 2))[1].reshape(-1)
+                       - energy_and_gradient(doc, xm.reshape(-1, 2))[1].reshape(-1)) / (2 * h)
+        H = (H + H.T) / 2
+        lam_min = float(np.linalg.eigvalsh(H)[0])
+        assert lam_min > 0, f"Hessian not positive definite (smallest eigenvalue {lam_min})"
+        reported = doc["min_hessian_eigenvalue"]
+        assert reported is not None and abs(reported - lam_min) <= 1e-3 * abs(lam_min) + 1e-6 * np.abs(H).max(), \
+            f"min_hessian_eigenvalue {reported} but finite differences give {lam_min}"
+    return doc
+
+
+def _internal_force_scale(doc, x):
+    """Pin forces: at equilibrium they balance everything else."""
+    m = doc["model"]
+    X = np.asarray(m["rest_nodes"], float)
+    pn = np.asarray(m["pins"]["nodes"], int)
+    return m["pins"]["stiffness"] * (x[pn] - X[pn])

@@ -1,0 +1,78 @@
+"""Equilibria: Newton against IPOPT, certification, warm starts, honest failures."""
+
+import numpy as np
+import pytest
+
+from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.errors import SolverError
+from shipped import PROBLEMS, body_size, built
+
+LEVELS = (0.1, 0.4, 0.8)   # fractions of each winch's range
+
+
+@pytest.mark.parametrize("name", PROBLEMS)
+@pytest.mark.parametrize("level", LEVELS)
+def test_newton_and_ipopt_agree_and_are_certified(name, level):
+    _, _, model, _ = built(name)
+    c = model.lower + level * (model.upper - model.lower)
+    newton = solve_equilibrium(model, c)
+    ipopt = solve_equilibrium(model, c, options=EquilibriumOptions(backend="ipopt"))
+    for eq in (newton, ipopt):
+        assert eq.converged, eq.status
+        assert eq.positive_definite and eq.min_eigenvalue > 0
+        assert eq.relative_residual <= 1e-10
+        assert model.jacobians(eq.x).min() > 0
+    gap = np.abs(newton.x - ipopt.x).max()
+    assert gap <= 1e-6 * body_size(model), f"Newton and IPOPT differ by {gap:.3e}"
+
+
+def test_min_eigenvalue_matches_dense_eigensolver():
+    _, _, model, _ = built("hexapod_leg")
+    eq = solve_equilibrium(model, [6.0])
+    H = model.evaluate(eq.x, eq.contraction).hessian.toarray()
+    assert eq.min_eigenvalue == pytest.approx(np.linalg.eigvalsh(H)[0], rel=1e-6)
+
+
+def test_warm_start_reaches_the_same_equilibrium_faster():
+    _, _, model, _ = built("gripper")
+    cold = solve_equilibrium(model, [10.0, 0.0, 5.0])
+    near = solve_equilibrium(model, [9.5, 0.0, 5.0])
+    warm = solve_equilibrium(model, [10.0, 0.0, 5.0], near.x)
+    assert warm.converged and warm.iterations < cold.iterations
+    assert np.abs(warm.x - cold.x).max() <= 1e-7 * body_size(model)
+
+
+def test_inadmissible_start_is_reported_not_solved():
+    _, _, model, _ = built("gripper")
+    x0 = model.X.copy().reshape(-1, 2)
+    x0[:, 0] *= -1
+    for backend in ("newton", "ipopt"):
+        eq = solve_equilibrium(model, np.zeros(3), x0, EquilibriumOptions(backend=backend))
+        assert not eq.converged and "not admissible" in eq.status
+
+
+def test_iteration_limit_is_an_honest_status():
+    _, _, model, _ = built("gripper")
+    eq = solve_equilibrium(model, [20.0, 0.0, 15.0], options=EquilibriumOptions(max_iterations=2))
+    assert not eq.converged and "iteration limit" in eq.status
+    assert eq.residual_norm > 0
+
+
+def test_wrong_sizes_and_options_raise():
+    _, _, model, _ = built("gripper")
+    with pytest.raises(SolverError, match="contraction: expected 3 values"):
+        solve_equilibrium(model, [1.0])
+    with pytest.raises(SolverError, match="x0: expected"):
+        solve_equilibrium(model, np.zeros(3), np.zeros(5))
+    with pytest.raises(ValueError, match="backend: expected one of"):
+        EquilibriumOptions(backend="magic")
+    with pytest.raises(ValueError, match="gtol"):
+        EquilibriumOptions(gtol=0)
+
+
+def test_full_contraction_from_rest_converges_admissible():
+    """Every winch at its upper bound, straight from rest."""
+    _, _, model, _ = built("gripper")
+    eq = solve_equilibrium(model, model.upper)
+    assert eq.converged, eq.status
+    assert model.jacobians(eq.x).min() > 0
