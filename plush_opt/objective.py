@@ -58,6 +58,19 @@ class Targets:
                    [t.weight for t in scene.targets])
 
     @classmethod
+    def at_points(cls, mesh, at, to, weight=None) -> "Targets":
+        """Targets for body points ``at`` (rest coordinates, (k, 2)) going
+        to ``to`` ((k, 2)); raises SceneError for a point off the body."""
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 2)
+        tri, beta = mesh.locate(at)
+        bad = np.flatnonzero(tri < 0)
+        if bad.size:
+            k = int(bad[0])
+            raise SceneError(f"targets[{k}].at: point ({at[k, 0]:g}, {at[k, 1]:g}) lies outside the body")
+        weight = np.ones(len(at)) if weight is None else weight
+        return cls(tri, mesh.triangles[tri], beta, to, weight)
+
+    @classmethod
     def empty(cls) -> "Targets":
         return cls(np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0))
 
