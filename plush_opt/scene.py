@@ -465,7 +465,9 @@ class _Check:
 
     def string(self, value, path) -> str:
         if not isinstance(value, str):
-            self.fail(path, f"expected a string, got {_describe(value)}")
+            scalar = value is not None and not isinstance(value, (dict, list, tuple))
+            hint = " (put it in quotes to make it a string)" if scalar else ""
+            self.fail(path, f"expected a string, got {_describe(value)}{hint}")
         return value
 
     def number(self, value, path, *, gt=None, ge=None, lt=None) -> float:
