@@ -146,8 +146,10 @@ def _merge_close(pts: np.ndarray, tol: float) -> np.ndarray:
     rep = np.arange(len(pts))
     if len(pts) < 2:
         return rep
-    pairs = cKDTree(pts).query_pairs(tol, p=2.0, output_type="ndarray")
-    pairs = pairs[np.hypot(*(pts[pairs[:, 0]] - pts[pairs[:, 1]]).T) < tol] if len(pairs) else pairs
+    pairs = cKDTree(pts).query_pairs(tol, output_type="ndarray")     # distance <= tol
+    if len(pairs):
+        gap = np.hypot(*(pts[pairs[:, 0]] - pts[pairs[:, 1]]).T)
+        pairs = pairs[gap < tol]                                       # closer than tol
     for i, j in sorted((min(p), max(p)) for p in pairs.tolist()):
         if rep[j] == j and rep[i] == i:
             rep[j] = i
@@ -203,10 +205,10 @@ def _mesh_outline(scene: Scene, max_area, tol):
     tris = np.asarray(out["triangles"], dtype=np.int64)
     # Triangle keeps input vertices first and in order; check rather than trust.
     if not (len(X) >= len(vertices) and np.array_equal(X[:len(vertices)], vertices)):
-        dist, node_of_v = cKDTree(X).query(vertices)
-        node_of = node_of_v[node_of]
-        if len(forced) and np.max(dist[np.unique(node_of)], initial=0.0) > tol:
-            raise SceneError(f"{scene.source}: mesh: the mesher moved an input point")
+        dist, near = cKDTree(X).query(vertices)
+        if np.max(dist[node_of], initial=0.0) > tol:
+            raise SceneError(f"{scene.source}: mesh: the mesher lost a forced point")
+        node_of = near[node_of]
     return X, tris, node_of, keys
 
 
