@@ -1,0 +1,208 @@
+"""Run the board emulator (hw/emulator, built by ``make -C hw``) as a subprocess.
+
+The emulator serves the board protocol on a pseudo-terminal whose path it
+prints first; :class:`Emulator` starts it, returns that path (open it with
+:class:`~plush_opt.board.driver.Driver` like a real port) and reads the
+emulator's state file, which holds the true motor positions.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import selectors
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from plush_opt.errors import HardwareError
+
+log = logging.getLogger(__name__)
+
+BINARY_ENV = "PLUSH_BOARD_EMU"
+"""Environment variable that overrides the emulator binary's path."""
+
+_REPO_BINARY = Path(__file__).resolve().parents[2] / "hw" / "emulator" / "build" / "plush-board-emu"
+
+
+def emulator_binary(path: str | os.PathLike | None = None) -> Path:
+    """Path of the emulator binary: ``path``, else ``$PLUSH_BOARD_EMU``, else
+    ``hw/emulator/build/plush-board-emu`` in the source tree.
+
+    Raises :class:`HardwareError` saying how to build it if it is missing.
+    """
+    if path is not None:
+        binary = Path(path)
+    elif os.environ.get(BINARY_ENV):
+        binary = Path(os.environ[BINARY_ENV])
+    else:
+        binary = _REPO_BINARY
+    if not (binary.is_file() and os.access(binary, os.X_OK)):
+        raise HardwareError(
+            f"board emulator not built: {binary} does not exist or is not executable; build it with "
+            f"`make -C hw` in the plush_opt source tree (needs g++ and make), or point {BINARY_ENV} at it")
+    return binary
+
+
+class Emulator:
+    """An emulated winch board on a pseudo-terminal.
+
+    Parameters
+    ----------
+    winches : int
+        Number of axes, 1..8.
+    speed : float
+        Top speed of every motor, ticks/s (the board's SPEED limits it further).
+    tau : float
+        Time constant of the first-order position response, s.
+    watchdog_ms, deadband : int, optional
+        Power-up watchdog timeout (ms) and arrival deadband (ticks).
+    state_file : path, optional
+        Where the emulator writes its true state (JSON); a temporary file
+        by default. See :meth:`read_state`.
+    binary : path, optional
+        The emulator binary (see :func:`emulator_binary`).
+
+    ``with Emulator(3) as emu: Driver(emu.port, calibration)``.
+    """
+
+    def __init__(self, winches: int = 4, *, speed: float = 3000.0, tau: float = 0.05,
+                 watchdog_ms: int | None = None, deadband: int | None = None,
+                 state_file: str | os.PathLike | None = None, state_interval_ms: int = 10,
+                 binary: str | os.PathLike | None = None, extra_args=(), start_timeout: float = 5.0):
+        self.binary = emulator_binary(binary)
+        self.winches = int(winches)
+        self._tmp = None
+        if state_file is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="plush-emu-")
+            state_file = Path(self._tmp.name) / "state.json"
+        self.state_file = Path(state_file)
+        args = [str(self.binary), "--winches", str(self.winches), "--speed", repr(float(speed)),
+                "--tau", repr(float(tau)), "--state-file", str(self.state_file),
+                "--state-interval", str(int(state_interval_ms))]
+        if watchdog_ms is not None:
+            args += ["--watchdog", str(int(watchdog_ms))]
+        if deadband is not None:
+            args += ["--deadband", str(int(deadband))]
+        self.args = args + [str(a) for a in extra_args]
+        self.start_timeout = float(start_timeout)
+        self.port: str | None = None
+        self._proc: subprocess.Popen | None = None
+        self._stderr = None
+
+    @property
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc is not None else None
+
+    def start(self) -> str:
+        """Start the emulator; return the path of its pseudo-terminal."""
+        if self.running:
+            return self.port
+        self._stderr = tempfile.TemporaryFile()
+        # Own session: a Ctrl-C meant for the host must not kill the "board"
+        # before the host has stopped it.
+        self._proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                      stderr=self._stderr, start_new_session=True)
+        line = b""
+        deadline = time.monotonic() + self.start_timeout
+        with selectors.DefaultSelector() as sel:
+            sel.register(self._proc.stdout, selectors.EVENT_READ)
+            while not line.endswith(b"\n"):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not sel.select(remaining):
+                    break
+                chunk = os.read(self._proc.stdout.fileno(), 256)
+                if not chunk:
+                    break
+                line += chunk
+        self._proc.stdout.close()
+        if not line.endswith(b"\n"):
+            detail = self._stderr_text()
+            self.stop()
+            raise HardwareError(f"board emulator {self.binary} did not report its terminal within "
+                                f"{self.start_timeout:.1f} s{': ' + detail if detail else ''}")
+        self.port = line.decode().strip()
+        log.info("board emulator (pid %d) on %s", self._proc.pid, self.port)
+        return self.port
+
+    def _stderr_text(self) -> str:
+        if self._stderr is None:
+            return ""
+        self._stderr.seek(0)
+        return self._stderr.read().decode(errors="replace").strip()[-2000:]
+
+    def read_state(self, fresh: bool = True, timeout: float = 2.0) -> dict:
+        """The emulator's true state.
+
+        With ``fresh`` (default), waits for a state computed after this call
+        (two more writes of the file, a few ms each), so that the effect of
+        every command already answered is in it; else returns the last one
+        written.
+
+        Keys: ``position`` (float ticks, true motor positions), ``ticks``,
+        ``target``, ``enabled``, ``moving``, ``limit_lo``, ``limit_hi``,
+        ``speed``, ``min_ticks``/``max_ticks`` (extremes since start),
+        ``watchdog_ms``, ``stops`` (``command``/``watchdog``/``hangup``
+        counts), ``lines``, ``errors``, ``connected``, ``time``. Lists
+        have one entry per axis. See hw/emulator/README.md.
+        """
+        deadline = time.monotonic() + timeout
+        seen, state = [], None
+        while True:
+            try:
+                state = json.loads(self.state_file.read_text())
+            except (OSError, ValueError):
+                state = None  # not written yet
+            if state is not None:
+                if state["time"] not in seen:
+                    seen.append(state["time"])
+                # The first file read may predate the call, the second may
+                # have been computed just before it; the third cannot.
+                if not fresh or len(seen) >= 3:
+                    return state
+            if time.monotonic() >= deadline:
+                if state is not None and not self.running:
+                    return state  # an exited emulator writes no more
+                raise HardwareError(f"board emulator wrote no fresh state to {self.state_file} "
+                                    f"within {timeout:.1f} s")
+            time.sleep(0.002)
+
+    def stop(self, timeout: float = 5.0) -> int | None:
+        """Stop the emulator (SIGTERM, then SIGKILL after ``timeout``); return its exit status."""
+        proc, rc = self._proc, None
+        if proc is not None:
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGTERM)
+                try:
+                    proc.wait(timeout)
+                except subprocess.TimeoutExpired:
+                    log.warning("board emulator (pid %d) ignored SIGTERM; killing it", proc.pid)
+                    proc.kill()
+                    proc.wait()
+            rc = proc.returncode
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+        return rc
+
+    def close(self) -> None:
+        """Stop the emulator and remove its temporary files."""
+        self.stop()
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+
+    def __enter__(self) -> "Emulator":
+        self.start()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
