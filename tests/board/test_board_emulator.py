@@ -1,0 +1,258 @@
+"""The emulator (and through it protocol_core.cpp) spoken to by hand over its pty."""
+
+import random
+import signal
+import subprocess
+import threading
+import time
+
+import pytest
+
+from board_helpers import wait_until
+from plush_opt.board.emulator import Emulator
+from plush_opt.errors import HardwareError
+
+
+def test_identify_and_initial_state(emulator, raw_port):
+    port = raw_port(emulator.port)
+    assert port.ask("1 ID") == "1 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
+    assert port.ask("2 GET") == "2 OK pos=0,0,0 tgt=0,0,0 mov=0,0,0 en=0,0,0 wd=0"
+    assert port.ask("007 ping") == "7 OK"
+    assert port.ask("3 LIMIT 1") == "3 OK lo=0 hi=0"      # nothing moves before limits are set
+    assert port.ask("4 SET 1 1") == "4 ERR 6 target outside limits"
+
+
+@pytest.mark.parametrize("line, reply", [
+    ("hello", "* ERR 1 bad sequence number"),
+    ("65536 ID", "* ERR 1 bad sequence number"),
+    ("-1 ID", "* ERR 1 bad sequence number"),
+    ("5\x00 ID", "* ERR 1 malformed line"),
+    ("5 ID\x7f", "* ERR 1 malformed line"),
+    ("5 \xe9", "* ERR 1 malformed line"),
+    ("5", "5 ERR 1 missing command"),
+    ("5 MOVE 0 1", "5 ERR 3 unknown command"),
+    ("5 ID 1", "5 ERR 4 expected no arguments"),
+    ("5 SET 0", "5 ERR 4 expected axis and target"),
+    ("5 SET 0 1.5", "5 ERR 4 bad target"),
+    ("5 SET 0 1000000001", "5 ERR 4 bad target"),
+    ("5 SET 0 99999999999", "5 ERR 4 bad target"),
+    ("5 SET x 1", "5 ERR 4 bad axis"),
+    ("5 SET -1 1", "5 ERR 4 bad axis"),
+    ("5 SET 3 1", "5 ERR 5 no such axis"),
+    ("5 SETALL 1 2", "5 ERR 4 expected one target per axis"),
+    ("5 SETALL 1 2 3 4 5 6 7 8 9", "5 ERR 4 too many arguments"),
+    ("5 LIMIT 0 9 1", "5 ERR 4 bad limits"),
+    ("5 LIMIT 0 1", "5 ERR 4 expected axis [lo hi]"),
+    ("5 SPEED 0 0", "5 ERR 4 bad speed"),
+    ("5 WDOG 19", "5 ERR 4 bad timeout"),
+    ("5 WDOG 60001", "5 ERR 4 bad timeout"),
+    ("5 ZERO 7", "5 ERR 5 no such axis"),
+    ("5 " + "X" * 200, "5 ERR 2 line too long"),
+    ("Y" * 121, "* ERR 2 line too long"),
+])
+def test_refusals(emulator, raw_port, line, reply):
+    port = raw_port(emulator.port)
+    assert port.ask(line) == reply
+    assert port.ask("6 GET").startswith("6 OK pos=0,0,0 ")  # still answering, nothing moved
+
+
+def test_blank_lines_and_crlf(emulator, raw_port):
+    port = raw_port(emulator.port)
+    port.ser.write(b"\r\n   \n\t\n1 ID\r\n")
+    assert port.ser.readline().startswith(b"1 OK board=")
+    port.ser.write(b"2 PING\n")
+    assert port.ser.readline() == b"2 OK\n"  # nothing was answered to the blank lines
+
+
+def test_out_of_limit_targets_are_refused_not_clamped(emulator, raw_port):
+    port = raw_port(emulator.port)
+    assert port.ask("1 LIMIT 0 -100 500") == "1 OK lo=-100 hi=500"
+    assert port.ask("2 SET 0 501") == "2 ERR 6 target outside limits"
+    assert port.ask("3 SET 0 -101") == "3 ERR 6 target outside limits"
+    assert port.ask("4 SETALL 100 - 5") == "4 ERR 6 target outside limits"  # axis 2 limits are [0, 0]
+    state = emulator.read_state()
+    assert state["target"] == [0, 0, 0] and state["enabled"] == [False] * 3  # the refused SETALL moved nothing
+    assert port.ask("5 SETALL 500 - -") == "5 OK"
+    assert wait_until(lambda: emulator.read_state()["ticks"][0] == 500)
+    state = emulator.read_state()
+    assert state["max_ticks"][0] == 500 and state["enabled"] == [True, False, False]
+
+
+def test_zero_limit_speed_and_busy(make_emulator, raw_port):
+    emu = make_emulator(2, speed=200.0)
+    port = raw_port(emu.port)
+    assert port.ask("1 LIMIT 0 0 1000") == "1 OK lo=0 hi=1000"
+    assert port.ask("2 SPEED 0 100") == "2 OK speed=100"
+    assert port.ask("3 SET 0 1000") == "3 OK"
+    time.sleep(0.1)
+    assert port.ask("4 ZERO") == "4 ERR 7 axis is moving"
+    assert port.ask("5 LIMIT 0 0 2000") == "5 ERR 7 axis is moving"
+    assert port.ask("6 ZERO 1") == "6 OK"          # axis 1 is not moving
+    assert port.ask("7 STOP") == "7 OK"
+    pos = emu.read_state()["ticks"][0]
+    assert 0 < pos < 100
+    assert port.ask("8 LIMIT 0 0 5") == "8 OK lo=0 hi=5"   # stopped: new limits accepted
+    assert port.ask("9 ZERO 0") == "9 OK"
+    assert port.ask("10 GET") == "10 OK pos=0,0 tgt=0,0 mov=0,0 en=0,0 wd=0"
+    assert port.ask("11 SET 0 5") == "11 OK"
+    assert wait_until(lambda: not emu.read_state()["moving"][0])
+    assert port.ask("12 LIMIT 0 10 20") == "12 ERR 8 target outside new limits"
+
+
+def _stopped(emu, axis):
+    """The emulator's state once ``axis`` is no longer enabled, else None."""
+    state = emu.read_state()
+    return None if state["enabled"][axis] else state
+
+
+def test_watchdog_stops_motors_after_host_silence(make_emulator, raw_port):
+    emu = make_emulator(2)
+    port = raw_port(emu.port)
+    assert port.ask("1 WDOG 100") == "1 OK ms=100"
+    assert port.ask("2 LIMIT 0 0 100000") == "2 OK lo=0 hi=100000"
+    assert port.ask("3 SPEED 0 1000") == "3 OK speed=1000"
+    assert port.ask("4 SET 0 100000") == "4 OK"
+    # Talking keeps it alive ...
+    for seq in range(5, 12):
+        time.sleep(0.05)
+        assert port.ask(f"{seq} PING") == f"{seq} OK"
+    assert emu.read_state()["moving"][0]
+    # ... silence stops it.
+    state = wait_until(lambda: _stopped(emu, 0), timeout=1.0)
+    assert state and state["stops"]["watchdog"] == 1 and not state["moving"][0]
+    stopped_at = state["ticks"][0]
+    assert 300 < stopped_at < 1000
+    time.sleep(0.1)
+    assert emu.read_state()["ticks"][0] == stopped_at
+    assert port.ask("20 GET").endswith(f"en=0,0 wd=1")
+
+
+def test_holding_is_not_moving_so_no_watchdog(emulator, raw_port):
+    port = raw_port(emulator.port)
+    assert port.ask("1 WDOG 50") == "1 OK ms=50"
+    assert port.ask("2 LIMIT 0 0 100") == "2 OK lo=0 hi=100"
+    assert port.ask("3 SET 0 100") == "3 OK"
+    assert wait_until(lambda: not emulator.read_state()["moving"][0])
+    time.sleep(0.2)
+    state = emulator.read_state()
+    assert state["enabled"][0] and state["stops"]["watchdog"] == 0
+
+
+def test_host_closing_port_mid_move_stops_motors(make_emulator, raw_port):
+    emu = make_emulator(2)
+    port = raw_port(emu.port)
+    assert port.ask("1 WDOG 10000") == "1 OK ms=10000"  # the hang-up, not the watchdog, must stop it
+    assert port.ask("2 LIMIT 1 -100000 0") == "2 OK lo=-100000 hi=0"
+    assert port.ask("3 SPEED 1 1000") == "3 OK speed=1000"
+    assert port.ask("4 SET 1 -100000") == "4 OK"
+    time.sleep(0.05)
+    port.close()
+    state = wait_until(lambda: _stopped(emu, 1), timeout=1.0)
+    assert state and state["stops"]["hangup"] >= 1 and state["stops"]["watchdog"] == 0
+    assert not state["connected"]
+    stopped_at = state["ticks"][1]
+    assert -500 < stopped_at < 0
+    time.sleep(0.1)
+    assert emu.read_state()["ticks"][1] == stopped_at
+    # The port can be opened again and the board answers.
+    again = raw_port(emu.port)
+    assert again.ask("5 GET") == f"5 OK pos=0,{stopped_at} tgt=0,{stopped_at} mov=0,0 en=0,0 wd=0"
+    assert emu.read_state()["connected"]
+
+
+def _fuzz_lines(rng: random.Random, n: int):
+    words = ["ID", "PING", "GET", "SET", "SETALL", "STOP", "SPEED", "WDOG", "set", "Get", "LIMIT", "ZERO"]
+
+    def number():
+        return rng.choice([str(rng.randint(-1000, 2000)), str(rng.randint(-2**40, 2**40)), "-", "+", "",
+                           "1.5", "0x10", "+" + str(rng.randint(0, 900)), "9" * rng.randint(1, 14),
+                           "".join(rng.choice("0123456789-+ ") for _ in range(rng.randint(1, 6)))])
+
+    for _ in range(n):
+        kind = rng.random()
+        if kind < 0.2:    # plain moves, half of them outside the limits
+            line = f"{rng.randint(0, 65535)} SET {rng.randrange(3)} {rng.randint(-1000, 1000)}".encode()
+        elif kind < 0.35:   # random bytes, including NUL, high bytes, CR and LF
+            line = bytes(rng.randrange(256) for _ in range(rng.randint(0, 60)))
+        elif kind < 0.4:  # over-long lines
+            line = bytes(rng.randrange(32, 127) for _ in range(rng.randint(100, 400)))
+        else:             # command-like lines with mutated arguments
+            seq = rng.choice([str(rng.randint(0, 70000)), "", "x", "-1", str(rng.randint(0, 65535))])
+            word = rng.choice(words)
+            if word.upper() == "LIMIT":     # only forms that do not change the limits
+                args = rng.choice([["0"], ["9", "1", "2"], ["0", "5"], ["0", "10", "5"], ["x", "1", "2"]])
+            elif word.upper() == "ZERO":    # only forms that are refused
+                args = rng.choice([["9"], ["x"], ["0", "1"], ["-1"]])
+            else:
+                args = [number() for _ in range(rng.choice([0, 1, 2, 2, 3, 3, 4, 9]))]
+            sep = rng.choice([" ", "  ", "\t", " \t "])
+            line = sep.join([seq, word, *args]).encode()
+        upper = line.upper()
+        if (b"ZERO" in upper or b"LIMIT" in upper) and not line.decode("latin-1").split()[1:2] in (["LIMIT"], ["ZERO"]):
+            continue  # random bytes that happen to spell a frame-changing command
+        yield line + rng.choice([b"\n", b"\r\n", b"\r"])
+
+
+def test_fuzzing_never_crashes_nor_leaves_the_limits(make_emulator, raw_port):
+    emu = make_emulator(3, speed=50000.0)
+    port = raw_port(emu.port)
+    limits = [(-300, 400), (0, 800), (-800, 0)]
+    for axis, (lo, hi) in enumerate(limits):
+        assert port.ask(f"{axis} LIMIT {axis} {lo} {hi}") == f"{axis} OK lo={lo} hi={hi}"
+    assert port.ask("9 WDOG 60000") == "9 OK ms=60000"
+
+    stop = threading.Event()
+
+    def drain():  # read replies so that the pty never fills up
+        while not stop.is_set():
+            port.ser.read(4096)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    port.ser.timeout = 0.01
+    reader.start()
+    rng = random.Random(20240611)
+    lines = list(_fuzz_lines(rng, 4000))
+    try:
+        for i in range(0, len(lines), 20):
+            port.ser.write(b"".join(lines[i:i + 20]))
+            if i % 400 == 0:
+                state = emu.read_state(fresh=False)
+                for axis, (lo, hi) in enumerate(limits):
+                    assert lo <= state["ticks"][axis] <= hi
+    finally:
+        stop.set()
+        reader.join(2)
+    assert emu.running, "emulator died while fuzzed"
+    time.sleep(0.05)
+    port.ser.timeout = 1.0
+    port.ser.reset_input_buffer()
+    port.ser.write(b"\n")  # end whatever half line the fuzzer left
+    assert port.ask("54321 ID") == "54321 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
+    state = emu.read_state()
+    assert state["lines"] > 3000 and state["errors"] > 1000
+    for axis, (lo, hi) in enumerate(limits):
+        assert lo <= state["min_ticks"][axis] <= state["max_ticks"][axis] <= hi, (axis, state)
+        assert state["limit_lo"][axis] == lo and state["limit_hi"][axis] == hi
+    assert any(state["max_ticks"][a] - state["min_ticks"][a] > 100 for a in range(3)), "fuzzing moved nothing"
+    assert emu.stop() == 0
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_exits_cleanly_on_signals(make_emulator, raw_port, sig):
+    emu = make_emulator(1)
+    raw_port(emu.port).ask("1 ID")
+    emu._proc.send_signal(sig)
+    assert emu._proc.wait(2) == 0
+
+
+def test_bad_flags_exit_2(emu_binary):
+    for args in (["--winches", "9"], ["--speed", "fast"], ["--bogus"], ["--tau"]):
+        r = subprocess.run([str(emu_binary), *args], capture_output=True, text=True, timeout=5)
+        assert r.returncode == 2 and "plush-board-emu:" in r.stderr, (args, r)
+    r = subprocess.run([str(emu_binary), "--help"], capture_output=True, text=True, timeout=5)
+    assert r.returncode == 0 and "--state-file" in r.stdout
+
+
+def test_missing_binary_says_how_to_build(tmp_path):
+    with pytest.raises(HardwareError, match=r"board emulator not built: .*make -C hw"):
+        Emulator(1, binary=tmp_path / "plush-board-emu")

@@ -1,0 +1,293 @@
+"""Scripted runs (plush_opt.runs) with FakePlanner: dry, on the emulator, interrupted."""
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from board_helpers import fast_calibration_dict, wait_until
+from fake_planner import FakePlanner
+from plush_opt.board import Driver, calibration_from_dict
+from plush_opt.errors import HardwareError, SceneError, SolverError
+from plush_opt.runs import (FORMAT, RunScript, add_run_arguments, check_run_script, cli_run, load_run_script,
+                            run_script)
+
+ROOT = Path(__file__).resolve().parents[2]
+LOG_KEYS = {"t", "step", "kind", "event", "commanded", "ticks", "acknowledged", "measured", "objective", "status"}
+
+
+def write_script(folder: Path, steps, *, rate=50, calibration=None, **top) -> Path:
+    """A run script in ``folder`` with its problem (a stand-in: FakePlanner
+    does not read it) and the fast board calibration."""
+    (folder / "problem.yaml").write_text("format: plush-opt/1\n")
+    (folder / "board.yaml").write_text(yaml.safe_dump(calibration or fast_calibration_dict()))
+    doc = {"format": FORMAT, "problem": "problem.yaml", "board": "board.yaml", "rate": rate, "steps": steps, **top}
+    path = folder / "run.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def read_log(path):
+    lines = Path(path).read_text().splitlines()
+    records = [json.loads(line) for line in lines]  # every line parses
+    for r in records:
+        assert LOG_KEYS <= r.keys(), r
+    return records
+
+
+STEPS = [{"set": {"grip": 5.0}},
+         {"pose": {"targets": [{"at": [0, 150], "to": [-30, 140]}], "freeze": ["grip"], "max_time": 2}},
+         {"hold": 0.1},
+         "release"]
+
+
+# ------------------------------------------------------------ the script --
+
+def test_load_run_script(tmp_path):
+    script = load_run_script(write_script(tmp_path, STEPS + [{"release": None}], description="demo"))
+    assert isinstance(script, RunScript)
+    assert script.problem == tmp_path / "problem.yaml" and script.board == tmp_path / "board.yaml"
+    assert [s.kind for s in script.steps] == ["set", "pose", "hold", "release", "release"]
+    pose = script.steps[1]
+    assert pose.targets == ({"at": [0.0, 150.0], "to": [-30.0, 140.0], "weight": 1.0},)
+    assert pose.freeze == ("grip",) and pose.max_time == 2.0
+    assert script.steps[2].seconds == 0.1 and script.rate == 50.0
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"format": "plush-opt-run/2"}, r"run\.yaml: format: must be 'plush-opt-run/1'"),
+    ({"rate": 0}, r"run\.yaml: rate: must be > 0"),
+    ({"rate": "fast"}, r"run\.yaml: rate: must be a finite number"),
+    ({"problem": "missing.yaml"}, r"run\.yaml: problem: 'missing\.yaml' \(relative to the script\) does not exist"),
+    ({"speed": 3}, r"run\.yaml: document\.speed: unknown key"),
+    ({"steps": []}, r"run\.yaml: steps: must be a non-empty list"),
+    ({"steps": ["relax"]}, r"run\.yaml: steps\[0\]: must be one of"),
+    ({"steps": [{"jump": 1}]}, r"steps\[0\]: unknown step 'jump'"),
+    ({"steps": [{"set": {"grip": 1}, "hold": 1}]}, r"steps\[0\]: must be one of"),
+    ({"steps": ["release", {"set": {"grip": "lots"}}]}, r"steps\[1\]\.set\.grip: must be a finite number"),
+    ({"steps": [{"hold": -1}]}, r"steps\[0\]\.hold: must be >= 0"),
+    ({"steps": [{"pose": {"targets": []}}]}, r"steps\[0\]\.pose\.targets: must be a non-empty list"),
+    ({"steps": [{"pose": {"targets": [{"at": [0, 1]}]}}]}, r"steps\[0\]\.pose\.targets\[0\]\.to: is required"),
+    ({"steps": [{"pose": {"targets": [{"at": [0], "to": [1, 2]}]}}]}, r"targets\[0\]\.at: must be \[x, y\]"),
+    ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2], "weight": 0}]}}]},
+     r"targets\[0\]\.weight: must be > 0"),
+    ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "freeze": "grip"}}]},
+     r"steps\[0\]\.pose\.freeze: must be a list"),
+    ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "max_time": 0}}]},
+     r"steps\[0\]\.pose\.max_time: must be > 0"),
+    ({"steps": [{"release": 3}]}, r"steps\[0\]\.release: takes no value"),
+])
+def test_bad_run_scripts(tmp_path, change, match):
+    path = write_script(tmp_path, STEPS)
+    doc = yaml.safe_load(path.read_text())
+    doc.update(change)
+    path.write_text(yaml.safe_dump(doc))
+    with pytest.raises(SceneError, match=match):
+        load_run_script(path)
+
+
+@pytest.mark.parametrize("steps, match", [
+    ([{"set": {"thumb": 1.0}}], r"steps\[0\]\.set: unknown winch 'thumb'"),
+    ([{"set": {"grip": 21.0}}], r"steps\[0\]\.set\.grip: 21 is outside \[0, 20\]"),
+    ([{"set": {"left": 26.0}}], r"steps\[0\]\.set\.left: 26 is outside \[0, 25\]"),   # scene allows 30
+    (["release", {"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "freeze": ["x"]}}],
+     r"steps\[1\]\.pose: unknown winch 'x'"),
+])
+def test_names_and_bounds_checked_before_any_port_is_opened(tmp_path, steps, match):
+    planner = FakePlanner(upper=[30.0, 20.0, 20.0])
+    with pytest.raises(SceneError, match=match):
+        run_script(write_script(tmp_path, steps), board="/nonexistent/tty", planner=planner,
+                   log_path=tmp_path / "log.jsonl")
+    assert not (tmp_path / "log.jsonl").exists()
+
+
+def test_problem_winch_missing_from_board(tmp_path):
+    planner = FakePlanner(winch_names=("left", "thumb"))
+    script = load_run_script(write_script(tmp_path, STEPS[:1]))
+    with pytest.raises(SceneError, match=r"has no winch 'thumb' of problem"):
+        check_run_script(script, planner, calibration_from_dict(fast_calibration_dict()))
+
+
+def test_needs_a_planner_and_a_board(tmp_path):
+    path = write_script(tmp_path, STEPS)
+    with pytest.raises(TypeError, match="needs a planner"):
+        run_script(path)
+    with pytest.raises(HardwareError, match=r"no board to run on: give a serial port \(--port\)"):
+        run_script(path, planner=FakePlanner())
+
+
+# -------------------------------------------------------------- dry runs --
+
+def test_dry_run_plans_logs_and_opens_nothing(tmp_path):
+    planner = FakePlanner(steps=20)
+    result = run_script(write_script(tmp_path, STEPS), board="/nonexistent/tty", dry_run=True, planner=planner,
+                        log_path=tmp_path / "log.jsonl")
+    assert result.dry_run and result.steps == 4 and result.contraction == {"left": 0.0, "right": 0.0, "grip": 0.0}
+    log = read_log(tmp_path / "log.jsonl")
+    assert log[0]["kind"] == "start" and log[0]["dry_run"] is True
+    assert log[-1]["kind"] == "end" and log[-1]["status"] == "completed"
+    commands = [r for r in log if r["event"] == "command"]
+    assert len(commands) == result.commands >= 3
+    assert all(r["measured"] is None and r["acknowledged"] is None for r in log)
+    assert {r["kind"] for r in commands} == {"set", "pose", "release"}
+    # The final pose iterate was sent, grip stayed frozen, ticks follow the calibration.
+    last_pose = [r for r in commands if r["kind"] == "pose"][-1]
+    assert last_pose["converged"] and last_pose["commanded"]["grip"] == 5.0
+    assert last_pose["ticks"]["right"] == -round(last_pose["commanded"]["right"] * 1200 / (2 * 3.141592653589793 * 6))
+    kinds = [c[0] for c in planner.calls]
+    assert kinds[:3] == ["forward", "forward", "pose"]
+    assert planner.calls[2][2] == ["grip"]
+
+
+def test_stream_rate_keeps_latest_and_sends_final(tmp_path):
+    # 60 iterates over ~0.6 s streamed at 10 Hz: at most ~8 sends, the last one the final iterate.
+    planner = FakePlanner(steps=60, delay=0.01, goal={"left": 12.0, "right": 6.0})
+    steps = [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}]}}]
+    t0 = time.monotonic()
+    run_script(write_script(tmp_path, steps, rate=10), dry_run=True, planner=planner, log_path=tmp_path / "l.jsonl")
+    elapsed = time.monotonic() - t0
+    sends = [r for r in read_log(tmp_path / "l.jsonl") if r["event"] == "command"]
+    assert 2 <= len(sends) <= elapsed * 10 + 2
+    assert sends[-1]["iteration"] == 60 and sends[-1]["commanded"]["left"] == pytest.approx(12.0)
+    assert all(b["t"] - a["t"] >= 0.095 for a, b in zip(sends, sends[1:]))
+
+
+def test_examples_dry_run():
+    for name in ("gripper", "hexapod"):
+        problem = yaml.safe_load((ROOT / "problems" / f"{name}.yaml").read_text())
+        names = [w["name"] for w in problem["winches"]]
+        planner = FakePlanner(winch_names=names, lower=[w["bounds"][0] for w in problem["winches"]],
+                              upper=[w["bounds"][1] for w in problem["winches"]])
+        script = load_run_script(ROOT / "examples" / f"{name}_run.yaml")
+        assert script.problem == ROOT / "problems" / f"{name}.yaml"
+        result = run_script(script, dry_run=True, planner=planner, log_path=os.devnull)
+        assert result.steps == len(script.steps)
+
+
+# ---------------------------------------------------------- on the board --
+
+def test_run_on_the_emulator(tmp_path, emulator):
+    planner = FakePlanner(steps=15, delay=0.005, goal={"left": 8.0, "right": 4.0})
+    result = run_script(write_script(tmp_path, STEPS), board=emulator.port, planner=planner,
+                        log_path=tmp_path / "log.jsonl")
+    assert not result.dry_run and result.steps == 4
+    log = read_log(tmp_path / "log.jsonl")
+    commands = [r for r in log if r["event"] == "command"]
+    assert all(r["acknowledged"] is True for r in commands)
+    arrived = {r["kind"]: r for r in log if r["event"] == "arrived"}
+    assert arrived.keys() == {"set", "pose", "release"}
+    assert arrived["pose"]["measured"]["left"] == pytest.approx(8.0, abs=0.05)
+    assert arrived["pose"]["measured"]["right"] == pytest.approx(4.0, abs=0.05)
+    assert arrived["pose"]["measured"]["grip"] == pytest.approx(5.0, abs=0.05)
+    assert arrived["release"]["measured"]["left"] == pytest.approx(0.0, abs=0.05)
+    assert [r["kind"] for r in log if r["kind"] == "hold"] and log[-1]["status"] == "completed"
+    state = emulator.read_state()
+    assert state["enabled"] == [False] * 3 and not any(state["moving"])
+
+
+def test_run_with_an_open_driver_keeps_it_open(tmp_path, emulator, calibration):
+    with Driver(emulator.port, calibration) as board:
+        run_script(write_script(tmp_path, [{"set": {"left": 3.0}}]), board=board, planner=FakePlanner(),
+                   log_path=tmp_path / "log.jsonl")
+        assert board.is_open and emulator.read_state()["enabled"] == [False] * 3
+        assert board.read_positions()["left"] == pytest.approx(3.0, abs=0.05)
+
+
+class ExplodingPlanner(FakePlanner):
+    def pose(self, targets, freeze, max_time):
+        it = super().pose(targets, freeze, max_time)
+        yield next(it)
+        yield next(it)
+        raise RuntimeError("solver blew up")
+
+
+def test_planner_failure_stops_the_board_and_ends_the_log(tmp_path, make_emulator):
+    emu = make_emulator(3, speed=300.0)
+    planner = ExplodingPlanner(steps=4, goal={"left": 20.0})
+    with pytest.raises(RuntimeError, match="solver blew up"):
+        run_script(write_script(tmp_path, STEPS[1:2]), board=emu.port, planner=planner,
+                   log_path=tmp_path / "log.jsonl")
+    log = read_log(tmp_path / "log.jsonl")
+    assert log[-1]["kind"] == "end" and log[-1]["status"] == "error: solver blew up"
+    assert emu.read_state()["enabled"] == [False] * 3
+
+
+class SilentPlanner(FakePlanner):
+    def pose(self, targets, freeze, max_time):
+        time.sleep(30)
+        yield from ()
+
+
+def test_a_planner_that_never_finishes_is_an_error(tmp_path, monkeypatch):
+    monkeypatch.setattr("plush_opt.runs.PLANNER_GRACE", 0.1)
+    steps = [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 0.1}}]
+    with pytest.raises(SolverError, match=r"steps\[0\]\.pose: the planner did not finish within 0\.3 s"):
+        run_script(write_script(tmp_path, steps), dry_run=True, planner=SilentPlanner(), log_path=os.devnull)
+
+
+def test_sigint_mid_move_stops_the_board_and_leaves_a_parseable_log(tmp_path, make_emulator):
+    emu = make_emulator(3, speed=400.0)    # slow: the winches are mid-move when interrupted
+    cal = fast_calibration_dict()
+    for w in cal["winches"]:
+        w["max_speed"] = 2.0   # mm/s: slower than the planner moves the targets
+    script = write_script(tmp_path, [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30}}],
+                          rate=20, calibration=cal)
+    log_path = tmp_path / "log.jsonl"
+    child = subprocess.Popen([sys.executable, str(Path(__file__).with_name("sigint_child.py")), str(script),
+                              emu.port, str(log_path)], stderr=subprocess.PIPE, text=True)
+    try:
+        def sending():
+            if not log_path.exists():
+                return False
+            return sum('"event":"command"' in line for line in log_path.read_text().splitlines()) >= 5
+        assert wait_until(sending, timeout=10), child.stderr.read() if child.poll() is not None else "no commands"
+        before = emu.read_state()
+        assert any(before["moving"]), before
+        child.send_signal(signal.SIGINT)
+        assert child.wait(10) == 130, child.stderr.read()
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    state = emu.read_state()
+    assert state["enabled"] == [False] * 3 and not any(state["moving"])
+    assert state["stops"]["command"] >= before["stops"]["command"] + 1   # the driver sent STOP
+    assert state["stops"]["watchdog"] == 0
+    time.sleep(0.1)
+    assert emu.read_state()["ticks"] == state["ticks"]
+    log = read_log(log_path)
+    assert log[-1]["kind"] == "end" and log[-1]["status"] == "interrupted"
+
+
+# ------------------------------------------------------------------- CLI --
+
+def test_cli_arguments():
+    parser = add_run_arguments(argparse.ArgumentParser(prog="plush-opt run"))
+    args = parser.parse_args(["x.yaml", "--emulator", "--log", "l.jsonl"])
+    assert args.script == Path("x.yaml") and args.emulator and not args.dry_run and args.port is None
+    with pytest.raises(SystemExit):
+        parser.parse_args(["x.yaml", "--emulator", "--port", "/dev/ttyACM0"])
+
+
+def test_cli_run_on_the_emulator_and_dry(tmp_path, emu_binary, capsys):
+    parser = add_run_arguments(argparse.ArgumentParser())
+    script = write_script(tmp_path, [{"set": {"left": 2.0}}, "release"])
+    seen = []
+
+    def factory(problem):
+        seen.append(problem)
+        return FakePlanner()
+    for flag in ("--emulator", "--dry-run"):
+        log = tmp_path / f"log{flag}.jsonl"
+        assert cli_run(parser.parse_args([str(script), flag, "--log", str(log)]), factory) == 0
+        assert read_log(log)[-1]["status"] == "completed"
+    assert seen == [tmp_path / "problem.yaml"] * 2
+    err = capsys.readouterr().err
+    assert "completed on emulator" in err and "completed on dry run" in err
