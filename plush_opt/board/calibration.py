@@ -44,6 +44,7 @@ class PortSettings:
     timeout: float = 0.5            # s to wait for one reply
     retries: int = 2                # further attempts after a timeout
     watchdog_ms: int = 1000         # board watchdog set on connect
+    boot_time: float = 0.0          # s the board may take to answer after the port opens
 
 
 @dataclass(frozen=True)
@@ -181,7 +182,8 @@ def calibration_from_dict(data, source: str = "<memory>") -> BoardCalibration:
 
     port = PortSettings()
     if top.get("port") is not None:
-        p = c.mapping(top["port"], "port", {"device", "baudrate", "timeout", "retries", "watchdog_ms"}, set())
+        p = c.mapping(top["port"], "port", {"device", "baudrate", "timeout", "retries", "watchdog_ms", "boot_time"},
+                      set())
         device = p.get("device")
         if device is not None and (not isinstance(device, str) or not device):
             c.fail("port.device", f"must be a device path or null, got {device!r}")
@@ -193,7 +195,11 @@ def calibration_from_dict(data, source: str = "<memory>") -> BoardCalibration:
         wd = c.number(p.get("watchdog_ms", port.watchdog_ms), "port.watchdog_ms", integer=True)
         if not MIN_WATCHDOG_MS <= wd <= MAX_WATCHDOG_MS:
             c.fail("port.watchdog_ms", f"must be in {MIN_WATCHDOG_MS}..{MAX_WATCHDOG_MS}, got {wd}")
-        port = PortSettings(device=device, baudrate=baud, timeout=timeout, retries=retries, watchdog_ms=wd)
+        boot = c.number(p.get("boot_time", port.boot_time), "port.boot_time")
+        if boot < 0:
+            c.fail("port.boot_time", f"must be >= 0, got {boot}")
+        port = PortSettings(device=device, baudrate=baud, timeout=timeout, retries=retries, watchdog_ms=wd,
+                            boot_time=boot)
 
     items = top["winches"]
     if not isinstance(items, list) or not items:

@@ -72,10 +72,12 @@ class Driver:
     bounds : mapping of str to (float, float), optional
         The scene's winch bounds ``{name: (lower, upper)}`` (mm); contractions
         outside them are refused, like those outside the calibration limits.
-    baudrate, timeout, retries, watchdog_ms : optional
+    baudrate, timeout, retries, watchdog_ms, boot_time : optional
         Override the calibration's ``port`` settings. ``timeout`` is the
         time in seconds to wait for one reply, ``retries`` the number of
-        further attempts after a timeout.
+        further attempts after a timeout, ``boot_time`` how long the first
+        ``ID`` keeps being retried after opening (an Arduino resets when
+        its port opens and answers only after its bootloader).
     serial_factory : callable, optional
         Opens the port; ``serial.Serial`` by default (tests pass their own).
 
@@ -89,7 +91,7 @@ class Driver:
     def __init__(self, port: str, calibration: BoardCalibration, *,
                  bounds: Mapping[str, tuple[float, float]] | None = None,
                  baudrate: int | None = None, timeout: float | None = None, retries: int | None = None,
-                 watchdog_ms: int | None = None, serial_factory=None):
+                 watchdog_ms: int | None = None, boot_time: float | None = None, serial_factory=None):
         settings = calibration.port
         self.port = str(port)
         self.calibration = calibration
@@ -97,6 +99,7 @@ class Driver:
         self.timeout = float(timeout if timeout is not None else settings.timeout)
         self.retries = int(retries if retries is not None else settings.retries)
         self.watchdog_ms = int(watchdog_ms if watchdog_ms is not None else settings.watchdog_ms)
+        self.boot_time = float(boot_time if boot_time is not None else settings.boot_time)
         if self.timeout <= 0 or self.retries < 0:
             raise ValueError(f"timeout must be > 0 and retries >= 0, got {self.timeout}, {self.retries}")
         if not P.MIN_WATCHDOG_MS <= self.watchdog_ms <= P.MAX_WATCHDOG_MS:
@@ -192,7 +195,7 @@ class Driver:
 
     def _handshake(self):
         cal = self.calibration
-        reply = self._transact("ID")
+        reply = self._transact("ID", patience=self.boot_time)
         try:
             info = P.parse_info(reply.payload)
         except P.ProtocolError as e:
@@ -357,16 +360,20 @@ class Driver:
                 raise HardwareError(f"{self.port}: cannot read from the board: {e}") from None
             self._rx += chunk
 
-    def _transact(self, command: str, *args) -> P.Reply:
+    def _transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
         """Send a command, return its OK reply.
 
-        Retries after a timeout with a new sequence number; replies carrying
-        the number of an abandoned attempt are dropped. An ERR reply raises
-        at once (a refusal is not a transport problem).
+        Retries after a timeout with a new sequence number, ``retries``
+        times and for at least ``patience`` seconds; replies carrying the
+        number of an abandoned attempt are dropped. An ERR reply raises at
+        once (a refusal is not a transport problem).
         """
         if self._ser is None:
             raise HardwareError(f"{self.port}: board not open")
         attempts = self.retries + 1
+        if patience > 0:
+            attempts = max(attempts, math.ceil(patience / self.timeout) + 1)
+        started = time.monotonic()
         for attempt in range(1, attempts + 1):
             seq = self._next_seq()
             line = P.format_command(seq, command, *args)
@@ -402,8 +409,10 @@ class Driver:
                     "is another program using the port?")
             self._recent.append(seq)
             if attempt < attempts:
-                log.warning("%s: no reply to %s within %.2f s, retrying (%d/%d)", self.port, command,
-                            self.timeout, attempt, attempts - 1)
+                # Silence while the board boots is expected, not worth a warning.
+                level = logging.DEBUG if time.monotonic() - started < patience else logging.WARNING
+                log.log(level, "%s: no reply to %s within %.2f s, retrying (%d/%d)", self.port, command,
+                        self.timeout, attempt, attempts - 1)
         raise HardwareError(
             f"{self.port}: no reply from the board to {command} after {attempts} attempt(s) of "
             f"{self.timeout:.2f} s each; check that the board is powered and flashed, the port is right "

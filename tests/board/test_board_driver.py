@@ -181,3 +181,20 @@ def test_board_gone_mid_session(make_emulator, calibration):
     assert time.monotonic() - t0 < 1.0
     board.close()  # logs, does not raise
     assert not board.is_open
+
+
+def test_board_that_boots_slowly_is_waited_for(fake_board, calibration):
+    ignored = []
+
+    def booting(line):       # an Arduino in its bootloader: the first lines are lost
+        if line.split()[1] == "ID" and len(ignored) < 3:
+            ignored.append(line)
+            return []
+        return _answer(line, None)
+    t0 = time.monotonic()
+    with pytest.raises(HardwareError, match="no reply from the board to ID after 2 attempt"):
+        Driver(fake_board(booting).port, calibration, timeout=0.1, retries=1).open()
+    ignored.clear()
+    with Driver(fake_board(booting).port, calibration, timeout=0.1, retries=1, boot_time=0.5) as board:
+        assert board.info.board == "fake" and len(ignored) == 3
+    assert time.monotonic() - t0 < 2.0
