@@ -90,7 +90,7 @@ def test_zero_limit_speed_and_busy(make_emulator, raw_port):
     assert port.ask("6 ZERO 1") == "6 OK"          # axis 1 is not moving
     assert port.ask("7 STOP") == "7 OK"
     pos = emu.read_state()["ticks"][0]
-    assert 0 < pos < 100
+    assert 0 < pos < 500
     assert port.ask("8 LIMIT 0 0 5") == "8 OK lo=0 hi=5"   # stopped: new limits accepted
     assert port.ask("9 ZERO 0") == "9 OK"
     assert port.ask("10 GET") == "10 OK pos=0,0 tgt=0,0 mov=0,0 en=0,0 wd=0"
@@ -108,20 +108,20 @@ def _stopped(emu, axis):
 def test_watchdog_stops_motors_after_host_silence(make_emulator, raw_port):
     emu = make_emulator(2)
     port = raw_port(emu.port)
-    assert port.ask("1 WDOG 100") == "1 OK ms=100"
+    assert port.ask("1 WDOG 200") == "1 OK ms=200"
     assert port.ask("2 LIMIT 0 0 100000") == "2 OK lo=0 hi=100000"
     assert port.ask("3 SPEED 0 1000") == "3 OK speed=1000"
     assert port.ask("4 SET 0 100000") == "4 OK"
     # Talking keeps it alive ...
-    for seq in range(5, 12):
-        time.sleep(0.05)
+    for seq in range(5, 17):
+        time.sleep(0.03)
         assert port.ask(f"{seq} PING") == f"{seq} OK"
     assert emu.read_state()["moving"][0]
     # ... silence stops it.
     state = wait_until(lambda: _stopped(emu, 0), timeout=1.0)
     assert state and state["stops"]["watchdog"] == 1 and not state["moving"][0]
     stopped_at = state["ticks"][0]
-    assert 300 < stopped_at < 1000
+    assert 300 < stopped_at < 5000  # moved while pinged (>= 0.36 s at 1000 ticks/s), stopped long before the target
     time.sleep(0.1)
     assert emu.read_state()["ticks"][0] == stopped_at
     assert port.ask("20 GET").endswith(f"en=0,0 wd=1")
@@ -151,7 +151,7 @@ def test_host_closing_port_mid_move_stops_motors(make_emulator, raw_port):
     assert state and state["stops"]["hangup"] >= 1 and state["stops"]["watchdog"] == 0
     assert not state["connected"]
     stopped_at = state["ticks"][1]
-    assert -500 < stopped_at < 0
+    assert -3000 < stopped_at < 0
     time.sleep(0.1)
     assert emu.read_state()["ticks"][1] == stopped_at
     # The port can be opened again and the board answers.
