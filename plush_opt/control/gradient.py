@@ -192,7 +192,9 @@ class Controller:
         self._eq: Equilibrium | None = None
         self._dirty = False      # targets or frozen set changed since the last iterate
         self._finished = False
-        self._taken_up: set[int] = set()   # winches whose slack was reeled in at this stall
+        # restart moves used since the targets / frozen set last changed
+        # (each at most once per winch, so the loop cannot cycle through them)
+        self._restarted: set[int] = set()
 
     # -- what a caller may change between iterates ------------------------
 
@@ -282,7 +284,7 @@ class Controller:
             if self._dirty:
                 # same certified pose, re-scored for the new targets / frozen set
                 self._dirty = False
-                self._taken_up = set()
+                self._restarted = set()
                 self._grad, self._J, self._dxdc = self._gradient(
                     self._eq, opts.direction == "gauss-newton")
                 stall = 0
@@ -294,10 +296,10 @@ class Controller:
                 if reason is not None:
                     self.converged, self.status = reason
                 if not self._out_of_budget(steps, last):
-                    taken = self._take_up_slack(last)
-                    if taken is not None:
+                    moved = self._restart(last)
+                    if moved is not None:
                         stall = 0
-                        yield taken
+                        yield moved
                         continue
                 self.status += self._slack_note(last)
                 self._finished = True
@@ -307,7 +309,6 @@ class Controller:
                 stall += 1
             else:
                 stall = 0
-                self._taken_up = set()
             yield step
 
     def _out_of_budget(self, steps: int, last: Iterate) -> bool:
@@ -333,35 +334,71 @@ class Controller:
         names = ", ".join(self.model.winch_names[w] for w in slack)
         return f"; winch {names}: all tendons slack (zero gradient)"
 
-    def _take_up_slack(self, last: Iterate) -> Iterate | None:
-        """Reel in the slack of winches whose tendons are all slack.
+    def _restart(self, last: Iterate) -> Iterate | None:
+        """Where the loop would stop, look a little further before giving up.
 
-        A slack tendon exerts no force, so its winch has a zero gradient and
-        the loop cannot tell whether pulling would help. Contracting it until
-        its tightest tendon just enters the smoothing zone (G = -0.9 eps)
-        leaves the pose practically unchanged but gives the winch a gradient.
-        Done once per winch until the loop makes progress again.
+        Two situations fool a local method here:
+
+        * a winch whose tendons are all slack has a zero gradient: nothing
+          tells the loop whether pulling would help;
+        * a winch held at a bound by its gradient may only see the first
+          millimetres of pull, which engage the "wrong" tendon first (one
+          slack at rest, say), although pulling further helps a lot.
+
+        For those winches, the slack is reeled in (up to the point where the
+        tightest tendon just enters the smoothing zone, which leaves the pose
+        unchanged) and a few probes go inwards by 5, 15 and 40 % of the
+        range; each probe is a certified equilibrium and is taken only if
+        it lowers O by 0.1 %. Each winch gets this once per set of targets.
         """
+        names = self.model.winch_names
+        slack = self._slack_winches(last)
+        held = [names.index(n) for n in last.active_bounds]
+        cand = [w for w in dict.fromkeys(slack + held) if w not in self._restarted]
+        if not cand:
+            return None
+        self._restarted.update(cand)
         G = self.model.tendon_state(last.x, last.contraction)["stretch"]
         eps = self.model.tendon_smoothing
-        c = last.contraction.copy()
-        for w in self._slack_winches(last):
-            if w in self._taken_up:
-                continue
-            self._taken_up.add(w)
-            mine = self.model.tendon_winch == w
-            c[w] = min(c[w] + float(np.min(-G[mine] - eps)) + 0.1 * eps, self.model.upper[w])
-        if np.array_equal(c, last.contraction):
-            return None
-        eq = self._solve(c, last.x)
-        if not eq.converged:
-            return None
+        lower, upper = self.model.lower, self.model.upper
+        span = upper - lower
+        for frac in (0.0, 0.05, 0.15, 0.4):
+            for w in cand:
+                c = last.contraction.copy()
+                if w in slack:
+                    mine = self.model.tendon_winch == w
+                    c[w] += float(np.min(-G[mine] - eps)) + 0.1 * eps
+                    inward = 1.0
+                elif frac == 0.0:
+                    continue
+                else:
+                    inward = 1.0 if c[w] <= lower[w] + 0.5 * span[w] else -1.0
+                c[w] = float(np.clip(c[w] + inward * frac * span[w], lower[w], upper[w]))
+                if c[w] == last.contraction[w]:
+                    continue
+                eq = self._solve(c, last.x)
+                if not eq.converged:
+                    continue
+                value = self.targets.value(eq.x)
+                if frac == 0.0:
+                    # slack reeled in: keep it if pulling now helps
+                    grad, _, _ = self._gradient(eq, False)
+                    if grad[w] < 0 and value <= last.objective * (1 + 1e-9):
+                        log.info("took up the slack of %s", names[w])
+                        return self._jump(c, eq)
+                elif value < last.objective * (1 - 1e-3):
+                    log.info("probe: moving %s to %.4g lowered O", names[w], c[w])
+                    return self._jump(c, eq)
+        return None
+
+    def _jump(self, c, eq) -> Iterate:
+        """Continue the loop from a certified equilibrium found off the line search."""
         self.xi = self.reparam.inverse(c) if self.options.bounds == "reparam" else c.copy()
         self.contraction = c
         self._eq = eq
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
+        self._mu = 1e-3
         self.status = "running"
-        log.info("took up the slack of %s", [self.model.winch_names[w] for w in np.flatnonzero(c != last.contraction)])
         return self._iterate(eq, self._grad)
 
     def _stop_reason(self, last: Iterate, stall: int, steps: int):
@@ -393,23 +430,44 @@ class Controller:
         return None
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
-        """A step on xi (or on c for clipping) for the free winches."""
-        free = ~self.frozen
+        """A step on xi (or on c for clipping) for the free winches.
+
+        Winches sitting on a bound whose step would push them further out
+        are held (projected Gauss-Newton): otherwise a winch that cannot
+        move would still take the length of the step from the others.
+        """
         slope = (np.maximum(self.reparam.df(self.xi), self.options.slope_floor)
                  if self.options.bounds == "reparam" else np.ones_like(self.xi))
         g = last.gradient * slope
-        step = np.zeros_like(self.xi)
-        if self.options.direction == "gauss-newton":
-            J = self._J[:, free] * slope[free][None, :]
-            A = J.T @ J
-            A = A + mu * np.diag(np.diag(A)) + mu * 1e-6 * max(np.trace(A), 1e-300) * np.eye(A.shape[0])
-            step[free] = -np.linalg.solve(A, g[free])
+        if self.options.bounds == "reparam":
+            lo_edge, hi_edge = self.model.lower - self.reparam.delta, self.model.upper + self.reparam.delta
         else:
-            if self._bb_step is None:
-                span = float(np.mean(self.model.upper - self.model.lower))
-                self._bb_step = 0.1 * span / max(np.linalg.norm(g[free]), 1e-300)
-            step[free] = -self._bb_step * g[free]
-        limit = self.options.max_step * (self.model.upper - self.model.lower)
+            lo_edge, hi_edge = self.model.lower, self.model.upper
+        span = self.model.upper - self.model.lower
+        at_lower = self.xi <= lo_edge + 1e-12 * span
+        at_upper = self.xi >= hi_edge - 1e-12 * span
+        held = self.frozen.copy()
+        for _ in range(self.model.n_winches + 1):
+            step = np.zeros_like(self.xi)
+            move = ~held
+            if not move.any():
+                return step
+            if self.options.direction == "gauss-newton":
+                J = self._J[:, move] * slope[move][None, :]
+                A = J.T @ J
+                # Levenberg damping on the scale of the largest curvature, so a
+                # winch with a tiny column cannot take a huge step
+                damp = mu * max(float(np.max(np.diag(A))), 1e-300)
+                step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
+            else:
+                if self._bb_step is None:
+                    self._bb_step = 0.1 * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
+                step[move] = -self._bb_step * g[move]
+            outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
+            if not outward.any():
+                break
+            held |= outward
+        limit = self.options.max_step * span
         ratio = np.max(np.abs(step) / limit)
         return step / ratio if ratio > 1 else step
 

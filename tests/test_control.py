@@ -1,0 +1,225 @@
+"""Method 1: the sensitivity-driven gradient loop."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from plush_opt.control.bounds import Reparametrisation
+from plush_opt.control.gradient import ControlOptions, Controller, solve_control
+from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.mesh import build_mesh
+from plush_opt.model import build_model
+from plush_opt.objective import Targets
+from plush_opt.scene import Winch
+from plush_opt.sensitivity import objective_gradient, state_sensitivity
+from shipped import PROBLEMS, built
+
+# contractions at which some tendons are slack (negative contraction lets
+# them out) and some taut (tension above 2 K eps)
+STATES = {"gripper": [20.0, -8.0, 15.0], "hexapod": [15.0, -2.0], "hexapod_leg": [12.0]}
+
+
+def _at(model, fractions):
+    return model.lower + np.asarray(fractions) * (model.upper - model.lower)
+
+
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_objective_gradient_matches_central_differences_of_fresh_solves(name):
+    _, _, model, targets = built(name)
+    c = np.array(STATES[name])
+    eq = solve_equilibrium(model, c)
+    G = model.tendon_state(eq.x, c)["stretch"]
+    eps = model.tendon_smoothing
+    grad = objective_gradient(model, eq, targets.gradient(eq.x))
+    h = 1e-4
+    fd = np.empty(model.n_winches)
+    for w in range(model.n_winches):
+        e = np.zeros(model.n_winches)
+        e[w] = h
+        fd[w] = (targets.value(solve_equilibrium(model, c + e, eq.x).x)
+                 - targets.value(solve_equilibrium(model, c - e, eq.x).x)) / (2 * h)
+    err = np.abs(grad - fd).max() / max(np.abs(fd).max(), 1e-300)
+    assert err < 1e-5, f"dO/dc {grad} vs central differences {fd}: relative error {err:.2e}"
+    if name != "hexapod_leg":   # its single winch's two tendons are both engaged
+        assert (G <= -eps).any() and (G >= eps).any(), "want both slack and taut tendons here"
+
+
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_state_sensitivity_three_ways(name):
+    """dx/dc: perturb-and-resolve, and the adjoint gradient equals the
+    forward sensitivity contracted with dO/dx."""
+    _, _, model, targets = built(name)
+    c = np.array(STATES[name])
+    eq = solve_equilibrium(model, c)
+    dxdc = state_sensitivity(model, eq)
+    h = 1e-4
+    for w in range(model.n_winches):
+        e = np.zeros(model.n_winches)
+        e[w] = h
+        fd = (solve_equilibrium(model, c + e, eq.x).x - solve_equilibrium(model, c - e, eq.x).x) / (2 * h)
+        assert np.linalg.norm(dxdc[:, w] - fd) <= 1e-5 * max(np.linalg.norm(fd), 1e-12)
+    adjoint = objective_gradient(model, eq, targets.gradient(eq.x))
+    forward = targets.gradient(eq.x) @ dxdc
+    assert np.abs(adjoint - forward).max() <= 1e-9 * np.abs(forward).max()
+
+
+def test_tension_chain_rule_equals_implicit_sensitivity():
+    """The paper's dx/dtau dtau/dc: with A = dl/dx (routing matrix),
+    H dx/dtau = A, and dtau/dc = U''(G) (dG/dc = 1 per winch, tendon
+    lengths held) -- identical to H dx/dc = -d2E/dxdc."""
+    _, _, model, _ = built("gripper")
+    c = np.array(STATES["gripper"])
+    eq = solve_equilibrium(model, c)
+    A = model.length_gradient(eq.x)                       # (n_dofs, n_tendons)
+    dtension = model.tendon_state(eq.x, c)["dtension"]
+    W = np.zeros((model.n_tendons, model.n_winches))
+    W[np.arange(model.n_tendons), model.tendon_winch] = 1.0
+    dx_dtau = -np.column_stack([eq.factor.solve(A[:, t]) for t in range(model.n_tendons)])
+    chain = dx_dtau @ (dtension[:, None] * W)
+    ref = state_sensitivity(model, eq)
+    assert np.abs(chain - ref).max() <= 1e-9 * np.abs(ref).max()
+
+
+def test_reparametrisation_is_c1_monotone_and_within_bounds():
+    r = Reparametrisation.for_bounds([0.0, -5.0], [25.0, 5.0], blend=0.05)
+    xi = np.linspace(-10, 35, 20001)
+    xs = np.stack([xi, xi - 15], axis=1)
+    c = np.array([r.f(x) for x in xs])
+    d = np.array([r.df(x) for x in xs])
+    assert np.all(c >= r.lower) and np.all(c <= r.upper)
+    assert np.all(np.diff(c, axis=0) >= 0)
+    # C1: derivative continuous, matches differences
+    assert np.allclose(np.gradient(c[:, 0], xi), d[:, 0], atol=2e-3)
+    assert np.max(np.abs(np.diff(d[:, 0]))) < 1e-2
+    # identity away from the bounds, exact bounds at the clamp
+    mid = (xi > 2) & (xi < 23)
+    assert np.array_equal(c[mid, 0], xi[mid])
+    assert r.f(r.clamp(np.array([100.0, 100.0]))).tolist() == [25.0, 5.0]
+    # inverse
+    for v in ([0.0, -5.0], [0.3, 4.9], [12.0, 0.0], [24.99, 5.0]):
+        assert np.allclose(r.f(r.inverse(np.array(v))), v, atol=1e-12)
+
+
+@pytest.mark.parametrize("name, fractions", [("gripper", [0.45, 0.05, 0.5]),
+                                             ("hexapod", [0.5, 0.25]),
+                                             ("hexapod_leg", [0.6])])
+def test_known_answer_targets_are_recovered_from_rest(name, fractions):
+    scene, mesh, model, targets = built(name)
+    c_true = _at(model, fractions)
+    ref = solve_equilibrium(model, c_true)
+    goal = targets.replace_to(targets.y(ref.x))
+    ctl = Controller(model, goal, np.zeros(model.n_winches) if np.all(model.lower <= 0) else model.lower)
+    for it in ctl.iterates():
+        assert np.all(it.contraction >= model.lower) and np.all(it.contraction <= model.upper)
+        assert it.equilibrium.converged and it.equilibrium.positive_definite
+    res = ctl.result()
+    rms = goal.rms_error(res.equilibrium.x)
+    assert rms < 0.1, f"{name}: RMS target error {rms:.3g} mm ({res.status})"
+    assert res.converged, res.status
+
+
+def test_unreachable_target_ends_at_the_bound_not_beyond():
+    scene, mesh, model, targets = built("hexapod_leg")
+    # the foot tip far below and behind: more contraction always helps
+    far = Targets.at_points(mesh, [[100, -9]], [[0, -300]])
+    res = solve_control(model, far)
+    assert "bound active: leg" in res.status
+    assert res.contraction[0] <= model.upper[0]
+    assert res.contraction[0] >= model.upper[0] - 0.02 * (model.upper[0] - model.lower[0])
+    for it in res.history:
+        assert it.contraction[0] <= model.upper[0]
+
+
+def test_frozen_winch_does_not_change_by_a_single_bit():
+    _, _, model, targets = built("gripper")
+    start = np.array([3.0, 0.0, 7.123456789])
+    frozen = np.array([False, False, True])
+    ctl = Controller(model, targets, start, frozen)
+    seen = [it.contraction[2] for it in ctl.iterates()]
+    assert len(seen) > 2
+    assert all(v == start[2] for v in seen)
+    assert np.array_equal(ctl.result().contraction[2:], start[2:])
+
+
+def test_saturated_winch_comes_back_when_the_target_moves_back():
+    _, mesh, model, _ = built("hexapod_leg")
+    far = Targets.at_points(mesh, [[100, -9]], [[0, -300]])
+    ctl = Controller(model, far)
+    for _ in ctl.iterates():
+        pass
+    saturated = ctl.contraction[0]
+    assert saturated > model.upper[0] - 0.02 * (model.upper[0] - model.lower[0])
+    reachable = solve_equilibrium(model, [5.0])
+    back = far.replace_to(far.y(reachable.x))
+    ctl.set_targets(back)
+    for _ in ctl.iterates():
+        pass
+    assert abs(ctl.contraction[0] - 5.0) < 0.05, ctl.status
+    assert back.rms_error(ctl.history[-1].x) < 0.1
+
+
+def _with_leg_bounds(lower, upper, contraction):
+    scene, _, _, _ = built("hexapod_leg")
+    w = scene.winches[0]
+    scene = dataclasses.replace(scene, winches=(Winch(w.name, (lower, upper), contraction, False),))
+    mesh = build_mesh(scene)
+    return scene, mesh, build_model(scene, mesh)
+
+
+def test_all_tendons_slack_ends_with_an_honest_status():
+    # the winch may only let tendons out: every tendon stays slack, no gradient
+    scene, mesh, model = _with_leg_bounds(-10.0, -5.0, -7.0)
+    goal = Targets.at_points(mesh, [[100, -9]], [[80, -40]])
+    ctl = Controller(model, goal)
+    n = sum(1 for _ in ctl.iterates())
+    assert n <= 3
+    assert not ctl.converged
+    assert "all tendons slack" in ctl.status and "leg" in ctl.status
+
+
+def test_slack_winch_is_reeled_in_and_the_loop_recovers():
+    scene, mesh, model = _with_leg_bounds(-10.0, 15.0, -4.0)
+    ref = solve_equilibrium(model, [6.0])
+    goal = Targets.at_points(mesh, [[100, -9], [50, 9]], np.zeros((2, 2)))
+    goal = goal.replace_to(goal.y(ref.x))
+    res = solve_control(model, goal)
+    assert res.converged, res.status
+    assert abs(res.contraction[0] - 6.0) < 0.01
+
+
+def test_changing_targets_between_iterates_continues_from_the_current_pose():
+    _, _, model, targets = built("gripper")
+    ctl = Controller(model, targets)
+    gen = ctl.iterates()
+    first = [next(gen) for _ in range(3)]
+    ctl.set_targets(targets.replace_to(targets.to + [5.0, 0.0]))
+    nxt = next(gen)
+    assert np.array_equal(nxt.contraction, first[-1].contraction)   # same pose, re-scored
+    assert nxt.objective != first[-1].objective
+    for _ in gen:
+        pass
+    assert ctl.history[-1].objective < nxt.objective
+
+
+@pytest.mark.parametrize("options", [ControlOptions(direction="gradient"), ControlOptions(bounds="clip")])
+def test_other_directions_and_clipping_reduce_the_objective(options):
+    _, _, model, targets = built("gripper")
+    res = solve_control(model, targets, options=dataclasses.replace(options, max_iterations=30))
+    assert res.objective < 0.1 * res.history[0].objective
+    assert all(np.all(h.contraction >= model.lower) and np.all(h.contraction <= model.upper)
+               for h in res.history)
+
+
+def test_iteration_budget_is_an_honest_status():
+    _, _, model, targets = built("gripper")
+    res = solve_control(model, targets, options=ControlOptions(max_iterations=2))
+    assert not res.converged and "iteration limit" in res.status
+    assert len(res.history) == 3
+
+
+def test_options_are_validated():
+    with pytest.raises(ValueError, match="bounds: expected one of"):
+        ControlOptions(bounds="box")
+    with pytest.raises(ValueError, match="direction: expected one of"):
+        ControlOptions(direction="newton")
