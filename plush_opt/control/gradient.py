@@ -451,7 +451,7 @@ class Controller:
             step = np.zeros_like(self.xi)
             move = ~held
             if not move.any():
-                return step
+                break
             if self.options.direction == "gauss-newton":
                 J = self._J[:, move] * slope[move][None, :]
                 A = J.T @ J
@@ -494,7 +494,7 @@ class Controller:
             if eq.converged and self.targets.value(eq.x) < last.objective:
                 self._accept(xi_t, eq, last)
                 if gn:
-                    self._mu = max(self._mu / 3, 1e-12) if attempt == 0 else self._mu
+                    self._mu = max(self._mu / 3, 1e-9)
                 return self._iterate(eq, self._grad)
             if gn:
                 self._mu *= 10
