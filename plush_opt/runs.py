@@ -615,6 +615,8 @@ def run_script(script_path, board=None, dry_run: bool = False, log_path=None, pl
         raise TypeError("run_script needs a planner (see plush_opt.runs.Planner)")
     script = script_path if isinstance(script_path, RunScript) else load_run_script(script_path)
     calibration = load_calibration(script.board)
+    if isinstance(board, Driver) and not dry_run:
+        calibration = board.calibration  # conversions must match what that driver sends
     check_run_script(script, planner, calibration)
     bounds = {n: (float(lo), float(hi)) for n, lo, hi in zip(planner.winch_names, planner.lower, planner.upper)}
 
@@ -627,11 +629,6 @@ def run_script(script_path, board=None, dry_run: bool = False, log_path=None, pl
                                     f"emulator (--emulator) or --dry-run, or set port.device in {calibration.source}")
         if isinstance(board, Driver):
             driver = board
-            missing = [n for n in planner.winch_names if n not in driver.calibration.winch_names]
-            if missing:
-                raise HardwareError(f"{script.path}: the driver's calibration {driver.calibration.source} has no "
-                                    f"winch {missing[0]!r}")
-            calibration = driver.calibration  # conversions must match what the driver sends
             driver.set_scene_bounds(bounds)
         else:
             driver, own = Driver(os.fspath(board), calibration, bounds=bounds), True
@@ -684,7 +681,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     where.add_argument("--port", help="serial port of the winch board (default: port.device of the board file)")
     where.add_argument("--emulator", action="store_true",
                        help="run against the board emulator (build it with `make -C hw`)")
-    where.add_argument("--dry-run", action="store_true", help="plan and log every step, open no port")
+    parser.add_argument("--dry-run", action="store_true", help="plan and log every step, open no port")
     parser.add_argument("--log", type=Path, metavar="FILE",
                         help="JSON-lines log of the run (default: out/runs/SCRIPT-TIME.jsonl)")
     return parser
@@ -703,7 +700,7 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
     log_path = args.log if args.log is not None else _default_log_path(script)
     emulator = None
     try:
-        if args.emulator:
+        if args.emulator and not args.dry_run:
             # The physical top speed must not be what limits: the board's SPEED does.
             top = 2 * max(w.speed_ticks for w in calibration.winches)
             emulator = Emulator(winches=calibration.n_axes_required, speed=top)
@@ -717,7 +714,7 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
     finally:
         if emulator is not None:
             emulator.close()
-    where = "dry run" if result.dry_run else ("emulator" if args.emulator else "board")
+    where = "dry run" if result.dry_run else ("emulator" if emulator is not None else "board")
     sys.stderr.write(f"run {script.path.name} completed on {where}: {result.steps} steps, "
                      f"{result.commands} commands, log {result.log_path}\n")
     return 0

@@ -274,6 +274,7 @@ def test_cli_arguments():
     assert args.script == Path("x.yaml") and args.emulator and not args.dry_run and args.port is None
     with pytest.raises(SystemExit):
         parser.parse_args(["x.yaml", "--emulator", "--port", "/dev/ttyACM0"])
+    assert parser.parse_args(["x.yaml", "--port", "/dev/ttyACM0", "--dry-run"]).dry_run
 
 
 def test_cli_run_on_the_emulator_and_dry(tmp_path, emu_binary, capsys):
@@ -284,10 +285,11 @@ def test_cli_run_on_the_emulator_and_dry(tmp_path, emu_binary, capsys):
     def factory(problem):
         seen.append(problem)
         return FakePlanner()
-    for flag in ("--emulator", "--dry-run"):
-        log = tmp_path / f"log{flag}.jsonl"
-        assert cli_run(parser.parse_args([str(script), flag, "--log", str(log)]), factory) == 0
+    for i, flags in enumerate((["--emulator"], ["--dry-run"], ["--emulator", "--dry-run"])):
+        log = tmp_path / f"log{i}.jsonl"
+        assert cli_run(parser.parse_args([str(script), *flags, "--log", str(log)]), factory) == 0
         assert read_log(log)[-1]["status"] == "completed"
-    assert seen == [tmp_path / "problem.yaml"] * 2
+        assert read_log(log)[0]["dry_run"] is ("--dry-run" in flags)
+    assert seen == [tmp_path / "problem.yaml"] * 3
     err = capsys.readouterr().err
     assert "completed on emulator" in err and "completed on dry run" in err
