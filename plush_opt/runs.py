@@ -327,11 +327,11 @@ class _Progress:
         self._shown = False
         self._last = 0.0
 
-    def update(self, text: str, force: bool = False) -> None:
+    def update(self, text: str) -> None:
         if not self.enabled:
             return
         now = time.monotonic()
-        if not force and now - self._last < 0.1:
+        if now - self._last < 0.1:
             return
         self._last = now
         width = max(20, shutil.get_terminal_size((100, 20)).columns - 1)
@@ -357,7 +357,7 @@ class _Runner:
         self.planner = planner
         self.calibration = calibration
         self.driver = driver
-        self.checker = checker          # validates and converts; the driver itself when there is one
+        self.checker = checker          # validates contractions in a dry run
         self.log = runlog
         self.progress = progress
         self.names = tuple(planner.winch_names)
@@ -387,7 +387,7 @@ class _Runner:
             "objective": info.get("objective"), "status": info.get("status"), **extra})
         self._show(event, info)
 
-    def _show(self, event, info, force=False):
+    def _show(self, event, info):
         i, kind = self._step or (None, "start")
         head = f"[{i + 1}/{len(self.script.steps)}]" if i is not None else "[-]"
         obj = info.get("objective")
@@ -398,13 +398,13 @@ class _Runner:
             c = self.commanded.get(n)
             m = (self.measured or {}).get(n)
             parts.append(f"{n} {c:.1f}" + (f">{m:.1f}" if m is not None else "") if c is not None else n)
-        self.progress.update("  ".join(parts) + " mm", force=force)
+        self.progress.update("  ".join(parts) + " mm")
 
     # -- board I/O ---------------------------------------------------------
     def _read(self):
         state = self.driver.read_state()
-        self.measured = {n: self.calibration.winch(n).to_mm(state.position[self.calibration.winch(n).axis])
-                         for n in self.names}
+        positions = self.driver.positions_mm(state)
+        self.measured = {n: positions[n] for n in self.names}
         if self._wd0 is None:
             self._wd0 = state.watchdog_trips
         elif state.watchdog_trips > self._wd0:
@@ -414,20 +414,21 @@ class _Runner:
 
     def _send(self, i, kind, contraction, info, **extra):
         full = {**self.commanded, **{n: float(v) for n, v in contraction.items()}}
-        self.checker.check_contractions(full)  # refuses before anything is sent
         acknowledged = None
         if self.driver is not None:
-            self.driver.set_contractions(full)
+            self.driver.set_contractions(full)  # validates everything before sending
             acknowledged = True
+        else:
+            self.checker.check_contractions(full)
         self.commanded = full
         self.commands += 1
         if self.driver is not None:
             self._read()
         self._line(i, kind, "command", acknowledged=acknowledged, info=info, **extra)
 
-    def _poll(self, i, kind, info=None, event="measure"):
+    def _poll(self, i, kind, info=None):
         state = self._read()
-        self._line(i, kind, event, info=info)
+        self._line(i, kind, "measure", info=info)
         return state
 
     def _settle(self, i, kind, info):

@@ -112,7 +112,6 @@ class Driver:
         self._seq = 0
         self._recent = collections.deque(maxlen=64)  # sequence numbers given up on
         self.info: P.BoardInfo | None = None
-        self.watchdog_trips_at_open = 0
 
     # ------------------------------------------------------------ bounds --
     def _merge_bounds(self, bounds) -> dict[str, tuple[float, float]]:
@@ -217,7 +216,6 @@ class Driver:
             lo, hi = w.tick_limits
             self._transact("LIMIT", w.axis, lo, hi)
             self._transact("SPEED", w.axis, w.speed_ticks)
-        self.watchdog_trips_at_open = self.read_state().watchdog_trips
         log.info("%s: %s firmware %s, %d axes, calibration %s", self.port, info.board, info.firmware,
                  info.winches, cal.name)
 
