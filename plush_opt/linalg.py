@@ -29,8 +29,11 @@ class NotPositiveDefinite(Exception):
 class Factorizer:
     """Cholesky factorisations of matrices sharing one sparsity pattern.
 
-    The fill-reducing ordering and symbolic analysis are computed on the
-    first call and reused for every later matrix with the same pattern.
+    The fill-reducing ordering (AMD) and symbolic analysis are computed on
+    the first call and reused for every later matrix with the same pattern.
+    CHOLMOD's simplicial LDL^T is used: on these meshes it is about twice
+    as fast as the supernodal LL^T; the matrix is positive definite exactly
+    when every pivot of D is positive, which is checked.
     """
 
     def __init__(self):
@@ -41,12 +44,15 @@ class Factorizer:
         """Cholesky of ``H + shift I``; raises :class:`NotPositiveDefinite`."""
         pattern = (H.shape, H.indptr.tobytes(), H.indices.tobytes())
         if self._symbolic is None or pattern != self._pattern:
-            self._symbolic = analyze(H, mode="supernodal")
+            self._symbolic = analyze(H, mode="simplicial", ordering_method="amd")
             self._pattern = pattern
         try:
             f = self._symbolic.cholesky(H, beta=shift)
         except CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
+        d = f.D()
+        if not np.all(d > 0) or not np.all(np.isfinite(d)):
+            raise NotPositiveDefinite(f"LDL^T pivot {float(np.min(d)):.3g} <= 0")
         return Factor(f, H, shift)
 
 

@@ -23,6 +23,7 @@ A term the scene does not have (gravity, tendons) is not built.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass
 
@@ -31,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .errors import SceneError
+from .kernels import compiled
 from .linalg import Factorizer
 from .mesh import Mesh
 from .scene import Scene
@@ -98,6 +100,14 @@ def _tendon_kernels():
 _PSI, _PSI_DERIVS = _neo_hookean_kernels()
 _SEG, _SEG_DERIVS = _segment_kernels()
 _U, _U_DERIVS = _tendon_kernels()
+
+
+@functools.lru_cache(maxsize=None)
+def _fast_kernels() -> dict[str, ca.Function]:
+    """The kernels the fast path evaluates, compiled (cached on disk) once
+    per process. The CasADi expression keeps the symbolic kernels, which it
+    differentiates."""
+    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_DERIVS, _SEG_DERIVS, _U_DERIVS)}
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:
@@ -192,8 +202,9 @@ class Model:
         # (n_elems, k) array is exactly that column-major (k, n_elems) buffer
         consts = {1: self._Dinv, 2: self._elem_weight,
                   3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
-        self._psi = _Mapped(_PSI_DERIVS, self.n_elems, consts)
-        self._psi_energy = _Mapped(_PSI, self.n_elems, consts)
+        kernels = _fast_kernels()
+        self._psi = _Mapped(kernels["psi_derivs"], self.n_elems, consts)
+        self._psi_energy = _Mapped(kernels["psi"], self.n_elems, consts)
 
         # pins
         self.pin_stiffness = scene.pin_stiffness
@@ -211,7 +222,6 @@ class Model:
 
         self._build_tendons()
         self._build_pattern()
-        self._build_casadi()
         # symbolic Cholesky analysis, computed on the first factorisation
         # and reused for every Hessian of this model (fixed pattern)
         self.factorizer = Factorizer()
@@ -246,8 +256,9 @@ class Model:
         if self.has_tendons:
             seglen = np.linalg.norm(self.X[self._seg_dofs[:, 2:]] - self.X[self._seg_dofs[:, :2]], axis=1)
             self.assembly_length = np.bincount(self._seg_tendon, weights=seglen, minlength=self.n_tendons)
-            self._seg = _Mapped(_SEG_DERIVS, self.n_segments, {})
-            self._U = _Mapped(_U_DERIVS, self.n_tendons,
+            kernels = _fast_kernels()
+            self._seg = _Mapped(kernels["seg_derivs"], self.n_segments, {})
+            self._U = _Mapped(kernels["U_derivs"], self.n_tendons,
                               {1: np.full(self.n_tendons, scene.tendon_stiffness),
                                2: np.full(self.n_tendons, scene.tendon_smoothing)})
             # each tendon's local dof list (padded with -1) and where each
@@ -302,8 +313,12 @@ class Model:
             self._slot_seg = rest[:n_s]
             self._slot_outer = rest[n_s:]
 
-    def _build_casadi(self):
-        """The energy as one CasADi expression of (x, c), and its derivatives."""
+    @functools.cached_property
+    def _casadi(self) -> dict:
+        """The energy as one CasADi expression of (x, c), and its derivatives.
+
+        Built on first use: Newton and the gradient loop never need it, IPOPT
+        (equilibrium cross-check, bilevel control) and the tests do."""
         x = ca.MX.sym("x", self.n_dofs)
         c = ca.MX.sym("c", self.n_winches)
         xe = ca.reshape(x[self._elem_dofs.ravel().tolist()], 6, self.n_elems)
@@ -328,14 +343,24 @@ class Model:
             E += ca.sum2(U)
         if self.has_gravity:
             E -= ca.dot(ca.DM(self.f_gravity), x)
-        self.x_sym, self.c_sym, self.E_sym = x, c, E
         g = ca.gradient(E, x)
         H = ca.jacobian(g, x)
         M = ca.jacobian(g, c)
-        self.E = ca.Function("E", [x, c], [E], ["x", "c"], ["E"])
-        self.grad_E = ca.Function("grad_E", [x, c], [g], ["x", "c"], ["grad"])
-        self.hess_E = ca.Function("hess_E", [x, c], [H], ["x", "c"], ["hess"])
-        self.mixed_E = ca.Function("mixed_E", [x, c], [M], ["x", "c"], ["d2E_dxdc"])
+        return {
+            "x": x, "c": c, "E_sym": E,
+            "E": ca.Function("E", [x, c], [E], ["x", "c"], ["E"]),
+            "grad_E": ca.Function("grad_E", [x, c], [g], ["x", "c"], ["grad"]),
+            "hess_E": ca.Function("hess_E", [x, c], [H], ["x", "c"], ["hess"]),
+            "mixed_E": ca.Function("mixed_E", [x, c], [M], ["x", "c"], ["d2E_dxdc"]),
+        }
+
+    x_sym = property(lambda self: self._casadi["x"], doc="MX symbol of the flat pose")
+    c_sym = property(lambda self: self._casadi["c"], doc="MX symbol of the contractions")
+    E_sym = property(lambda self: self._casadi["E_sym"], doc="E as an MX expression")
+    E = property(lambda self: self._casadi["E"], doc="CasADi Function E(x, c)")
+    grad_E = property(lambda self: self._casadi["grad_E"], doc="CasADi Function grad_x E(x, c)")
+    hess_E = property(lambda self: self._casadi["hess_E"], doc="CasADi Function: sparse Hessian")
+    mixed_E = property(lambda self: self._casadi["mixed_E"], doc="CasADi Function d2E/dx dc")
 
     # -- evaluation ----------------------------------------------------------
 
