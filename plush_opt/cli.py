@@ -230,14 +230,22 @@ def _use_agg():
 # --------------------------------------------------------------------------
 
 def _add_demo(sub):
-    p = sub.add_parser("demo", help="the main job on the default problem (what `make demo` runs)")
+    p = sub.add_parser("demo", help="the main job on the default problem (what `make demo` runs)",
+                       description="Solve the gripper's pose problem, then play the gripper run "
+                       "script on the board emulator.")
     p.add_argument("--problem", type=Path, default=None, help="default: problems/gripper.yaml")
+    p.add_argument("--script", type=Path, default=None, help="default: examples/gripper_run.yaml")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
+    p.add_argument("--no-board", action="store_true", help="skip playing the run on the emulator")
     p.set_defaults(func=cmd_demo)
 
 
+def _repo_file(*parts) -> Path:
+    return Path(__file__).resolve().parent.parent.joinpath(*parts)
+
+
 def default_problem() -> Path:
-    return Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"
+    return _repo_file("problems", "gripper.yaml")
 
 
 def cmd_demo(args) -> int:
@@ -260,7 +268,47 @@ def cmd_demo(args) -> int:
     print(f"demo: target errors {', '.join(f'{e:.2f}' for e in err)} mm; "
           f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
     print(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
+    if not args.no_board:
+        _demo_run(args.script or _repo_file("examples", "gripper_run.yaml"), out)
     return EXIT_OK if doc["converged"] else EXIT_SOLVER
+
+
+def _demo_run(script: Path, out: Path) -> None:
+    """Play a run script on the board emulator; write its log and a plot."""
+    import json
+    from types import SimpleNamespace
+
+    from .plot import plot_run_log
+    print(f"demo: playing {script.name} on the board emulator")
+    log_path = out / "run.jsonl"
+    args = SimpleNamespace(script=script, port=None, emulator=True, dry_run=False, log=log_path)
+    code = cmd_run(args)
+    if code != EXIT_OK:
+        raise SolverError(f"the demo run ended with status {code}")
+    rows = [json.loads(line) for line in log_path.read_text().splitlines()]
+    plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions")
+    end = rows[-1]
+    print(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
+          f"wrote {log_path}, {out / 'run.png'}")
+
+
+# --------------------------------------------------------------------------
+# run
+# --------------------------------------------------------------------------
+
+def _add_run(sub):
+    from .runs import add_run_arguments
+    p = sub.add_parser("run", help="play a run script on the winch board (or its emulator)",
+                       description="Solve each step of a run script and stream the contractions "
+                       "to the winch board. See docs/hardware.md.")
+    add_run_arguments(p)
+    p.set_defaults(func=cmd_run)
+
+
+def cmd_run(args) -> int:
+    from .planner import ControlPlanner
+    from .runs import cli_run
+    return cli_run(args, ControlPlanner)
 
 
 # --------------------------------------------------------------------------
@@ -274,6 +322,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     _add_solve(sub)
+    _add_run(sub)
     _add_demo(sub)
     return parser
 

@@ -107,3 +107,40 @@ def plot_trace(path, history, title=None):
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def plot_run_log(path, log_lines, title=None):
+    """Commanded and measured contraction of each winch over a scripted run
+    (the JSON-lines log of plush_opt.runs, already parsed)."""
+    rows = [r for r in log_lines if r.get("commanded")]
+    if not rows:
+        raise ValueError("the run log has no commanded contractions")
+    names = list(rows[0]["commanded"])
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.9 * len(names) + 0.8), dpi=120, sharex=True,
+                             squeeze=False)
+    for ax, name in zip(axes[:, 0], names):
+        t = [r["t"] for r in rows]
+        ax.step(t, [r["commanded"][name] for r in rows], where="post", color="#1f77b4",
+                label="commanded")
+        meas = [(r["t"], r["measured"][name]) for r in rows if r.get("measured")]
+        if meas:
+            ax.plot(*zip(*meas), ".", ms=3, color="#ff7f0e", label="measured")
+        ax.set_ylabel(f"{name} [mm]")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    steps, seen = [], set()
+    for r in rows:
+        if r.get("step") is not None and r["step"] not in seen:
+            seen.add(r["step"])
+            steps.append((r["t"], r["kind"]))
+    for t, kind in steps:
+        for ax in axes[:, 0]:
+            ax.axvline(t, color="#999", lw=0.6, ls="--")
+        axes[0, 0].annotate(kind, (t, 1.02), xycoords=("data", "axes fraction"), fontsize=7,
+                            rotation=0, va="bottom")
+    axes[-1, 0].set_xlabel("time [s]")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
