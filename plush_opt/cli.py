@@ -324,6 +324,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_solve(sub)
     _add_run(sub)
     _add_demo(sub)
+    from .bench import add_bench_parser
+    add_bench_parser(sub)
     return parser
 
 

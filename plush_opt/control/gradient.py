@@ -268,7 +268,9 @@ class Controller:
         self._eq = eq
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self.status = "running"
-        return self._iterate(eq, self._grad)
+        first = self._iterate(eq, self._grad)
+        self._objective_at_start = first.objective
+        return first
 
     def iterates(self):
         """Run the loop, yielding every accepted :class:`Iterate` (the first
@@ -289,6 +291,7 @@ class Controller:
                     self._eq, opts.direction == "gauss-newton")
                 stall = 0
                 yield self._iterate(self._eq, self._grad)
+                self._objective_at_start = self.history[-1].objective
             last = self.history[-1]
             reason = self._stop_reason(last, stall, steps)
             step = self._step(last) if reason is None else None
@@ -347,13 +350,18 @@ class Controller:
 
         For those winches, the slack is reeled in (up to the point where the
         tightest tendon just enters the smoothing zone, which leaves the pose
-        unchanged) and a few probes go inwards by 5, 15 and 40 % of the
-        range; each probe is a certified equilibrium and is taken only if
-        it lowers O by 0.1 %. Each winch gets this once per set of targets.
+        unchanged); and, when the loop has not even halved O since the
+        targets were set (the trap shows as a loop stuck near its start), a
+        few probes go inwards by 5, 15 and 40 % of the range, each a
+        certified equilibrium taken only if it lowers O by 0.1 %. Each winch
+        gets this once per set of targets.
         """
         names = self.model.winch_names
         slack = self._slack_winches(last)
-        held = [names.index(n) for n in last.active_bounds]
+        # the bound trap shows as a loop stuck near where it started; a loop
+        # that has already made most of its progress is at a real optimum
+        stuck = last.objective > 0.5 * self._objective_at_start
+        held = [names.index(n) for n in last.active_bounds] if stuck else []
         cand = [w for w in dict.fromkeys(slack + held) if w not in self._restarted]
         if not cand:
             return None

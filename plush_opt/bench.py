@@ -1,0 +1,276 @@
+"""``plush-opt bench``: where the time goes, measured.
+
+For each problem and mesh size: model build (a fresh process with an empty
+kernel cache, and one with the cache populated), one Hessian evaluation,
+one factorisation, a forward solve from rest, a warm re-solve after a
+0.5 mm contraction change (first-order predictor), one control iterate, and
+a full inverse solve with each method. Times are medians over repeats in
+the same run; every timed solve is also checked (residual, positive
+definite Hessian). Writes ``bench.json`` and ``bench.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .control.gradient import ControlOptions, solve_control
+from .equilibrium import EquilibriumOptions, solve_equilibrium
+from .mesh import mesh_for_nodes
+from .model import build_model
+from .objective import Targets
+from .results import write_json_atomic, write_text_atomic
+from .scene import load_scene
+from .sensitivity import state_sensitivity
+
+NO_EIG = EquilibriumOptions(eigenvalue=False)
+
+
+def _median_time(fn, repeats: int) -> tuple[float, object]:
+    times, out = [], None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return float(np.median(times)), out
+
+
+def machine() -> dict:
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    import casadi
+    import scipy
+    from . import __version__
+    try:
+        from importlib.metadata import version
+        sksparse = version("scikit-sparse")
+    except Exception:  # noqa: BLE001 - version is informative only
+        sksparse = "?"
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
+            "numpy": np.__version__, "scipy": scipy.__version__, "casadi": casadi.__version__,
+            "scikit-sparse": sksparse, "plush_opt": __version__, "platform": platform.platform()}
+
+
+_BUILD_SNIPPET = """
+import sys, time, json
+from plush_opt.scene import load_scene
+from plush_opt.mesh import mesh_for_nodes
+from plush_opt.model import build_model
+scene = load_scene(sys.argv[1]); mesh = mesh_for_nodes(scene, int(sys.argv[2]))
+t = time.perf_counter(); build_model(scene, mesh); print(json.dumps(time.perf_counter() - t))
+"""
+
+
+def _build_in_fresh_process(problem: Path, nodes: int, cache: str) -> float:
+    env = dict(os.environ, PLUSH_OPT_CACHE=cache)
+    p = subprocess.run([sys.executable, "-c", _BUILD_SNIPPET, str(problem), str(nodes)],
+                       capture_output=True, text=True, env=env, timeout=600, check=True)
+    return float(json.loads(p.stdout.strip().splitlines()[-1]))
+
+
+def _default_contraction(model, name: str) -> np.ndarray:
+    if name == "gripper":
+        return np.full(model.n_winches, 10.0)      # the figure the targets were set against
+    return model.lower + 0.4 * (model.upper - model.lower)
+
+
+def _certified(eq) -> bool:
+    return bool(eq.converged and eq.positive_definite and eq.relative_residual <= 1e-9)
+
+
+def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
+    scene = load_scene(problem)
+    mesh = mesh_for_nodes(scene, nodes)
+    name = scene.name
+    row = {"problem": name, "target_nodes": nodes, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
+    progress(f"{name} @ {mesh.n_nodes} nodes: model build")
+    with tempfile.TemporaryDirectory() as cache:
+        row["build_uncached_s"] = float(np.median([_build_in_fresh_process(problem, nodes, tempfile.mkdtemp(dir=cache))
+                                                   for _ in range(max(1, min(repeats, 3)))]))
+        _build_in_fresh_process(problem, nodes, cache)   # populate
+        row["build_cached_s"] = float(np.median([_build_in_fresh_process(problem, nodes, cache)
+                                                 for _ in range(max(1, min(repeats, 3)))]))
+    model = build_model(scene, mesh)
+    targets = Targets.from_mesh(mesh, scene)
+    c = _default_contraction(model, name)
+    row["contraction"] = c.tolist()
+
+    progress(f"{name} @ {mesh.n_nodes} nodes: Hessian, factorisation, forward solve")
+    eq = solve_equilibrium(model, c, options=NO_EIG)
+    ev = model.evaluate(eq.x, c)
+    row["hessian_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 2), 5 * repeats)
+    row["energy_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 0), 5 * repeats)
+    row["factor_s"], _ = _median_time(lambda: model.factorizer.factor(ev.hessian), 5 * repeats)
+    row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
+    row["forward_iterations"] = fwd.iterations
+    row["forward_ratio"] = row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))
+    row["forward_certified"] = _certified(fwd)
+    row["min_eigenvalue"] = fwd.factor.min_eigenvalue() if fwd.factor is not None else None
+
+    progress(f"{name} @ {mesh.n_nodes} nodes: warm re-solve")
+    dc = np.zeros_like(c)
+    dc[0] = 0.5
+    dxdc = state_sensitivity(model, fwd)
+    x_pred = fwd.x + dxdc @ dc
+    row["resolve_s"], warm = _median_time(lambda: solve_equilibrium(model, c + dc, x_pred, NO_EIG), repeats)
+    row["resolve_iterations"] = warm.iterations
+    row["resolve_certified"] = _certified(warm)
+    cold = solve_equilibrium(model, c + dc, fwd.x, NO_EIG)
+    row["resolve_without_predictor_iterations"] = cold.iterations
+
+    if targets.n_targets:
+        for method, opts in (("reparam", ControlOptions()), ("clip", ControlOptions(bounds="clip"))):
+            progress(f"{name} @ {mesh.n_nodes} nodes: inverse solve ({method})")
+            t_run, res = _median_time(lambda: solve_control(model, targets, options=opts), max(1, repeats // 2))
+            steps = np.diff([h.t_wall for h in res.history])
+            row[f"inverse_{method}_s"] = t_run
+            row[f"inverse_{method}_iterates"] = len(res.history) - 1
+            row[f"inverse_{method}_objective"] = res.objective
+            row[f"inverse_{method}_status"] = res.status
+            row[f"inverse_{method}_newton_iterations"] = res.final.newton_iterations
+            row[f"inverse_{method}_certified"] = all(_certified(h.equilibrium) for h in res.history)
+            if method == "reparam":
+                row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
+                row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
+        row.update(_bench_bilevel(model, targets, repeats, progress, f"{name} @ {mesh.n_nodes} nodes"))
+    return row
+
+
+def _bench_bilevel(model, targets, repeats, progress, label) -> dict:
+    try:
+        from .control.bilevel import BilevelOptions, solve_bilevel
+    except ImportError:
+        return {"inverse_bilevel_status": "not available"}
+    progress(f"{label}: inverse solve (bilevel)")
+    c0 = model.scene.contraction
+    frozen = model.scene.frozen
+    t_run, res = _median_time(lambda: solve_bilevel(model, targets, c0, frozen, options=BilevelOptions()),
+                              max(1, repeats // 2))
+    out = {"inverse_bilevel_s": t_run, "inverse_bilevel_objective": float(targets.value(res.equilibrium.x)),
+           "inverse_bilevel_status": res.status, "inverse_bilevel_iterations": res.iterations,
+           "inverse_bilevel_certified": bool(res.converged)}
+    info = res.info or {}
+    for key in ("t_ipopt_s", "t_function_evaluations_s", "n_eval", "timing"):
+        if key in info:
+            out[f"inverse_bilevel_{key}"] = info[key]
+    out["inverse_bilevel_info"] = {k: v for k, v in info.items() if isinstance(v, (int, float, str, dict, list))}
+    return out
+
+
+def _ms(v):
+    return "—" if v is None else f"{1e3 * v:.1f}"
+
+
+def render_markdown(report: dict) -> str:
+    m = report["machine"]
+    lines = [
+        "# Benchmarks",
+        "",
+        f"Command: `{report['command']}`  ",
+        f"Machine: {m['cpu']}, {m['cores']} cores; Python {m['python']}, numpy {m['numpy']}, "
+        f"scipy {m['scipy']}, CasADi {m['casadi']}, scikit-sparse {m['scikit-sparse']}.  ",
+        f"Date: {report['date']}. Times are medians over {report['repeats']} repeats (5x that for "
+        "single evaluations) in one run; the machine is shared and noisy, so compare figures "
+        "within a table, not across runs.",
+        "",
+        "## Forward model",
+        "",
+        "| problem | nodes | elements | build, no cache [s] | build, cached [s] | Hessian [ms] | "
+        "factorisation [ms] | forward from rest [ms] (iterations) | forward / (its x (H + F)) | "
+        "warm re-solve [ms] (its; without predictor) | certified |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["rows"]:
+        lines.append(
+            f"| {r['problem']} | {r['nodes']} | {r['elements']} | {r['build_uncached_s']:.2f} | "
+            f"{r['build_cached_s']:.3f} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} | "
+            f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | {r['forward_ratio']:.2f} | "
+            f"{_ms(r['resolve_s'])} ({r['resolve_iterations']}; {r['resolve_without_predictor_iterations']}) | "
+            f"{'yes' if r['forward_certified'] and r['resolve_certified'] else 'NO'} |")
+    lines += ["", "## Inverse control", "",
+              "| problem | nodes | control iterate [ms] median (max) | reparam: time [s], iterates, O | "
+              "clip: time [s], iterates, O | bilevel: time [s], iterations, O | all iterates certified |",
+              "|---|---|---|---|---|---|---|"]
+    for r in report["rows"]:
+        if "inverse_reparam_s" not in r:
+            continue
+        bil = ("not available" if "inverse_bilevel_s" not in r else
+               f"{r['inverse_bilevel_s']:.3f}, {r['inverse_bilevel_iterations']}, "
+               f"{r['inverse_bilevel_objective']:.4g}")
+        lines.append(
+            f"| {r['problem']} | {r['nodes']} | {_ms(r['control_iterate_s'])} ({_ms(r['control_iterate_max_s'])}) | "
+            f"{r['inverse_reparam_s']:.3f}, {r['inverse_reparam_iterates']}, {r['inverse_reparam_objective']:.4g} | "
+            f"{r['inverse_clip_s']:.3f}, {r['inverse_clip_iterates']}, {r['inverse_clip_objective']:.4g} | "
+            f"{bil} | {'yes' if r['inverse_reparam_certified'] and r['inverse_clip_certified'] else 'NO'} |")
+    lines += ["", "Statuses:", ""]
+    for r in report["rows"]:
+        for method in ("reparam", "clip", "bilevel"):
+            key = f"inverse_{method}_status"
+            if key in r:
+                lines.append(f"- {r['problem']} @ {r['nodes']} nodes, {method}: {r[key]}")
+    bil = [r for r in report["rows"] if "inverse_bilevel_info" in r]
+    if bil:
+        lines += ["", "Where the bilevel method's time goes (IPOPT statistics):", ""]
+        for r in bil:
+            lines.append(f"- {r['problem']} @ {r['nodes']} nodes: "
+                         + json.dumps(r["inverse_bilevel_info"], default=str)[:600])
+    lines.append("")
+    return "\n".join(lines)
+
+
+def run_bench(problems, sizes, out: Path, repeats: int = 5, command: str = "", progress=None) -> dict:
+    progress = progress or (lambda msg: print(f"bench: {msg}", file=sys.stderr, flush=True))
+    rows = []
+    for problem in problems:
+        for nodes in sizes:
+            rows.append(bench_one(Path(problem), nodes, repeats, progress))
+    report = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
+              "repeats": repeats, "sizes": list(sizes), "rows": rows}
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "bench.json", report)
+    write_text_atomic(out / "bench.md", render_markdown(report))
+    progress(f"wrote {out / 'bench.md'} and {out / 'bench.json'}")
+    return report
+
+
+def add_bench_parser(sub) -> None:
+    p = sub.add_parser("bench", help="measure build, evaluation, factorisation and solve times",
+                       description="Benchmark the shipped problems (or those given) at several mesh sizes.")
+    p.add_argument("problems", nargs="*", type=Path, help="problem files (default: problems/*.yaml)")
+    p.add_argument("--sizes", default="300,1000,3000", help="approximate node counts, comma separated")
+    p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
+    p.add_argument("--out", type=Path, required=True, help="output folder for bench.md and bench.json")
+    p.set_defaults(func=cmd_bench)
+
+
+def cmd_bench(args) -> int:
+    from .errors import SceneError
+    try:
+        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    except ValueError:
+        raise SceneError(f"--sizes: expected comma-separated integers, got {args.sizes!r}") from None
+    if not sizes or min(sizes) < 10:
+        raise SceneError(f"--sizes: every size must be at least 10 nodes, got {args.sizes!r}")
+    if args.repeats < 1:
+        raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
+    problems = args.problems or sorted((Path(__file__).resolve().parent.parent / "problems").glob("*.yaml"))
+    command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
+    run_bench(problems, sizes, args.out, args.repeats, command)
+    return 0
+
+
