@@ -64,8 +64,9 @@ def _neo_hookean_kernels():
     H = ca.densify(ca.hessian(psi, xe)[0])
     args, names = [xe, Dinv, w, mu, lam], ["xe", "Dinv", "w", "mu", "lam"]
     energy = ca.Function("psi", args, [psi], names, ["psi"])
+    grad = ca.Function("psi_grad", args, [psi, g], names, ["psi", "grad"])
     derivs = ca.Function("psi_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"])
-    return energy, derivs
+    return energy, grad, derivs
 
 
 def _segment_kernels():
@@ -97,7 +98,7 @@ def _tendon_kernels():
     return energy, derivs
 
 
-_PSI, _PSI_DERIVS = _neo_hookean_kernels()
+_PSI, _PSI_GRAD, _PSI_DERIVS = _neo_hookean_kernels()
 _SEG, _SEG_DERIVS = _segment_kernels()
 _U, _U_DERIVS = _tendon_kernels()
 
@@ -107,7 +108,7 @@ def _fast_kernels() -> dict[str, ca.Function]:
     """The kernels the fast path evaluates, compiled (cached on disk) once
     per process. The CasADi expression keeps the symbolic kernels, which it
     differentiates."""
-    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_DERIVS, _SEG_DERIVS, _U_DERIVS)}
+    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_GRAD, _PSI_DERIVS, _SEG_DERIVS, _U_DERIVS)}
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:
@@ -124,6 +125,7 @@ class _Mapped:
         self.fn = fn.map(count, "serial")
         self.count = count
         self.buf, self._eval = self.fn.buffer()
+        self._sizes = [self.fn.nnz_out(i) for i in range(self.fn.n_out())]
         self._keep = []
         for i, value in constants.items():
             arr = np.ascontiguousarray(value, dtype=np.float64)
@@ -132,7 +134,7 @@ class _Mapped:
 
     def __call__(self, arg0: np.ndarray, n_out: int) -> list[np.ndarray]:
         arg0 = np.ascontiguousarray(arg0, dtype=np.float64)
-        outs = [np.empty(self.fn.nnz_out(i)) for i in range(n_out)]
+        outs = [np.empty(self._sizes[i]) for i in range(n_out)]
         self.buf.set_arg(0, memoryview(arg0))
         for i, out in enumerate(outs):
             self.buf.set_res(i, memoryview(out))
@@ -205,6 +207,7 @@ class Model:
         kernels = _fast_kernels()
         self._psi = _Mapped(kernels["psi_derivs"], self.n_elems, consts)
         self._psi_energy = _Mapped(kernels["psi"], self.n_elems, consts)
+        self._psi_grad = _Mapped(kernels["psi_grad"], self.n_elems, consts)
 
         # pins
         self.pin_stiffness = scene.pin_stiffness
@@ -416,6 +419,9 @@ class Model:
         xe = x[self._elem_dofs]                          # (n_elems, 6)
         if order == 0:
             (psi,) = self._psi_energy(xe, 1)
+            energy = psi.sum()
+        elif order == 1:
+            psi, ge = self._psi_grad(xe, 2)
             energy = psi.sum()
         else:
             psi, ge, He = self._psi(xe, 3)

@@ -44,6 +44,7 @@ class Targets:
             object.__setattr__(self, name, arr)
         if np.any(self.weight <= 0):
             raise SceneError("targets: every weight must be > 0")
+        object.__setattr__(self, "_selections", {})   # B per n_dofs, built on first use
 
     @property
     def n_targets(self) -> int:
@@ -79,6 +80,11 @@ class Targets:
 
     def selection(self, n_dofs: int) -> sp.csr_matrix:
         """B = dy/dx, sparse (2 n_targets, n_dofs): y.ravel() = B x."""
+        if n_dofs not in self._selections:
+            self._selections[n_dofs] = self._build_selection(n_dofs)
+        return self._selections[n_dofs]
+
+    def _build_selection(self, n_dofs: int) -> sp.csr_matrix:
         k = self.n_targets
         rows = np.stack([np.repeat(2 * np.arange(k), 3), np.repeat(2 * np.arange(k) + 1, 3)], 1)
         cols = np.stack([2 * self.nodes.ravel(), 2 * self.nodes.ravel() + 1], 1)
