@@ -24,7 +24,7 @@ import numpy as np
 
 from .control.gradient import ControlOptions, solve_control
 from .equilibrium import EquilibriumOptions, solve_equilibrium
-from .mesh import mesh_for_nodes
+from .mesh import build_mesh, mesh_for_nodes
 from .model import build_model
 from .objective import Targets
 from .results import write_json_atomic, write_text_atomic
@@ -69,9 +69,10 @@ def machine() -> dict:
 _BUILD_SNIPPET = """
 import sys, time, json
 from plush_opt.scene import load_scene
-from plush_opt.mesh import mesh_for_nodes
+from plush_opt.mesh import build_mesh, mesh_for_nodes
 from plush_opt.model import build_model
-scene = load_scene(sys.argv[1]); mesh = mesh_for_nodes(scene, int(sys.argv[2]))
+scene = load_scene(sys.argv[1])
+mesh = build_mesh(scene) if sys.argv[2] == "0" else mesh_for_nodes(scene, int(sys.argv[2]))
 t = time.perf_counter(); build_model(scene, mesh); print(json.dumps(time.perf_counter() - t))
 """
 
@@ -94,8 +95,9 @@ def _certified(eq) -> bool:
 
 
 def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
+    """One problem at about ``nodes`` nodes (0: the mesh the file asks for)."""
     scene = load_scene(problem)
-    mesh = mesh_for_nodes(scene, nodes)
+    mesh = build_mesh(scene) if nodes == 0 else mesh_for_nodes(scene, nodes)
     name = scene.name
     row = {"problem": name, "target_nodes": nodes, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
     progress(f"{name} @ {mesh.n_nodes} nodes: model build")
@@ -252,7 +254,8 @@ def add_bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="measure build, evaluation, factorisation and solve times",
                        description="Benchmark the shipped problems (or those given) at several mesh sizes.")
     p.add_argument("problems", nargs="*", type=Path, help="problem files (default: problems/*.yaml)")
-    p.add_argument("--sizes", default="300,1000,3000", help="approximate node counts, comma separated")
+    p.add_argument("--sizes", default="300,1000,3000",
+                   help="approximate node counts, comma separated; 'file' for the mesh the problem asks for")
     p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
     p.add_argument("--out", type=Path, required=True, help="output folder for bench.md and bench.json")
     p.set_defaults(func=cmd_bench)
@@ -261,11 +264,11 @@ def add_bench_parser(sub) -> None:
 def cmd_bench(args) -> int:
     from .errors import SceneError
     try:
-        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+        sizes = [0 if s.strip() == "file" else int(s) for s in args.sizes.split(",") if s.strip()]
     except ValueError:
-        raise SceneError(f"--sizes: expected comma-separated integers, got {args.sizes!r}") from None
-    if not sizes or min(sizes) < 10:
-        raise SceneError(f"--sizes: every size must be at least 10 nodes, got {args.sizes!r}")
+        raise SceneError(f"--sizes: expected comma-separated integers or 'file', got {args.sizes!r}") from None
+    if not sizes or any(s < 0 or 0 < s < 10 for s in sizes):
+        raise SceneError(f"--sizes: every size must be 'file' or at least 10 nodes, got {args.sizes!r}")
     if args.repeats < 1:
         raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
     problems = args.problems or sorted((Path(__file__).resolve().parent.parent / "problems").glob("*.yaml"))
