@@ -206,7 +206,8 @@ class PosingSession:
         'freeze'} -> deque of seconds spent in each handler call; 'iterate':
         the part of a tick spent in the control loop; 'full_redraw': redraws
         of the whole window asked for by a handler (synchronous on Agg,
-        deferred to the event loop on a screen).
+        deferred to the event loop on a screen); 'tick_blit': the ticks
+        without a full redraw.
     """
 
     def __init__(self, model, targets=None, board: BoardLink | None = None,
@@ -228,8 +229,8 @@ class PosingSession:
         self.message = ("loop held: press space or drag a target to run it"
                         if self.held else "drag the body to pose it")
         self.callback_times = {k: deque(maxlen=100_000) for k in
-                               ("tick", "iterate", "full_redraw", "press", "motion",
-                                "release", "key", "slider", "freeze")}
+                               ("tick", "tick_blit", "iterate", "full_redraw", "press",
+                                "motion", "release", "key", "slider", "freeze")}
         self.forward_solves = 0
         self.iterates_shown = 0
         self.controller = None
@@ -242,10 +243,7 @@ class PosingSession:
         self._syncing = False         # widgets being set from the state: not user input
         self._drag = None             # {'kind': 'new'|'move', ...} during a mouse drag
         self._closed = False
-        # colour scale of tendon tension: from the tension at a stretch of
-        # one smoothing width, growing with the largest tension seen
-        self._tension_max = _nice_ceil(max(2.0 * model.tendon_stiffness * model.tendon_smoothing, 1e-9)) \
-            if model.n_tendons else 1.0
+        self._tension_max = self._tension_scale()
         # board
         self._pending = None          # latest contraction not yet sent
         self._last_send = -np.inf
@@ -266,6 +264,22 @@ class PosingSession:
         self._redraw()
 
     # ------------------------------------------------------------------ state
+
+    def _tension_scale(self) -> float:
+        """Top of the tension colour scale: the largest tension with every
+        winch at its upper bound (one solve at start), so that colours
+        compare across the session; it still grows if a pose goes beyond
+        (each growth costs a full redraw)."""
+        from .equilibrium import solve_equilibrium
+        model = self.model
+        if not model.n_tendons:
+            return 1.0
+        floor = 2.0 * model.tendon_stiffness * model.tendon_smoothing
+        t0 = time.perf_counter()
+        eq = solve_equilibrium(model, model.upper, None, self._eq_options)
+        self._solve_s += time.perf_counter() - t0
+        top = float(model.tendon_state(eq.x, model.upper)["tension"].max()) if eq.converged else 0.0
+        return _nice_ceil(max(top, floor, 1e-9))
 
     @property
     def x(self):
@@ -542,6 +556,7 @@ class PosingSession:
         """One timer callback: at most one control iterate, then the board
         and the status line. Returns the iterate shown, or None."""
         t0 = time.perf_counter()
+        full_redraws = len(self.callback_times["full_redraw"])
         shown = None
         try:
             if self.running:
@@ -553,7 +568,10 @@ class PosingSession:
                 self._update_status()
                 self._refresh()
         finally:
-            self.callback_times["tick"].append(time.perf_counter() - t0)
+            dt = time.perf_counter() - t0
+            self.callback_times["tick"].append(dt)
+            if len(self.callback_times["full_redraw"]) == full_redraws:
+                self.callback_times["tick_blit"].append(dt)
         return shown
 
     def _on_timer(self):
@@ -1112,10 +1130,11 @@ def _no_redraws(canvas):
 
 
 def _nice_ceil(value: float) -> float:
-    """The smallest of 1, 2, 2.5, 5 times a power of ten that is >= value."""
+    """The smallest of 1, 1.5, 2, 2.5, 3, 4, 5, 6, 8 times a power of ten
+    that is >= value."""
     import math
     exp = math.floor(math.log10(value))
-    for m in (1.0, 2.0, 2.5, 5.0, 10.0):
+    for m in (1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0):
         if m * 10.0**exp >= value:
             return m * 10.0**exp
     return 10.0 ** (exp + 1)
@@ -1173,12 +1192,15 @@ def run_ticks(session: PosingSession, max_ticks: int) -> int:
 
 
 def demo_drags(model):
-    """Two drags for a scripted session, as (body point, destination) in
-    rest coordinates. The points: the triangle centroid farthest from the
-    pins, and among those at least 70 % as far, the one farthest from the
-    first. The destinations: where both points are at a reachable pose, the
-    equilibrium at contractions of 60, 15, 30, 45, 60, ... % of each
-    winch's range."""
+    """Three drags for a scripted session, as (body point, destination) in
+    rest coordinates.
+
+    The points: the triangle centroid farthest from the pins; among those
+    at least 70 % as far, the one farthest from the first; the centroid
+    nearest the middle of those two. The destinations are where the points
+    are at reachable poses: the first two at contractions of 60, 15, 30,
+    45, 60, ... % of each winch's range, the third at 0, 80, 0, 50, 0, ... %.
+    """
     import numpy as np
     from .equilibrium import EquilibriumOptions, solve_equilibrium
     X = model.X.reshape(-1, 2)
@@ -1187,11 +1209,13 @@ def demo_drags(model):
     reach = np.linalg.norm(C - pivot, axis=1)
     k0 = int(np.argmax(reach))
     k1 = int(np.argmax(np.where(reach >= 0.7 * reach.max(), np.linalg.norm(C - C[k0], axis=1), -1.0)))
-    fractions = np.resize([0.6, 0.15, 0.3, 0.45], model.n_winches)
-    c = model.lower + fractions * (model.upper - model.lower)
-    x = solve_equilibrium(model, c, None, EquilibriumOptions(eigenvalue=False)).x.reshape(-1, 2)
-    moved = x[model.mesh.triangles].mean(axis=1)
-    return [(C[k0], moved[k0]), (C[k1], moved[k1])]
+    k2 = int(np.argmin(np.linalg.norm(C - (C[k0] + C[k1]) / 2, axis=1)))
+    moved = []
+    for fractions in ([0.6, 0.15, 0.3, 0.45], [0.0, 0.8, 0.0, 0.5]):
+        c = model.lower + np.resize(fractions, model.n_winches) * (model.upper - model.lower)
+        x = solve_equilibrium(model, c, None, EquilibriumOptions(eigenvalue=False)).x.reshape(-1, 2)
+        moved.append(x[model.mesh.triangles].mean(axis=1))
+    return [(C[k0], moved[0][k0]), (C[k1], moved[0][k1]), (C[k2], moved[1][k2])]
 
 
 def current_position(session: PosingSession, rest_point):
@@ -1207,21 +1231,30 @@ def scripted_session(session: PosingSession, *, ticks: int = 80, screenshot=None
     """A scripted drag session, as a user would run it.
 
     ``r`` (no targets), two drags (see :func:`demo_drags`), each followed
-    by ticks until the loop stops; the screenshot is saved then. With
-    ``full``, then: the first target dragged again, a slider move, space,
-    a freeze, a right-click removal, each followed by ticks.
+    by ticks until the loop stops, and a third drag, caught half-way for
+    the screenshot, then released and followed by ticks. With ``full``,
+    then: the first target dragged again, a slider move, space, a freeze,
+    a right-click removal, each followed by ticks.
     Returns the handler times (seconds) by kind (a tick includes blitting
     the new pose) plus ``draw``: five full redraws of the window (what a
     resize or a widget click costs).
     """
+    import numpy as np
     key(session, "r")
-    for point, to in demo_drags(session.model):
-        drag(session, current_position(session, point), to)
+    first, second, (point, to) = demo_drags(session.model)
+    for p, q in (first, second):
+        drag(session, current_position(session, p), q)
         run_ticks(session, ticks)
+    start = current_position(session, point)
+    mouse(session, "press", start)
+    for f in (0.2, 0.4, 0.6):
+        mouse(session, "motion", start + f * (np.asarray(to) - start))
     if screenshot is not None:
         Path(screenshot).parent.mkdir(parents=True, exist_ok=True)
         session.fig.canvas.draw()
         session.fig.savefig(screenshot, dpi=100)
+    mouse(session, "release", start + 0.6 * (np.asarray(to) - start))
+    run_ticks(session, ticks)
     if full:
         to = session.targets.to[0]
         drag(session, to, to + 0.3 * (session.targets.y(session.x)[0] - to))
@@ -1258,6 +1291,16 @@ def timing_table(times: dict) -> str:
 # Command line: `plush-opt gui` and `python -m plush_opt.gui`
 # ----------------------------------------------------------------------------
 
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (value > 0 and value != float("inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
+    return value
+
+
 def _add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("problem", type=Path, help="problem file (YAML, format plush-opt/1)")
     where = p.add_mutually_exclusive_group()
@@ -1269,7 +1312,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, metavar="FILE.json",
                    help="where `s` saves the result (the PNG goes next to it); "
                         "default out/gui-<timestamp>.json")
-    p.add_argument("--send-rate", type=float, default=GuiOptions.send_rate, metavar="HZ",
+    p.add_argument("--send-rate", type=_positive, default=GuiOptions.send_rate, metavar="HZ",
                    help=f"board commands per second at most (default {GuiOptions.send_rate:g})")
     p.add_argument("--screenshot", type=Path, metavar="FILE.png",
                    help="no window: run a scripted drag headless, save the window as this PNG, "

@@ -460,6 +460,15 @@ def test_gui_parser():
     assert str(args.out) == "a.json"
     with pytest.raises(SystemExit):
         parser.parse_args(["gui", "p.yaml", "--emulator", "--port", "/dev/ttyACM0"])
+    with pytest.raises(SystemExit):
+        parser.parse_args(["gui", "p.yaml", "--send-rate", "0"])
+
+
+def test_no_window_without_an_interactive_backend(capsys):
+    # the tests run on Agg: the window cannot open, and says what to do
+    assert run_gui(ROOT / "problems" / "gripper.yaml") == 2
+    err = capsys.readouterr().err
+    assert "cannot open a window" in err and "--screenshot" in err
 
 
 def test_screenshot_command_headless(tmp_path, capsys):
