@@ -22,6 +22,12 @@ except ImportError as exc:  # pragma: no cover - a broken install
 log = logging.getLogger(__name__)
 
 
+# Relative pivot margin: round-off in a factorisation is ~1e-16 |H|; a
+# thousand times that is still far below the softest physical mode of the
+# shipped robots (lambda_min / |H| ~ 1e-8).
+PIVOT_MARGIN = 1e-13
+
+
 class NotPositiveDefinite(Exception):
     """The matrix has a non-positive pivot: it is not positive definite."""
 
@@ -32,8 +38,10 @@ class Factorizer:
     The fill-reducing ordering (AMD) and symbolic analysis are computed on
     the first call and reused for every later matrix with the same pattern.
     CHOLMOD's simplicial LDL^T is used: on these meshes it is about twice
-    as fast as the supernodal LL^T; the matrix is positive definite exactly
-    when every pivot of D is positive, which is checked.
+    as fast as the supernodal LL^T. The matrix counts as positive definite
+    when every pivot of D exceeds ``PIVOT_MARGIN`` times the largest: a
+    matrix singular to round-off (a free rigid mode, a bifurcation point)
+    can factor with tiny positive pivots, and must not be certified.
     """
 
     def __init__(self):
@@ -51,8 +59,9 @@ class Factorizer:
         except CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
         d = f.D()
-        if not np.all(d > 0) or not np.all(np.isfinite(d)):
-            raise NotPositiveDefinite(f"LDL^T pivot {float(np.min(d)):.3g} <= 0")
+        if not np.all(np.isfinite(d)) or not np.min(d) > PIVOT_MARGIN * np.max(np.abs(d)):
+            raise NotPositiveDefinite(f"LDL^T pivot {float(np.min(d)):.3g} not above "
+                                      f"{PIVOT_MARGIN:g} x {float(np.max(np.abs(d))):.3g}")
         return Factor(f, H, shift)
 
 
