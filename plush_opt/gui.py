@@ -736,7 +736,8 @@ class PosingSession:
         pose = [a[k] for k in ("body", "tendons", "stoppers", "target_lines", "points",
                                "targets", "preview_line", "grab", "preview")] + pins
         pose.sort(key=lambda artist: artist.get_zorder())
-        self._region_artists = {"pose": pose, "status": [self.status_text, self.message_text]}
+        self._region_artists = {"pose": pose, "status": [self.status_text],
+                                "message": [self.message_text]}
         for name, s in self.sliders.items():
             s.drawon = False          # drawn by _refresh
             self._region_artists[f"slider:{name}"] = \
@@ -746,6 +747,7 @@ class PosingSession:
                 artist.set_animated(True)
         self._backgrounds = None      # region -> (bbox, saved pixels), after a full draw
         self._drawn = {}              # region -> what it shows (for changes)
+        self._drawn_at = {}           # region -> when it was last blitted
         self._pose_changed = True
         self._clim_drawn = self._tension_max
 
@@ -814,7 +816,11 @@ class PosingSession:
     def _region_bboxes(self) -> dict:
         """Pixel boxes of the blitted regions (after a draw: they follow resizes)."""
         from matplotlib.transforms import Bbox
-        boxes = {"pose": self.ax.bbox.frozen(), "status": self._status_ax.bbox.frozen()}
+        strip = self._status_ax.bbox
+        middle = strip.y0 + 0.45 * strip.height        # between the two lines of text
+        boxes = {"pose": self.ax.bbox.frozen(),
+                 "status": Bbox.from_extents(strip.x0, middle, strip.x1, strip.y1),
+                 "message": Bbox.from_extents(strip.x0, strip.y0, strip.x1, middle)}
         for name, s in self.sliders.items():
             b, right = s.ax.bbox, self.freeze_buttons[name].ax.bbox.x0
             # the handle sticks out of the slider's axes a little
@@ -823,7 +829,9 @@ class PosingSession:
 
     def _region_state(self, region: str):
         if region == "status":
-            return (self.status_text.get_text(), self.message_text.get_text())
+            return self.status_text.get_text()
+        if region == "message":
+            return self.message_text.get_text()
         if region.startswith("slider:"):
             return self.sliders[region[7:]].valtext.get_text()
         return None
@@ -844,9 +852,10 @@ class PosingSession:
     def _refresh(self):
         """Show the new state: blit the regions that changed over their
         backgrounds, or ask for a full redraw when there are none yet or the
-        colour scale changed. The status strip's numbers are redrawn at most
-        5 times a second (a new message at once): its long line of text
-        costs as much to draw as the mesh."""
+        colour scale changed. Text costs as much to draw as the mesh, so the
+        status numbers are redrawn at most 5 times a second and the slider
+        values 10 times (the pose and the message at once); a region left
+        behind is drawn by a later call (the timer's ticks)."""
         canvas = self.fig.canvas
         if self._backgrounds is None or self._clim_drawn != self._tension_max:
             self._clim_drawn = self._tension_max
@@ -863,15 +872,13 @@ class PosingSession:
                 self._pose_changed = False
             else:
                 state = self._region_state(region)
-                drawn = self._drawn.get(region)
-                if state == drawn:
+                if state == self._drawn.get(region):
                     continue
-                if region == "status" and state[1] == drawn[1] \
-                        and now - self._drawn.get("status_t", -1e9) < 0.2:
+                period = 0.2 if region == "status" else 0.1 if region.startswith("slider:") else 0.0
+                if now - self._drawn_at.get(region, -1e9) < period:
                     continue
                 self._drawn[region] = state
-                if region == "status":
-                    self._drawn["status_t"] = now
+                self._drawn_at[region] = now
             bbox, background = self._backgrounds[region]
             canvas.restore_region(background)
             for artist in artists:
@@ -1350,6 +1357,9 @@ def run_gui(problem, *, port=None, emulator=False, board_file=None, options: Gui
     from .scene import load_scene
 
     headless = screenshot is not None or timing
+    if headless and port is not None:
+        raise SceneError("--screenshot/--timing drive a scripted session: not on a real board "
+                         "(use --emulator, or no board)")
     import matplotlib
     if headless:
         matplotlib.use("Agg")

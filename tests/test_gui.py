@@ -23,7 +23,7 @@ import pytest  # noqa: E402
 from matplotlib.backend_bases import CloseEvent, KeyEvent, MouseEvent  # noqa: E402
 
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium  # noqa: E402
-from plush_opt.errors import HardwareError  # noqa: E402
+from plush_opt.errors import HardwareError, SceneError  # noqa: E402
 from plush_opt.gui import GuiOptions, PosingSession, add_gui_parser, cmd_gui, run_gui  # noqa: E402
 from plush_opt.objective import Targets  # noqa: E402
 
@@ -462,6 +462,11 @@ def test_gui_parser():
         parser.parse_args(["gui", "p.yaml", "--emulator", "--port", "/dev/ttyACM0"])
     with pytest.raises(SystemExit):
         parser.parse_args(["gui", "p.yaml", "--send-rate", "0"])
+
+
+def test_no_scripted_session_on_a_real_board():
+    with pytest.raises(SceneError, match="not on a real board"):
+        run_gui(ROOT / "problems" / "gripper.yaml", port="/dev/ttyACM0", timing=True)
 
 
 def test_no_window_without_an_interactive_backend(capsys):
