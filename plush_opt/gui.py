@@ -651,7 +651,6 @@ class PosingSession:
 
     def _build_figure(self, figure):
         import matplotlib.pyplot as plt
-        import numpy as np
         from matplotlib.collections import LineCollection
         from matplotlib.lines import Line2D
         from matplotlib.patches import Rectangle
@@ -671,7 +670,6 @@ class PosingSession:
         ax = fig.add_axes([0.055, 0.125, 0.58, 0.83])
         self.ax = ax
         X = model.X.reshape(-1, 2)
-        xn = self.x.reshape(-1, 2)
         self.artists = draw_pose(ax, model, self.x, self.contraction, None, show_rest=False,
                                  colorbar=False)
         self.artists["tendons"].set_clim(0.0, self._tension_max)
