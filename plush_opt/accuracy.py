@@ -8,6 +8,9 @@ positions of a few body points (the targets, or else the tendon stoppers
 and the scene's extra points) differ from the next finer mesh by less than
 the tolerance (length units). The difference to the next finer mesh is the
 usual a-posteriori estimate of the discretisation error of the coarser one.
+These differences do not always shrink steadily with refinement (linear
+triangles are stiff in bending), so by default the next pair must agree
+too before a level is taken.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
 (barycentric interpolation of the displacement); the finer level's solve
@@ -123,7 +126,7 @@ def probe_contractions(scene: Scene) -> np.ndarray:
 
 
 def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points=None,
-                options: EquilibriumOptions | None = None) -> tuple[Mesh, dict]:
+                options: EquilibriumOptions | None = None, confirm: bool = True) -> tuple[Mesh, dict]:
     """The coarsest mesh that predicts the pose to within ``tol``.
 
     Parameters
@@ -138,13 +141,20 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     points : (k, 2) rest coordinates of the compared body points; default
         :func:`probe_points`.
     options : equilibrium options.
+    confirm : also require the next finer level to agree with its own next
+        finer level (two differences in a row below ``tol``). The
+        differences of these meshes do not always shrink with refinement
+        (linear triangles in bending and compression): one small
+        difference can be a coincidence, two in a row rarely are. Costs one
+        more level.
 
     Returns
     -------
     mesh : the chosen mesh.
     report : dict (JSON-able): ``tol``, ``picked`` (level index),
         ``max_area``, ``n_nodes``, ``reached`` (False if no level met the
-        tolerance: the finest computed level is returned), ``levels`` (per
+        tolerance: the finest computed level is returned), ``confirmed``,
+        ``levels`` (per
         level: max_area, n_nodes, n_elems, t_mesh_s, t_solve_s,
         difference_to_next; levels that are not 1.3 x finer than the previous
         one are skipped), ``points``, ``contractions``, and the savings
@@ -175,11 +185,11 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     cs = probe_contractions(scene) if contractions is None else \
         np.asarray(contractions, dtype=np.float64).reshape(-1, len(scene.winches))
 
-    rows = []
+    rows, meshes = [], []
     prev = None            # (mesh, poses, y) of the previous (coarser) level
     picked = None
-    last_mesh = None
-    for i, area in enumerate(levels):
+    confirmed = False
+    for area in levels:
         t0 = time.perf_counter()
         mesh = build_mesh(scene, max_area=area)
         t_mesh = time.perf_counter() - t0
@@ -211,25 +221,27 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         rows.append({"max_area": area, "n_nodes": mesh.n_nodes, "n_elems": mesh.n_elems,
                      "t_mesh_s": t_mesh, "t_solve_s": t_solve, "newton_iterations": cold.iterations,
                      "difference_to_next": None})
+        meshes.append(mesh)
         log.info("accuracy: max_area %.4g, %d nodes, one solve %.3f s", area, mesh.n_nodes, t_solve)
         if prev is not None:
-            diff = max(float(np.max(np.linalg.norm(a - b, axis=1), initial=0.0))
-                       for a, b in zip(prev[2], ys))
-            rows[-2]["difference_to_next"] = diff
-            if diff < tol:
-                picked = len(rows) - 2
-                break
+            rows[-2]["difference_to_next"] = max(
+                float(np.max(np.linalg.norm(a - b, axis=1), initial=0.0)) for a, b in zip(prev[2], ys))
         prev = (mesh, poses, ys)
-        last_mesh = mesh
+        # the coarsest candidate that can be decided now
+        k = len(rows) - (3 if confirm else 2)
+        if k >= 0 and rows[k]["difference_to_next"] < tol and (
+                not confirm or rows[k + 1]["difference_to_next"] < tol):
+            picked, confirmed = k, confirm
+            break
+    if picked is None and confirm and len(rows) >= 2 and rows[-2]["difference_to_next"] < tol:
+        picked = len(rows) - 2          # the last pair agrees; nothing finer to confirm with
     reached = picked is not None
     if not reached:
         picked = len(rows) - 1
-        chosen = last_mesh
-    else:
-        chosen = prev[0]
+    chosen = meshes[picked]
     row, nxt = rows[picked], rows[picked + 1] if picked + 1 < len(rows) else None
     report = {
-        "tol": float(tol), "picked": picked, "reached": reached,
+        "tol": float(tol), "picked": picked, "reached": reached, "confirmed": confirmed,
         "max_area": row["max_area"], "n_nodes": row["n_nodes"], "n_elems": row["n_elems"],
         "points": kind, "n_points": int(len(points)), "contractions": cs.tolist(),
         "levels": rows,
@@ -254,7 +266,8 @@ def summary(report: dict) -> str:
     if report["reached"]:
         text = (f"mesh level {i} (max_area {row['max_area']:.4g}, {row['n_nodes']} nodes): "
                 f"its {report['points']} differ from the next finer mesh by "
-                f"{row['difference_to_next']:.3g} < tol {report['tol']:.3g}")
+                f"{row['difference_to_next']:.3g} < tol {report['tol']:.3g}"
+                + (" (and that one its next finer)" if report.get("confirmed") else ""))
     else:
         prev = report["levels"][i - 1]["difference_to_next"] if i > 0 else float("nan")
         text = (f"tolerance {report['tol']:.3g} not reached: using the finest level {i} "
@@ -263,6 +276,7 @@ def summary(report: dict) -> str:
     if "scene_mesh_nodes" in report:
         text += f"; the problem file's own mesh has {report['scene_mesh_nodes']} nodes"
     if "t_solve_saved_vs_next_s" in report:
-        text += (f"; {report['nodes_saved_vs_next']} fewer nodes and "
-                 f"{report['t_solve_saved_vs_next_s']:.3f} s less per solve than the next finer level")
+        nxt = report["levels"][i + 1]
+        text += (f"; {report['nodes_saved_vs_next']} fewer nodes than the next finer level "
+                 f"(one solve {row['t_solve_s']:.3f} s against {nxt['t_solve_s']:.3f} s)")
     return text

@@ -1,0 +1,234 @@
+"""Bilevel control (IPOPT on the KKT formulation): certified results,
+agreement with the gradient loop, a KKT point that is a saddle of E, the
+solver cache, frozen winches, time limits and option validation."""
+
+import json
+
+import numpy as np
+import pytest
+
+from plush_opt.control.bilevel import (BilevelOptions, _objective_expression, force_reference,
+                                       solve_bilevel)
+from plush_opt.control.gradient import solve_control
+from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.mesh import build_mesh
+from plush_opt.model import build_model
+from plush_opt.objective import Targets
+from plush_opt.scene import load_scene, scene_from_dict
+from shipped import PROBLEMS, ROOT, body_size, built
+
+
+def _certified(model, res):
+    eq = res.equilibrium
+    assert eq.converged and eq.positive_definite, eq.status
+    assert eq.relative_residual <= 1e-10
+    assert model.jacobians(eq.x).min() > 0
+    assert np.all(res.contraction >= model.lower) and np.all(res.contraction <= model.upper)
+    assert np.array_equal(res.contraction, eq.contraction)
+
+
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_shipped_problems_end_at_certified_stable_equilibria(name):
+    _, _, model, targets = built(name)
+    res = solve_bilevel(model, targets)
+    assert res.converged, res.status
+    assert res.status.startswith("ipopt: Solve_Succeeded; certified")
+    _certified(model, res)
+    info = res.info
+    assert info["ipopt_pose"]["stable_equilibrium"] and info["ipopt_pose"]["min_eigenvalue"] > 0
+    assert info["certified_distance"] <= 1e-6 * body_size(model)
+    assert info["bound_violation"] == 0.0
+    assert info["kkt"]["feasibility"] <= 1e-8 and info["kkt"]["stationarity"] <= 1e-5
+    assert res.objective == pytest.approx(targets.value(res.equilibrium.x), rel=1e-12)
+    assert info["objective_ipopt"] == pytest.approx(res.objective, rel=1e-6, abs=1e-12)
+    # the anytime history: one point per IPOPT iteration (plus the start), in time order
+    assert len(res.history) == res.iterations + 1
+    t = [h.t_wall for h in res.history]
+    assert t == sorted(t)
+    assert res.history[-1].constraint_violation <= 1e-8
+    json.dumps(res.info, allow_nan=False)
+    json.dumps(res.to_dict(), allow_nan=False)
+
+
+@pytest.mark.parametrize("name", ["gripper", "hexapod"])
+def test_objective_agrees_with_the_gradient_loop(name):
+    _, _, model, targets = built(name)
+    bilevel = solve_bilevel(model, targets)
+    method1 = solve_control(model, targets)
+    assert bilevel.converged and method1.converged
+    gap = abs(bilevel.objective - method1.objective)
+    assert gap <= 0.01 * method1.objective, (bilevel.objective, method1.objective)
+    span = model.upper - model.lower
+    assert np.max(np.abs(bilevel.contraction - method1.contraction) / span) <= 0.01
+
+
+def test_hexapod_leg_bilevel_stops_at_a_true_local_minimum_on_the_bound():
+    """The leg's first millimetres of pull move the foot away from its
+    target: c = 0 is a KKT point with the bound active, and a genuine local
+    minimum. The gradient loop leaves it only through its probe moves
+    (docs/control.md); IPOPT, a local method, stays."""
+    _, _, model, targets = built("hexapod_leg")
+    res = solve_bilevel(model, targets)
+    assert res.converged and res.info["active_bounds"] == ["leg"]
+    assert res.contraction[0] == pytest.approx(0.0, abs=1e-6)
+    for c in (0.05, 0.2):
+        eq = solve_equilibrium(model, [c], res.equilibrium.x)
+        assert targets.value(eq.x) > res.objective
+    assert solve_control(model, targets).objective < 0.01 * res.objective
+
+
+def test_targets_from_a_forward_solve_are_reached():
+    _, _, model, targets = built("gripper")
+    c_true = np.array([10.0, 2.0, 5.0])     # interior: a bound would hold IPOPT ~sqrt(mu) off
+    eq = solve_equilibrium(model, c_true)
+    res = solve_bilevel(model, targets.replace_to(targets.y(eq.x)))
+    assert res.converged, res.status
+    assert res.objective <= 1e-10
+    assert np.abs(res.contraction - c_true).max() <= 1e-4
+
+
+def test_solver_is_cached_and_targets_are_parameters():
+    _, _, model, targets = built("gripper")
+    first = solve_bilevel(model, targets)
+    again = solve_bilevel(model, targets)
+    assert again.info["cached_solver"] and again.info["t_build"] == 0.0
+    assert np.array_equal(first.contraction, again.contraction)
+    moved = targets.replace_to(targets.to + np.array([3.0, -2.0]))
+    other = solve_bilevel(model, moved)
+    assert other.info["cached_solver"], "new target positions must not rebuild the solver"
+    assert other.converged and not np.allclose(other.contraction, first.contraction)
+    assert other.objective == pytest.approx(moved.value(other.equilibrium.x))
+    reweighted = Targets(targets.triangles, targets.nodes, targets.beta, targets.to,
+                         [5.0, 1.0, 1.0])
+    assert solve_bilevel(model, reweighted).info["cached_solver"]
+
+
+def test_objective_expression_equals_targets_value():
+    import casadi as ca
+    _, _, model, targets = built("gripper")
+    x = ca.MX.sym("x", model.n_dofs)
+    q = ca.MX.sym("q", targets.n_targets, 2)
+    w = ca.MX.sym("w", targets.n_targets)
+    beta = ca.MX.sym("beta", targets.n_targets, 3)
+    f = ca.Function("O", [x, q, w, beta], [_objective_expression(x, targets.nodes, beta, q, w)])
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        xv = model.X + rng.normal(scale=2.0, size=model.n_dofs)
+        weight = rng.uniform(0.5, 2.0, targets.n_targets)
+        t = Targets(targets.triangles, targets.nodes, targets.beta, targets.to, weight)
+        got = float(f(xv, t.to, np.sqrt(weight), t.beta))
+        assert got == pytest.approx(t.value(xv), rel=1e-12)
+
+
+def test_frozen_winch_keeps_its_contraction_bit_for_bit():
+    _, _, model, targets = built("gripper")
+    c0 = np.array([0.0, 0.0, 7.3])
+    res = solve_bilevel(model, targets, c0, frozen=[False, False, True])
+    assert res.converged, res.status
+    assert res.contraction[2] == 7.3
+    assert res.info["frozen"] == ["grip"]
+    _certified(model, res)
+
+
+def _strip(target_x: float):
+    """A strip 100 x 6 mm, mirror-symmetric explicit mesh about y = 0,
+    clamped at x = 0, with one straight tendon on its axis from the free
+    end to the clamp. Contracting it compresses the strip; past about
+    1 mm the straight pose is a saddle of E (Euler buckling)."""
+    length, h, nx = 100.0, 6.0, 26
+    xs = np.linspace(0.0, length, nx)
+    nodes = [[x, y] for y in (-h / 2, 0.0, h / 2) for x in xs]
+
+    def idx(i, j):
+        return j * nx + i
+    tris = []
+    for i in range(nx - 1):
+        a, b, c, d = idx(i, 0), idx(i + 1, 0), idx(i + 1, 1), idx(i, 1)
+        tris += [[a, b, d], [b, c, d]]
+        a, b, c, d = idx(i, 1), idx(i + 1, 1), idx(i + 1, 2), idx(i, 2)
+        tris += [[a, b, c], [a, c, d]]
+    doc = {"format": "plush-opt/1", "name": "strip",
+           "mesh": {"nodes": nodes, "triangles": tris},
+           "material": {"model": "neo_hookean", "youngs_modulus": 0.02, "poisson_ratio": 0.3,
+                        "thickness": 30.0},
+           "pins": {"stiffness": 1000.0, "at": [[0, -h / 2], [0, h / 2]], "box": [0, -h / 2, 0, h / 2]},
+           "winches": [{"name": "w", "bounds": [0.0, 30.0]}],
+           "tendons": {"stiffness": 50.0, "smoothing": 0.01,
+                       "list": [{"name": "t", "winch": "w", "path": [[length, 0.0], [0.0, 0.0]]}]},
+           "targets": [{"at": [length, 0.0], "to": [target_x, 0.0]}]}
+    scene = scene_from_dict(doc)
+    mesh = build_mesh(scene)
+    model = build_model(scene, mesh)
+    return model, Targets.from_mesh(mesh, scene)
+
+
+def test_a_kkt_point_that_is_a_saddle_of_E_is_never_reported_as_success():
+    model, targets = _strip(85.0)
+    X = model.X.reshape(-1, 2)
+    # the mesh is mirror-symmetric, so the straight pose stays an equilibrium
+    mirrored = {tuple(np.round(p * [1, -1], 9)) for p in X}
+    assert mirrored == {tuple(np.round(p, 9)) for p in X}
+    res = solve_bilevel(model, targets)
+    pose = res.info["ipopt_pose"]
+    # IPOPT itself succeeds: the straight, compressed strip satisfies the KKT
+    # conditions with the tip exactly on its target...
+    assert res.info["return_status"] == "Solve_Succeeded"
+    assert res.info["objective_ipopt"] <= 1e-8
+    assert pose["relative_residual"] <= 1e-8
+    # ...but it is a saddle of E, and certification says so
+    assert not pose["positive_definite"] and pose["min_eigenvalue"] < 0
+    assert not res.converged
+    assert "saddle of E" in res.status
+    # what is returned is the stable (buckled) pose Newton finds from it
+    _certified(model, res)
+    assert res.info["certified_distance"] > 1.0
+    assert res.objective > 1.0
+
+
+def test_slack_winches_are_taken_up_before_ipopt():
+    scene = load_scene(ROOT / "problems" / "compare" / "finger_slack_start.yaml")
+    mesh = build_mesh(scene, max_area=40.0)
+    model = build_model(scene, mesh)
+    targets = Targets.from_mesh(mesh, scene)
+    res = solve_bilevel(model, targets)
+    assert res.info["start"]["slack_taken_up"] == ["flex", "extend"]
+    assert res.converged and res.objective < 1e-2
+    off = solve_bilevel(model, targets, options=BilevelOptions(take_up_slack=False))
+    # without it every tendon stays slack: a flat, useless stationary point
+    assert "all tendons slack" in off.status
+    assert off.objective > 100 * res.objective
+
+
+def test_time_limit_is_an_honest_status():
+    _, _, model, targets = built("gripper")
+    res = solve_bilevel(model, targets, options=BilevelOptions(max_time=1e-9))
+    assert not res.converged
+    assert "time limit" in res.status and res.info["stopped_by_time_limit"]
+    assert res.equilibrium.converged      # whatever is returned is a certified pose
+    assert res.iterations <= 1
+
+
+def test_force_reference_is_a_model_constant():
+    _, _, model, _ = built("gripper")
+    assert force_reference(model) == pytest.approx(
+        model.mu * model.thickness * np.sqrt(model.rest_area.sum()))
+
+
+@pytest.mark.parametrize("field, value, match", [
+    ("tol", -1.0, "tol"), ("max_iter", 1.5, "max_iter"), ("max_time", 0.0, "max_time"),
+    ("min_jacobian", 1.0, "min_jacobian"), ("mu_strategy", "fast", "mu_strategy"),
+    ("alpha_for_y", "bold", "alpha_for_y"), ("pose_tol", -1e-3, "pose_tol"),
+    ("ipopt", {1: 2}, "ipopt"),
+])
+def test_options_are_validated(field, value, match):
+    with pytest.raises(ValueError, match=match):
+        BilevelOptions(**{field: value})
+
+
+def test_bad_inputs_raise_solver_errors():
+    from plush_opt.errors import SolverError
+    _, _, model, targets = built("gripper")
+    with pytest.raises(SolverError, match="outside the winch bounds"):
+        solve_bilevel(model, targets, [30.0, 0.0, 0.0])
+    with pytest.raises(SolverError, match="contraction"):
+        solve_bilevel(model, targets, [0.0, 0.0])

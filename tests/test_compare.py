@@ -1,0 +1,85 @@
+"""The method comparison: a coarse run writes its report, table and plots,
+every returned pose is within bounds and stable; the Pareto front; the
+command-line entry."""
+
+import argparse
+import csv
+import time
+
+import pytest
+
+from plush_opt.compare import (CompareSettings, add_compare_parser, cmd_compare, pareto_front,
+                               run_compare)
+from plush_opt.errors import SceneError
+from shipped import ROOT
+
+
+def test_coarse_comparison_on_two_shipped_problems(tmp_path):
+    t0 = time.perf_counter()
+    lines = []
+    res = run_compare([ROOT / "problems" / "gripper.yaml", ROOT / "problems" / "hexapod_leg.yaml"],
+                      tmp_path, coarse=True, progress=lines.append)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 60, f"coarse comparison took {elapsed:.1f} s"
+    for name in ("report.md", "results.csv", "curves.csv", "anytime.png", "speed_error.png"):
+        path = tmp_path / name
+        assert path.is_file() and path.stat().st_size > 0, name
+    assert lines and all(line.startswith("compare:") for line in lines)
+
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    settings = CompareSettings.coarse()
+    per_problem = 3 * (len(settings.tolerances) + len(settings.mesh_factors) - 1)
+    assert len(rows) == 2 * per_problem
+    assert {r["method"] for r in rows} == {"reparam", "clip", "bilevel"}
+    for r in rows:
+        assert float(r["bound_violation"]) == 0.0, r
+        assert r["stable"] == "1", r
+    main = {(r["problem"], r["method"]): r for r in rows if r["sweep"] == "main"}
+    for problem in ("gripper", "hexapod_leg"):
+        o = [float(main[(problem, m)]["objective"]) for m in ("reparam", "clip")]
+        assert o[0] == pytest.approx(o[1], rel=0.01)
+    assert any(r["pareto"] == "1" for r in rows)
+
+    report = (tmp_path / "report.md").read_text()
+    for word in ("## gripper", "## hexapod_leg", "| reparam |", "| clip |", "| bilevel |",
+                 "bound violation", "Pareto front", "anytime.png", "speed_error.png"):
+        assert word in report
+    # the leg's objectives differ by far more than 1 %: the report explains it
+    assert "another local minimum" in report
+    curves = list(csv.DictReader((tmp_path / "curves.csv").open()))
+    kinds = {(c["method"], c["kind"], c["dispatchable"]) for c in curves}
+    assert ("bilevel", "ipopt_iterate", "0") in kinds
+    assert ("reparam", "iterate", "1") in kinds
+
+
+def test_pareto_front():
+    points = [(1.0, 5.0), (2.0, 3.0), (2.5, 4.0), (0.5, 9.0), (3.0, 1.0), (float("nan"), 0.0)]
+    assert pareto_front(points) == [3, 0, 1, 4]
+
+
+def test_command_line_entry(tmp_path, capsys):
+    parser = argparse.ArgumentParser(prog="plush-opt")
+    sub = parser.add_subparsers(dest="command")
+    add_compare_parser(sub)
+    args = parser.parse_args(["compare", str(ROOT / "problems" / "compare" / "finger_near_zero.yaml"),
+                              "--out", str(tmp_path / "cmp"), "--coarse"])
+    assert args.func is cmd_compare and args.coarse
+    assert cmd_compare(args) == 0
+    out, err = capsys.readouterr()
+    assert "report.md" in out and "compare:" in err
+    assert (tmp_path / "cmp" / "report.md").is_file()
+
+
+def test_problem_without_targets_is_refused(tmp_path):
+    text = (ROOT / "problems" / "compare" / "finger_near_zero.yaml").read_text()
+    path = tmp_path / "no_targets.yaml"
+    path.write_text(text[:text.index("targets:")])
+    with pytest.raises(SceneError, match="targets"):
+        run_compare([path], tmp_path / "out", coarse=True)
+
+
+def test_settings_are_validated():
+    with pytest.raises(ValueError, match="main_factor"):
+        CompareSettings(mesh_factors=(4.0, 2.0), main_factor=1.0)
+    with pytest.raises(ValueError, match="tolerances"):
+        CompareSettings(tolerances=("loose",))
