@@ -326,6 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(sub)
     from .bench import add_bench_parser
     add_bench_parser(sub)
+    from .gui import add_gui_parser
+    add_gui_parser(sub)
     return parser
 
 

@@ -192,16 +192,21 @@ def _try_factor(model: Model, H) -> Factor | None:
         return None
 
 
-def _escape_saddle(model: Model, c, x, ev: Evaluation) -> tuple[np.ndarray, Evaluation] | None:
+def _escape_saddle(model: Model, c, x, ev: Evaluation,
+                   pair=None) -> tuple[np.ndarray, Evaluation] | None:
     """Step from a saddle along its most negative curvature direction.
 
-    The sign is fixed (largest component positive) so the outcome is
-    deterministic; both signs are tried, the lower energy wins.
+    The sign is fixed (net displacement of the mode positive) so the outcome
+    is deterministic; both signs are tried, the lower energy wins (the first
+    sign on a tie: a symmetric scene always buckles the same way).
     """
-    lam, v = smallest_eigenpair(ev.hessian)
+    lam, v = pair if pair is not None else smallest_eigenpair(ev.hessian)
     if lam >= 0:
         return None
-    v = v * np.sign(v[np.argmax(np.abs(v))])
+    # sign rule: the mode's net displacement (sum of components) positive,
+    # or, for a mode with none, its largest component positive
+    net = float(np.sum(v))
+    v = v * (np.sign(net) if abs(net) > 1e-8 * np.abs(v).sum() else np.sign(v[np.argmax(np.abs(v))]))
     h = np.sqrt(np.mean(model.rest_area))
     best = None
     for s in h * 2.0 ** -np.arange(0, 30):
@@ -250,6 +255,19 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             break
         if it >= options.max_iterations:
             break
+        if factor is None and options.escape_saddles and escapes < options.max_escapes:
+            # Indefinite Hessian with a gradient blind to the unstable
+            # direction (a symmetric scene on its symmetric branch): a
+            # regularised step would pick a side by round-off. Leave along
+            # the negative curvature by the same rule as at a saddle.
+            pair = smallest_eigenpair(H)
+            if pair[0] < 0 and abs(g @ pair[1]) <= 1e-6 * np.linalg.norm(g):
+                escaped = _escape_saddle(model, c, x, ev, pair)
+                if escaped is not None:
+                    x, ev = escaped
+                    escapes += 1
+                    it += 1
+                    continue
         it += 1
         step_factor = factor if factor is not None else _regularised_factor(model, H)
         dx = -step_factor.solve(g)
@@ -297,9 +315,10 @@ _IPOPT_DEFAULTS = {
 _ipopt_cache: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
 
 
-def _ipopt_solver(model: Model, options: EquilibriumOptions):
+def _ipopt_solver(model: Model, options: EquilibriumOptions, extra: dict | None = None):
     opts = dict(_IPOPT_DEFAULTS)
     opts["ipopt.max_iter"] = options.max_iterations
+    opts.update(extra or {})
     opts.update(options.ipopt)
     key = repr(sorted(opts.items()))
     cache = _ipopt_cache.setdefault(model, {})
@@ -314,30 +333,52 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
 
     IPOPT treats a non-finite energy (log J of an inverted element) as an
     evaluation error and cuts its step back, so it stays admissible.
+    IPOPT's own stopping test works on a scaled problem; when its answer
+    misses the certificate's residual only, it is run again from there with
+    no scaling and an absolute tolerance taken from the force scale. Where
+    it stops on a saddle it is restarted past it along the most negative
+    curvature (the Newton backend's rule), up to ``max_escapes`` times.
     """
     t0 = time.perf_counter()
     if not model.admissible(x):
         return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
                            np.inf, np.inf, np.nan, False, None, 0, 0.0, "ipopt")
-    solver = _ipopt_solver(model, options)
-    sol = solver(x0=x, p=c)
-    stats = solver.stats()
-    xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
-    ev = model.evaluate(xs, c, order=2)
-    if not ev.admissible:
-        return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
-                           np.inf, np.inf, np.nan, False, None, stats.get("iter_count", 0),
-                           time.perf_counter() - t0, "ipopt")
-    factor = _try_factor(model, ev.hessian)
-    small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
+    iterations, escapes, polished = 0, 0, False
+    extra = {}
+    while True:
+        solver = _ipopt_solver(model, options, extra)
+        sol = solver(x0=x, p=c)
+        stats = solver.stats()
+        iterations += int(stats.get("iter_count", 0))
+        xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
+        ev = model.evaluate(xs, c, order=2)
+        if not ev.admissible:
+            return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
+                               np.inf, np.inf, np.nan, False, None, iterations,
+                               time.perf_counter() - t0, "ipopt")
+        factor = _try_factor(model, ev.hessian)
+        small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
+        if factor is not None and not small and not polished:
+            # the residual alone misses the certificate: once more, unscaled
+            tol = 0.5 * options.gtol * ev.force_scale / np.sqrt(model.n_dofs)
+            extra = {"ipopt.nlp_scaling_method": "none", "ipopt.tol": tol,
+                     "ipopt.acceptable_iter": 0}
+            x, polished = xs, True
+            continue
+        if factor is None and small and options.escape_saddles and escapes < options.max_escapes:
+            escaped = _escape_saddle(model, c, xs, ev)
+            if escaped is not None:
+                x, escapes = escaped[0], escapes + 1
+                continue
+        break
     ok = stats["success"] and small and factor is not None
+    note = f" (escaped {escapes} saddle(s))" if escapes else ""
     if ok:
-        status = "converged"
+        status = "converged" + note
     elif factor is None:
         status = f"ipopt: {stats['return_status']}; Hessian not positive definite (saddle or maximum)"
     elif not small:
         status = f"ipopt: {stats['return_status']}; residual above tolerance"
     else:
         status = f"ipopt: {stats['return_status']}"
-    return _finish(model, c, xs, ev, factor, ok, status, int(stats.get("iter_count", 0)), t0,
-                   options, "ipopt")
+    return _finish(model, c, xs, ev, factor, ok, status, iterations, t0, options, "ipopt", escapes)

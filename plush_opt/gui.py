@@ -693,7 +693,7 @@ class PosingSession:
                   Line2D([], [], marker="x", ls="", color=TARGET_COLOR, mew=2, label="target"),
                   Line2D([], [], marker="o", ls="", mfc="white", mec=TARGET_COLOR,
                          label="its body point")]
-        pins = [line for line in ax.lines if line.get_label() == "pins"]
+        pins = [self.artists["pins"]]
 
         # --- tension colour bar
         cax = fig.add_axes([0.645, 0.125, 0.01, 0.83])

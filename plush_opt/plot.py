@@ -47,10 +47,9 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     ends = np.array([xn[p[0]] for p in model.tendon_paths]) if model.n_tendons else np.zeros((0, 2))
     artists["stoppers"] = ax.plot(ends[:, 0], ends[:, 1], "o", ms=3.5, color="#444", zorder=5)[0]
 
-    pins = xn[model.pin_nodes]
-    ax.plot(X[model.pin_nodes, 0], X[model.pin_nodes, 1], "^", ms=5, color=PIN_COLOR,
-            zorder=6, label="pins")
-    artists["pins"] = pins
+    # pins hold their nodes at rest: drawn at X
+    artists["pins"] = ax.plot(X[model.pin_nodes, 0], X[model.pin_nodes, 1], "^", ms=5,
+                              color=PIN_COLOR, zorder=6, label="pins")[0]
     if targets is not None and targets.n_targets:
         y = targets.y(xn.reshape(-1))
         q = targets.to

@@ -20,9 +20,10 @@ freeze/unfreeze winches; the loop continues from where it is.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -231,6 +232,9 @@ class Controller:
         return np.clip(xi, self.model.lower, self.model.upper)
 
     def _iterate(self, eq: Equilibrium, grad_c: np.ndarray) -> Iterate:
+        # the history keeps poses, not Cholesky factors (the loop keeps the
+        # current one itself): long interactive sessions stay small
+        eq = dataclasses.replace(eq, factor=None) if eq.factor is not None else eq
         it = Iterate(len(self.history), eq.contraction.copy(), eq, self.targets.value(eq.x),
                      grad_c, self._active(eq.contraction, grad_c), time.perf_counter() - self._t0,
                      self._solves, self._newton)
