@@ -43,7 +43,9 @@ class EquilibriumOptions:
     backend : 'newton' (default) or 'ipopt'.
     gtol : relative residual tolerance: converged when
         |grad_x E| <= gtol * force_scale.
-    max_iterations : Newton iterations (IPOPT: its max_iter).
+    max_iterations : Newton iterations (IPOPT: its max_iter). Generous: with
+        tendons 1e6 times stiffer than the body Newton needs ~300 (its full
+        steps zig-zag between the tendons' smoothing zones).
     armijo : sufficient-decrease constant of the line search.
     max_backtracks : halvings of the step before the line search gives up.
     escape_saddles : at a saddle (gradient zero, Hessian indefinite), step
@@ -56,7 +58,7 @@ class EquilibriumOptions:
 
     backend: str = "newton"
     gtol: float = 1e-10
-    max_iterations: int = 200
+    max_iterations: int = 500
     armijo: float = 1e-4
     max_backtracks: int = 60
     escape_saddles: bool = True
