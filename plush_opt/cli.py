@@ -5,7 +5,7 @@ exit status, never a traceback (``--debug`` shows it):
 
     0  success              2  bad input (file, option)
     3  solver did not converge (the result is still written, honestly)
-    4  hardware error       130  interrupted
+    4  hardware error       70  internal error (a bug)      130  interrupted
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from .errors import HardwareError, PlushError, SceneError, SolverError
 
 log = logging.getLogger("plush_opt")
 
-EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERRUPT = 0, 2, 3, 4, 130
+EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERNAL, EXIT_INTERRUPT = 0, 2, 3, 4, 70, 130
 
 
 class _Parser(argparse.ArgumentParser):
@@ -361,6 +361,12 @@ def main(argv=None) -> int:
             raise
         print(f"plush-opt: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
         return EXIT_INPUT
+    except Exception as exc:  # noqa: BLE001 - a bug: one line, not a traceback
+        if args.debug:
+            raise
+        print(f"plush-opt: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the "
+              "traceback, and please report it)", file=sys.stderr)
+        return EXIT_INTERNAL
 
 
 if __name__ == "__main__":
