@@ -268,14 +268,16 @@ def _reference(problem: _Problem, runs: list, cache: dict) -> None:
         run.fine_target_error = float(ftargets.rms_error(xf))
 
 
-def pareto_front(points) -> list[int]:
+def pareto_front(points, rel: float = 1e-3) -> list[int]:
     """Indices of the non-dominated (time, error) pairs (both minimised),
-    sorted by time."""
+    sorted by time. A slower point joins the front only if it lowers the
+    error by more than ``rel`` (relative): errors that differ in the last
+    digits are the same answer."""
     pts = [(t, e, i) for i, (t, e) in enumerate(points) if math.isfinite(t) and math.isfinite(e)]
     pts.sort()
     front, best = [], math.inf
     for t, e, i in pts:
-        if e < best:
+        if e < best * (1 - rel) or (best == math.inf):
             front.append(i)
             best = e
     return front
@@ -470,6 +472,11 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
             ax.step([r.t_solve for r in front], [r.fine_target_error for r in front], where="post",
                     color="black", lw=1, label="Pareto front")
         ax.set_xscale("log")
+        errs = [r.fine_target_error for r in mine if r.fine_target_error > 0]
+        if errs and max(errs) > 20 * min(errs):
+            ax.set_yscale("log")
+        from matplotlib.ticker import NullFormatter
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("solve time [s]")
         ax.set_ylabel("RMS target error, finest mesh [length]")
         ax.set_title(p.scene.name, fontsize=10)
@@ -487,20 +494,27 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
 
 # -- report ---------------------------------------------------------------
 
+def _ratio_text(value: float, best: float) -> str:
+    if best > 0 and value > 2 * best:
+        return f"{value / best:.3g} times"
+    return f"{100 * (value - best) / max(best, 1e-300):.3g} % above"
+
+
 def _differences(problem, runs) -> list[str]:
     """Why the main runs' objectives differ by more than 1 %."""
     main = [r for r in runs if r.sweep == "main" and math.isfinite(r.objective)]
     if len(main) < 2:
         return []
     best = min(main, key=lambda r: r.objective)
-    floor = 1e-9 * max(r.curve[0][1] for r in main if r.curve) if any(r.curve for r in main) else 0.0
+    start = max((r.curve[0][1] for r in main if r.curve), default=0.0)
+    floor = 1e-9 * start
     span = problem.scene.upper - problem.scene.lower
+    names = problem.scene.winch_names
     notes = []
     for r in main:
         if r is best:
             continue
-        gap = (r.objective - best.objective) / max(best.objective, floor, 1e-300)
-        if gap <= 0.01:
+        if (r.objective - best.objective) <= 0.01 * max(best.objective, floor):
             continue
         dc = np.max(np.abs(r.contraction - best.contraction) / span)
         why = []
@@ -509,15 +523,27 @@ def _differences(problem, runs) -> list[str]:
                        "Newton's stable equilibrium from it")
         if not r.converged:
             why.append(f"it stopped without converging ({r.status})")
-        if dc > 0.01:
-            why.append(f"it ended at different contractions ({_contraction_text(problem, r)} against "
-                       f"{best.method}'s {_contraction_text(problem, best)}): another local minimum "
-                       "or a stop short of the same one")
-        else:
+        if "all tendons slack" in r.status:
+            slack = r.status.split("winch ")[-1].split(":")[0]
+            why.append(f"it stopped with every tendon of winch {slack} slack: a zero gradient, "
+                       "so a flat stationary point rather than a minimum")
+        on_bound = [names[w] for w in range(len(names))
+                    if min(r.contraction[w] - problem.scene.lower[w],
+                           problem.scene.upper[w] - r.contraction[w]) <= 1e-6 * span[w]
+                    and abs(r.contraction[w] - best.contraction[w]) > 0.01 * span[w]]
+        if on_bound:
+            why.append(f"it stopped with {', '.join(on_bound)} on a bound where "
+                       f"{best.method} is not: a local minimum on the bound (the first "
+                       "millimetres of pull make O worse)")
+        if dc > 0.01 and not why:
+            why.append("it ended at other contractions: another local minimum")
+        elif dc <= 0.01:
             why.append("the contractions agree within 1 % of the range: a stop short of the "
                        "same minimum")
-        notes.append(f"- **{r.method}** ends {100 * gap:.3g} % above **{best.method}** "
-                     f"(O = {r.objective:.6g} against {best.objective:.6g}): " + "; ".join(why) + ".")
+        notes.append(f"- **{r.method}** ends {_ratio_text(r.objective, best.objective)} "
+                     f"**{best.method}**'s objective (O = {r.objective:.6g} against "
+                     f"{best.objective:.6g}; contractions {_contraction_text(problem, r)} against "
+                     f"{_contraction_text(problem, best)}): " + "; ".join(why) + ".")
     return notes
 
 
@@ -552,8 +578,9 @@ def report_text(problems, runs, settings, t_total) -> str:
         low = min(front, key=lambda r: r.fine_target_error) if front else None
         L.append(f"| {p.scene.name} | {main[0].n_nodes} | {best:.6g} | {fast.method} "
                  f"({fast.t_solve:.3f} s) | "
-                 + (f"{low.method}, {low.sweep} {low.tolerance}, {low.n_nodes} nodes: "
-                    f"{low.fine_target_error:.4g} in {low.t_solve:.3f} s |" if low else " |"))
+                 + (f"{low.method} on {low.n_nodes} nodes ({low.sweep} sweep, {low.tolerance} "
+                    f"tolerances): {low.fine_target_error:.4g} in {low.t_solve:.3f} s |"
+                    if low else " |"))
     L.append("")
     for p in problems:
         name = p.scene.name

@@ -36,7 +36,7 @@ import logging
 import math
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import NamedTuple
 
 import casadi as ca
@@ -420,9 +420,9 @@ def _pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float)
     rel = float(np.linalg.norm(ev.gradient) / ev.force_scale)
     out["relative_residual"] = rel
     try:
-        factor = model.factorizer.factor(ev.hessian)
+        model.factorizer.factor(ev.hessian)
+        # positive definite: the certified pose's eigenvalue is reported instead
         out["positive_definite"] = True
-        out["min_eigenvalue"] = float(factor.min_eigenvalue())
     except NotPositiveDefinite:
         out["min_eigenvalue"] = float(smallest_eigenpair(ev.hessian)[0])
     out["stable_equilibrium"] = bool(out["positive_definite"] and rel <= residual_tol)
@@ -506,14 +506,15 @@ def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None
     if frozen.shape != (model.n_winches,):
         raise SolverError(f"frozen: expected {model.n_winches} flags, got {frozen.size}")
 
-    start = solve_equilibrium(model, c0, x0, options.equilibrium)
+    quick = replace(options.equilibrium, eigenvalue=False)
+    start = solve_equilibrium(model, c0, x0, quick)
     if not start.converged:
         raise SolverError(f"the starting equilibrium is not certified: {start.status}")
     taken = []
     if options.take_up_slack and targets.n_targets:
         c1, taken = _take_up_slack(model, start, ~frozen)
         if taken:
-            moved = solve_equilibrium(model, c1, start.x, options.equilibrium)
+            moved = solve_equilibrium(model, c1, start.x, quick)
             if moved.converged:
                 c0, start = c1, moved
             else:
@@ -589,6 +590,8 @@ def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None
     pose_tol = options.pose_tol if options.pose_tol is not None else 1e-6 * model.mesh.diameter
     distance = float(np.max(np.linalg.norm((cert.x - x_ip).reshape(-1, 2), axis=1)))
     jmin = float(model.jacobians(cert.x).min()) if cert.converged else None
+    if check["positive_definite"] and cert.converged and distance <= pose_tol:
+        check["min_eigenvalue"] = cert.min_eigenvalue
 
     ok = bool(ipopt_ok and check["stable_equilibrium"] and cert.converged
               and distance <= pose_tol and bound_violation <= 1e-9 * float(np.max(model.upper - model.lower)))
