@@ -59,10 +59,10 @@ def _add_solve(sub):
                    "control starts); repeatable")
     p.add_argument("--freeze", action="append", default=[], metavar="NAME",
                    help="freeze a winch during control (keeps its contraction); repeatable")
-    p.add_argument("--method", choices=("forward", "reparam", "clip", "bilevel"), default=None,
-                   help="forward: equilibrium only; reparam (default with targets): the gradient "
-                   "loop with reparametrised bounds; clip: the same loop clipping c; "
-                   "bilevel: IPOPT on the KKT formulation")
+    p.add_argument("--method", choices=("forward", "reparam", "bilevel"), default=None,
+                   help="forward: equilibrium only (targets ignored); reparam (default with "
+                   "targets): the gradient loop with reparametrised bounds; bilevel: IPOPT on "
+                   "the KKT formulation")
     p.add_argument("--equilibrium", choices=("newton", "ipopt"), default="newton",
                    help="equilibrium backend (default newton; ipopt for cross-checks)")
     p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
@@ -147,8 +147,8 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         eq = solve_equilibrium(model, c, options=eq_opts)
         converged, status, iterations = eq.converged, eq.status, eq.iterations
         extra = {}
-    elif method in ("reparam", "clip"):
-        opts = ControlOptions(bounds=method, equilibrium=EquilibriumOptions(backend=equilibrium,
+    elif method == "reparam":
+        opts = ControlOptions(equilibrium=EquilibriumOptions(backend=equilibrium,
                                                                             eigenvalue=False))
         if max_iterations is not None:
             opts = _replace(opts, max_iterations=max_iterations)

@@ -20,7 +20,7 @@ from .model import Model
 from .objective import Targets
 
 FORMAT = "plush-opt-result/1"
-METHODS = ("forward", "reparam", "bilevel", "clip")
+METHODS = ("forward", "reparam", "bilevel")
 
 
 def model_dict(model: Model, targets: Targets) -> dict:
@@ -73,7 +73,9 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
         "status": status,
         "contractions": {n: float(c) for n, c in zip(model.winch_names, eq.contraction)},
         "nodes": eq.x.reshape(-1, 2).tolist(),
-        "objective": float(targets.value(eq.x)) if targets.n_targets else 0.0,
+        # the spec: O at the nodes, 0 for a forward solve (whose targets, if
+        # the file has any, are reported apart as targets_objective)
+        "objective": 0.0 if method == "forward" else float(targets.value(eq.x)),
         "residual_norm": _finite(eq.residual_norm),
         "min_hessian_eigenvalue": _finite(eq.min_eigenvalue),
         "timing": {"total_s": float(total_s), "solve_s": float(solve_s),
@@ -89,6 +91,7 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
         },
         "tendon_tension": {t.name: float(v) for t, v in zip(model.scene.tendons, tension)},
         "target_error": targets.errors(eq.x).tolist(),
+        "targets_objective": float(targets.value(eq.x)),
     }
     if extra:
         doc.update(extra)
