@@ -485,7 +485,7 @@ class PosingSession:
         names = self.winch_names
         ctl = self.controller
         if self.targets.n_targets:
-            method = "reparam" if self._control_options.bounds == "reparam" else "clip"
+            method = "reparam"   # the gradient loop; its bound handling is in extra["gui"]
             loop_done = ctl is not None and self._finished and ctl.converged
             converged = bool(eq.converged and loop_done)
             state = ("paused" if self.paused else "held" if self.held
@@ -498,6 +498,7 @@ class PosingSession:
         else:
             method, converged, status, iterations = "forward", eq.converged, eq.status, eq.iterations
         extra = {"gui": {
+            "bounds": self._control_options.bounds,
             "frozen": [n for n, f in zip(names, self.frozen) if f],
             "targets_rest": [self.rest_point(e, b).tolist()
                              for e, b in zip(self.targets.triangles, self.targets.beta)],
