@@ -148,7 +148,8 @@ def assert_honest(model, eq, what: str = ""):
 def assert_within_bounds(model, c, what: str = ""):
     c = np.asarray(c)
     assert np.all(c >= model.lower) and np.all(c <= model.upper), \
-        f"{what}: contraction {c.tolist()} outside bounds {model.lower.tolist()}..{model.upper.tolist()}"
+        f"{what}: contraction {c.tolist()} outside bounds " \
+        f"{model.lower.tolist()}..{model.upper.tolist()}"
 
 
 # -- the command line -----------------------------------------------------------
@@ -156,18 +157,6 @@ def assert_within_bounds(model, c, what: str = ""):
 def cli(*args, cwd=None, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "plush_opt.cli", *map(str, args)],
                           capture_output=True, text=True, cwd=cwd, timeout=timeout)
-
-
-def cli_many(arg_lists, cwd=None, timeout=300) -> list[subprocess.CompletedProcess]:
-    """Run several CLI invocations concurrently (each is mostly start-up)."""
-    procs = [subprocess.Popen([sys.executable, "-m", "plush_opt.cli", *map(str, a)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=cwd)
-             for a in arg_lists]
-    out = []
-    for a, p in zip(arg_lists, procs):
-        stdout, stderr = p.communicate(timeout=timeout)
-        out.append(subprocess.CompletedProcess(a, p.returncode, stdout, stderr))
-    return out
 
 
 def expect_line(path: Path) -> str:
