@@ -68,6 +68,9 @@ def _add_solve(sub):
     p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
     p.add_argument("--plot", type=Path, help="write a PNG of the pose here")
     p.add_argument("--trace", type=Path, help="write the control iterate history (CSV) here")
+    p.add_argument("--accuracy", type=float, default=None, metavar="TOL",
+                   help="mesh no finer than needed: the coarsest mesh whose predicted pose at the "
+                   "targets differs from the next finer one by less than TOL (length units)")
     p.add_argument("--max-iterations", type=int, default=None, help="control iterations at most")
     p.add_argument("--max-time", type=float, default=None, help="control seconds at most")
     p.set_defaults(func=cmd_solve)
@@ -117,7 +120,7 @@ def write_trace(path, model, targets, history) -> None:
 
 
 def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, equilibrium="newton",
-                  max_iterations=None, max_time=None):
+                  max_iterations=None, max_time=None, accuracy=None):
     """Load, mesh, model and solve one problem; returns (model, targets, doc, history).
 
     The shared path of ``solve`` and ``demo``.
@@ -131,7 +134,12 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
 
     t0 = time.perf_counter()
     scene = load(problem)
-    mesh = build_mesh(scene)
+    mesh_report = None
+    if accuracy is not None:
+        from .accuracy import choose_mesh
+        mesh, mesh_report = choose_mesh(scene, accuracy)
+    else:
+        mesh = build_mesh(scene)
     model = build_model(scene, mesh)
     targets = Targets.from_mesh(mesh, scene)
     c = _contractions(scene, contraction_pairs)
@@ -175,6 +183,8 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         eq = res.equilibrium
         converged, status, iterations = res.converged, res.status, res.iterations
         extra = {"bilevel": res.info}
+    if mesh_report is not None:
+        extra = {**extra, "mesh_accuracy": mesh_report}
     t_end = time.perf_counter()
     doc = result_dict(model, targets, eq, method=method, converged=converged, status=status,
                       total_s=t_end - t0, solve_s=t_end - t_solve, iterations=iterations,
@@ -196,7 +206,9 @@ def cmd_solve(args) -> int:
     from .results import write_json_atomic
     model, targets, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
-        args.max_iterations, args.max_time)
+        args.max_iterations, args.max_time, args.accuracy)
+    if "mesh_accuracy" in doc:
+        print(f"plush-opt: {doc['mesh_accuracy']['summary']}", file=sys.stderr)
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
@@ -328,6 +340,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_parser(sub)
     from .gui import add_gui_parser
     add_gui_parser(sub)
+    from .compare import add_compare_parser
+    add_compare_parser(sub)
     return parser
 
 

@@ -94,3 +94,17 @@ def test_result_json_is_strict_json(tmp_path):
     out = tmp_path / "r.json"
     assert run("solve", GRIPPER, "--method", "forward", "--out", str(out)).returncode == 0
     json.loads(out.read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+
+
+def test_accuracy_picks_a_mesh_and_says_which(tmp_path):
+    out = tmp_path / "r.json"
+    p = run("solve", str(ROOT / "problems" / "hexapod_leg.yaml"), "--accuracy", "5", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert "mesh_accuracy" in doc and doc["mesh_accuracy"]["summary"] in p.stderr
+    assert len(doc["nodes"]) == len(doc["model"]["rest_nodes"])
+
+
+def test_compare_is_wired(tmp_path):
+    p = run("compare", "--help")
+    assert p.returncode == 0 and "--coarse" in p.stdout

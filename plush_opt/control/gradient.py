@@ -369,13 +369,15 @@ class Controller:
         cand = [w for w in dict.fromkeys(slack + held) if w not in self._restarted]
         if not cand:
             return None
-        self._restarted.update(cand)
         G = self.model.tendon_state(last.x, last.contraction)["stretch"]
         eps = self.model.tendon_smoothing
         lower, upper = self.model.lower, self.model.upper
         span = upper - lower
-        for frac in (0.0, 0.05, 0.15, 0.4):
-            for w in cand:
+        for w in cand:
+            # a winch counts as tried once its moves are spent or one is
+            # taken; the others keep their turn for the next stop
+            self._restarted.add(w)
+            for frac in (0.0, 0.05, 0.15, 0.4):
                 c = last.contraction.copy()
                 if w in slack:
                     mine = self.model.tendon_winch == w
