@@ -19,6 +19,7 @@ its file.
 from __future__ import annotations
 
 import argparse
+import ast
 import platform
 import time
 from dataclasses import replace
@@ -159,6 +160,63 @@ def rows_for(path: Path) -> list[dict]:
     return rows
 
 
+def _xfail_reason(call: ast.Call, constants: dict) -> str | None:
+    for kw in call.keywords:
+        if kw.arg == "reason":
+            if isinstance(kw.value, ast.Constant) and isinstance(kw.value.value, str):
+                return kw.value.value
+            if isinstance(kw.value, ast.Name):
+                return constants.get(kw.value.id)
+    return None
+
+
+def _is_xfail(node) -> bool:
+    return (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+            and node.func.attr == "xfail")
+
+
+def test_index(folder: Path):
+    """From the test sources: which tests mention each scene, and the
+    strict-xfail reasons (the known defects) with their tests."""
+    mentions, defects = {}, []
+    for path in sorted(folder.glob("test_*.py")):
+        if path.name == "test_hard_docs.py":          # tests this page, not the scenes
+            continue
+        src = path.read_text()
+        tree = ast.parse(src)
+        constants = {t.id: n.value.value for n in tree.body if isinstance(n, ast.Assign)
+                     for t in n.targets if isinstance(t, ast.Name)
+                     and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)}
+        functions = [n for n in tree.body if isinstance(n, ast.FunctionDef)]
+        for fn in functions:
+            text = "\n".join(ast.get_source_segment(src, d) or "" for d in fn.decorator_list)
+            text += "\n" + (ast.get_source_segment(src, fn) or "")
+            if fn.name.startswith("test_"):
+                mentions[fn.name] = (path.name, text)
+            for node in ast.walk(fn):
+                if _is_xfail(node):
+                    reason = _xfail_reason(node, constants)
+                    if reason is None:
+                        continue
+                    users = [fn.name] if fn.name.startswith("test_") else [
+                        g.name for g in functions if g.name.startswith("test_")
+                        and any(fn.name in (ast.get_source_segment(src, d) or "")
+                                for d in g.decorator_list)]
+                    for user in users:
+                        defects.append((path.name, user, reason))
+            for d in fn.decorator_list:
+                if _is_xfail(d):
+                    reason = _xfail_reason(d, constants)
+                    if reason is not None:
+                        defects.append((path.name, fn.name, reason))
+    seen, unique = set(), []
+    for item in defects:
+        if item not in seen:
+            seen.add(item)
+            unique.append(item)
+    return mentions, unique
+
+
 INTRO = """\
 # Robustness: hard cases and what the solvers do with them
 
@@ -193,6 +251,7 @@ vary between runs; control runs are capped at {budget:g} s.
 
 
 def render(rows: list[dict], scenes: list[Path]) -> str:
+    mentions, defects = test_index(ROOT / "tests" / "hard")
     out = [INTRO.format(machine=f"{platform.machine()}, Python {platform.python_version()}",
                         budget=CONTROL_BUDGET_S)]
     out.append("## Summary\n")
@@ -203,6 +262,16 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
         out.append(f"| {r['scene']} | {r['method']} | {r['setting']} | {r['outcome']} | "
                    f"{status} | {r['iterations']} | {r['seconds']:.2f} |")
     out.append("")
+    out.append("## Known defects (strict xfail tests)\n")
+    if defects:
+        out.append("Each of these is a test that asserts the right outcome and currently fails; "
+                   "the reason is the test's own. When a defect is fixed the test passes, "
+                   "pytest reports it as XPASS (a failure) and the marker is removed.\n")
+        for file, test, reason in defects:
+            out.append(f"- `{file}::{test}`: {reason}")
+        out.append("")
+    else:
+        out.append("None at the time of this run.\n")
     out.append("## The scenes\n")
     for path in scenes:
         out.append(f"### {path.stem}\n")
@@ -211,9 +280,14 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
         mine = [r for r in rows if r["scene"] == path.stem]
         counts = {}
         for r in mine:
-            counts[r["outcome"].split(" (")[0]] = counts.get(r["outcome"].split(" (")[0], 0) + 1
-        summary = ", ".join(f"{v} {k}" for k, v in counts.items())
-        out.append(f"Observed in this run: {summary}.\n")
+            key = r["outcome"].split(" (")[0]
+            counts[key] = counts.get(key, 0) + 1
+        out.append("Observed in this run: " + ", ".join(f"{v} {k}" for k, v in counts.items())
+                   + ".\n")
+        tests = [f"`{file}::{name}`" for name, (file, text) in mentions.items()
+                 if f'"{path.stem}"' in text]
+        if tests:
+            out.append("Tested by " + ", ".join(tests) + ".\n")
     invalid = sorted((HARD / "invalid").glob("*.yaml"))
     out.append("### invalid/\n")
     out.append(f"`problems/hard/invalid/` holds {len(invalid)} files that are wrong on purpose "
@@ -225,7 +299,16 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
                "and requires exit status 2, that one line on stderr (file, key, index), no "
                "traceback and no result file. The same test runs a 5 MB file, a nested alias "
                "bomb, random bytes, an empty file, a truncated file, a missing file and a "
-               "directory, and a selection of the loader's own bad files in `tests/bad/`.\n")
+               "directory, and a selection of the loader's own bad files in `tests/bad/`. "
+               "`tests/hard/test_hard_fuzz.py` mutates the text of the shipped and hard "
+               "problem files at random (hypothesis, bounded example counts): whatever does "
+               "not load raises SceneError naming the file, whatever loads meshes and builds "
+               "a model, and value-preserving rewrites load to the same scene.\n")
+    out.append("## Regenerating\n")
+    out.append("```sh\n.venv/bin/python tools/robustness_table.py      # about two minutes\n```\n")
+    out.append("On a small machine that is busy with other work, `OPENBLAS_NUM_THREADS=1` "
+               "makes both this script and `pytest tests/hard` several times faster (the dense "
+               "eigen-solves and Cholesky re-checks otherwise fight over the cores).\n")
     return "\n".join(out)
 
 
