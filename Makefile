@@ -12,8 +12,10 @@ SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 demo: $(STAMP) emulator
 	$(VENV)/bin/plush-opt demo --out out/demo
 
+# One BLAS thread: the solvers' dense pieces are small, and on 2 cores
+# OpenBLAS threads fighting each other (and pytest) slow them tenfold.
 test: $(STAMP) emulator
-	$(PY) -m pytest -q tests
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q tests
 
 # CHOLMOD headers for scikit-sparse and a C++ compiler for the board emulator.
 system-deps:

@@ -235,6 +235,7 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
                            "newton")
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
+    best: list[float] = []        # relative residual per iteration (stall detection)
     converged = False
     factor = None
     it = 0
@@ -256,6 +257,15 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = "saddle: the gradient vanishes but the Hessian is not positive definite"
             break
         if it >= options.max_iterations:
+            break
+        rel = np.linalg.norm(g) / ev.force_scale
+        best.append(rel)
+        if factor is not None and rel < 1e-6 and len(best) > 40 and min(best[-20:]) > 0.5 * min(best[:-20]):
+            # no progress for 20 iterations near the tolerance: round-off
+            # (a sliver element, an ill-conditioned H) sets a floor above gtol
+            status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
+                      f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
+                      "ill-conditioned Hessian)")
             break
         if factor is None and options.escape_saddles and escapes < options.max_escapes:
             # Indefinite Hessian with a gradient blind to the unstable
@@ -335,6 +345,8 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
 
     IPOPT treats a non-finite energy (log J of an inverted element) as an
     evaluation error and cuts its step back, so it stays admissible.
+    ``converged`` is the certificate's verdict, whatever IPOPT's return
+    status (which the status string reports when it differs).
     IPOPT's own stopping test works on a scaled problem; when its answer
     misses the certificate's residual only, it is run again from there with
     no scaling and an absolute tolerance taken from the force scale. Where
@@ -373,10 +385,14 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
                 x, escapes = escaped[0], escapes + 1
                 continue
         break
-    ok = stats["success"] and small and factor is not None
+    # the certificate decides, not IPOPT's own flag: IPOPT may end with
+    # "search direction too small" on a pose that passes it
+    ok = small and factor is not None
     note = f" (escaped {escapes} saddle(s))" if escapes else ""
     if ok:
         status = "converged" + note
+        if not stats["success"]:
+            status += f" (ipopt ended with {stats['return_status']}; the pose passes the certificate)"
     elif factor is None:
         status = f"ipopt: {stats['return_status']}; Hessian not positive definite (saddle or maximum)"
     elif not small:

@@ -99,7 +99,8 @@ def smallest_eigenpair(H: sp.csc_matrix) -> tuple[float, np.ndarray]:
     eigenvector. Used to escape saddles, where H is indefinite."""
     n = H.shape[0]
     if n <= 400:
-        w, V = np.linalg.eigh(H.toarray())
+        import scipy.linalg as sla
+        w, V = sla.eigh(H.toarray(), subset_by_index=[0, 0], driver="evr")
         return float(w[0]), V[:, 0]
     # the negative eigenvalues of a near-saddle are small: look around 0
     # first (shift-invert, LU of the indefinite H), then at the far end
