@@ -112,11 +112,6 @@ def test_bilevel_claims_are_certified(name):
         assert not recheck(model, res.equilibrium), res.status
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "equilibrium._solve_ipopt requires IPOPT's own success flag: on gripper at c = 0 IPOPT "
-    "returns Search_Direction_Becomes_Too_Small at a pose that passes the certificate "
-    "(relative residual 2e-12, positive definite Hessian), and the backend reports "
-    "converged=False ('ipopt: Search_Direction_Becomes_Too_Small')"))
 def test_ipopt_backend_certifies_a_pose_that_passes_the_certificate():
     _, _, model, _ = built("gripper")
     c = np.zeros(model.n_winches)
