@@ -355,32 +355,26 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("plush-opt: interrupted", file=sys.stderr)
         return EXIT_INTERRUPT
-    except (SceneError, argparse.ArgumentTypeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - every error ends as one line
         if args.debug:
             raise
-        print(f"plush-opt: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except HardwareError as exc:
-        if args.debug:
-            raise
-        print(f"plush-opt: hardware error: {exc}", file=sys.stderr)
-        return EXIT_HARDWARE
-    except (SolverError, PlushError) as exc:
-        if args.debug:
-            raise
-        print(f"plush-opt: solver error: {exc}", file=sys.stderr)
-        return EXIT_SOLVER
-    except OSError as exc:
-        if args.debug:
-            raise
-        print(f"plush-opt: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except Exception as exc:  # noqa: BLE001 - a bug: one line, not a traceback
-        if args.debug:
-            raise
-        print(f"plush-opt: internal error: {type(exc).__name__}: {exc} (rerun with --debug for the "
-              "traceback, and please report it)", file=sys.stderr)
-        return EXIT_INTERNAL
+        message, code = _describe_error(exc)
+        print(f"plush-opt: {message}", file=sys.stderr)
+        return code
+
+
+def _describe_error(exc: Exception) -> tuple[str, int]:
+    """One line and an exit status for an error that ends a command."""
+    if isinstance(exc, (SceneError, argparse.ArgumentTypeError)):
+        return f"error: {exc}", EXIT_INPUT
+    if isinstance(exc, HardwareError):
+        return f"hardware error: {exc}", EXIT_HARDWARE
+    if isinstance(exc, (SolverError, PlushError)):
+        return f"solver error: {exc}", EXIT_SOLVER
+    if isinstance(exc, OSError):
+        return f"error: {exc.filename or ''}: {exc.strerror or exc}", EXIT_INPUT
+    return (f"internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback, "
+            "and please report it)", EXIT_INTERNAL)
 
 
 if __name__ == "__main__":
