@@ -157,11 +157,13 @@ def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
     return 1e-13 * size
 
 
-def _regularised_factor(model: Model, H) -> Factor:
+def _regularised_factor(model: Model, H, previous: float | None = None) -> Factor:
     """Cholesky of H + shift I with the smallest shift (by factors of 10)
-    that makes it positive definite."""
+    that makes it positive definite, starting a decade below the
+    ``previous`` shift of the same solve (the next Hessian is usually alike)."""
     diag = np.abs(H.diagonal())
-    shift = 1e-8 * max(float(diag.mean()), 1e-300)
+    floor = 1e-8 * max(float(diag.mean()), 1e-300)
+    shift = floor if previous is None else max(floor, previous / 10)
     for _ in range(40):
         try:
             return model.factorizer.factor(H, shift)
@@ -236,6 +238,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
+    watch_symmetry = True         # look for a gradient blind to negative curvature
+    last_shift = None             # regularisation of the previous indefinite step
     converged = False
     factor = None
     it = 0
@@ -267,21 +271,28 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
                       f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
                       "ill-conditioned Hessian)")
             break
-        if factor is None and options.escape_saddles and escapes < options.max_escapes:
+        if factor is None:
+            step_factor = _regularised_factor(model, H, last_shift)
+            last_shift = step_factor.shift
+        else:
+            step_factor = factor
+        if factor is None and watch_symmetry and options.escape_saddles and escapes < options.max_escapes:
             # Indefinite Hessian with a gradient blind to the unstable
             # direction (a symmetric scene on its symmetric branch): a
             # regularised step would pick a side by round-off. Leave along
-            # the negative curvature by the same rule as at a saddle.
-            pair = smallest_eigenpair(H)
-            if pair[0] < 0 and abs(g @ pair[1]) <= 1e-6 * np.linalg.norm(g):
+            # the negative curvature by the same rule as at a saddle. (Once
+            # the gradient is seen to have a component along it, the scene
+            # is not on a symmetric branch: no more checks this solve.)
+            pair = step_factor.most_negative_eigenpair()
+            if pair is not None and abs(g @ pair[1]) <= 1e-6 * np.linalg.norm(g):
                 escaped = _escape_saddle(model, c, x, ev, pair)
                 if escaped is not None:
                     x, ev = escaped
                     escapes += 1
                     it += 1
                     continue
+            watch_symmetry = pair is None
         it += 1
-        step_factor = factor if factor is not None else _regularised_factor(model, H)
         dx = -step_factor.solve(g)
         slope = float(g @ dx)
         slack = _energy_slack(model, ev.energy, x)

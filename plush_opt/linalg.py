@@ -94,6 +94,23 @@ class Factor:
         return float(vals[0])
 
 
+    def most_negative_eigenpair(self) -> tuple[float, np.ndarray] | None:
+        """For a factor of ``H + shift I`` (shift > 0, made positive definite
+        by it): the most negative eigenvalue of H and its unit eigenvector,
+        by shift-invert Lanczos around -shift with this factor; None if
+        none is found below zero."""
+        n = self.H.shape[0]
+        if self.shift <= 0:
+            return None
+        op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
+        try:
+            w, V = spla.eigsh(self.H, k=1, sigma=-self.shift, which="LM", OPinv=op, tol=1e-10,
+                              maxiter=1000, v0=np.ones(n))
+        except spla.ArpackNoConvergence:
+            return None
+        return (float(w[0]), V[:, 0]) if w[0] < 0 else None
+
+
 def smallest_eigenpair(H: sp.csc_matrix) -> tuple[float, np.ndarray]:
     """Smallest (algebraic) eigenvalue of a symmetric sparse H and its unit
     eigenvector. Used to escape saddles, where H is indefinite."""
