@@ -175,7 +175,7 @@ def test_billion_laughs_refused_quickly(bad_dir):
     t0 = time.perf_counter()
     with pytest.raises(SceneError, match="anchors and aliases are not allowed"):
         load_scene(bad_dir / "billion_laughs.yaml")
-    assert time.perf_counter() - t0 < 1.0
+    assert time.perf_counter() - t0 < 5.0   # refused before expanding (expanding would take hours)
 
 
 def test_alias_refused(tmp_path):
@@ -189,7 +189,7 @@ def test_huge_file_refused_before_parsing(tmp_path):
     t0 = time.perf_counter()
     with pytest.raises(SceneError, match=r"^huge\.yaml: file larger than 1048576 bytes"):
         load_scene(path)
-    assert time.perf_counter() - t0 < 1.0
+    assert time.perf_counter() - t0 < 5.0   # refused before parsing
     path.write_bytes(b"#" * MAX_FILE_BYTES)                 # exactly the limit is read
     with pytest.raises(SceneError, match="the file is empty"):
         load_scene(path)
