@@ -166,6 +166,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         Bad ``tol``/``levels``, a point off the body, or a level whose
         equilibrium cannot be certified.
     """
+    options = options or EquilibriumOptions(eigenvalue=False)
     if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"accuracy: tol must be a finite number > 0, got {tol!r}")
     if scene.outline is None:

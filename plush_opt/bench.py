@@ -120,7 +120,8 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
     row["factor_s"], _ = _median_time(lambda: model.factorizer.factor(ev.hessian), 5 * repeats)
     row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
     row["forward_iterations"] = fwd.iterations
-    row["forward_ratio"] = row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))
+    row["forward_ratio"] = (row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))
+                            if fwd.iterations else None)
     row["forward_certified"] = _certified(fwd)
     row["min_eigenvalue"] = fwd.factor.min_eigenvalue() if fwd.factor is not None else None
 
@@ -206,7 +207,8 @@ def render_markdown(report: dict) -> str:
         lines.append(
             f"| {r['problem']} | {r['nodes']} | {r['elements']} | {r['build_uncached_s']:.2f} | "
             f"{r['build_cached_s']:.3f} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} | "
-            f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | {r['forward_ratio']:.2f} | "
+            f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | "
+            f"{'—' if r['forward_ratio'] is None else format(r['forward_ratio'], '.2f')} | "
             f"{_ms(r['resolve_s'])} ({r['resolve_iterations']}; {r['resolve_without_predictor_iterations']}) | "
             f"{'yes' if r['forward_certified'] and r['resolve_certified'] else 'NO'} |")
     lines += ["", "## Inverse control", "",

@@ -148,6 +148,10 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         method = "reparam" if targets.n_targets else "forward"
     if method != "forward" and not targets.n_targets:
         raise SceneError(f"{scene.source}: targets: --method {method} needs targets; the file has none")
+    if max_iterations is not None and max_iterations < 0:
+        raise SceneError(f"--max-iterations: expected >= 0, got {max_iterations}")
+    if max_time is not None and not max_time > 0:
+        raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
     eq_opts = EquilibriumOptions(backend=equilibrium)
     history = ()
     t_solve = time.perf_counter()
@@ -268,7 +272,7 @@ def cmd_demo(args) -> int:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     print(f"demo: solving {problem.name} (control to its targets)")
-    model, targets, eq, doc, history = solve_problem(problem)
+    model, targets, eq, doc, history = solve_problem(problem, method="reparam")
     write_json_atomic(out / "result.json", doc)
     plot_pose(out / "pose.png", model, eq.x, eq.contraction, targets)
     plot_trace(out / "trace.png", history, title=f"{model.scene.name}: control iterates")

@@ -351,7 +351,9 @@ def run_compare(problem_paths, out_dir, coarse: bool = False, progress=None,
                 f"nodes={run.n_nodes:5d}  O={run.objective:.6g}  t={run.t_solve:.3f} s"
                 f"{'' if run.converged else '  (not converged)'}")
         _reference(problem, runs, {})
-        front = pareto_front([(r.t_solve, r.fine_target_error) for r in runs])
+        # only poses a robot may be sent to belong on the front
+        front = pareto_front([(r.t_solve, r.fine_target_error) if r.stable and r.bound_violation == 0
+                              else (float("nan"), float("nan")) for r in runs])
         for i in front:
             runs[i].pareto = True
         all_runs += runs

@@ -176,10 +176,13 @@ def _finish(model, c, x, ev: Evaluation, factor, converged, status, it, t0, opti
             backend="newton", escapes=0) -> Equilibrium:
     pd = factor is not None and factor.shift == 0.0
     min_eig = None
-    if pd and options.eigenvalue:
-        min_eig = factor.min_eigenvalue()
-    elif options.eigenvalue and ev.hessian is not None:
-        min_eig, _ = smallest_eigenpair(ev.hessian)
+    try:   # a diagnostic: its failure must not discard a certified pose
+        if pd and options.eigenvalue:
+            min_eig = factor.min_eigenvalue()
+        elif options.eigenvalue and ev.hessian is not None:
+            min_eig, _ = smallest_eigenpair(ev.hessian)
+    except SolverError as exc:
+        log.warning("smallest Hessian eigenvalue not computed: %s", exc)
     residual = float(np.linalg.norm(ev.gradient)) if ev.gradient is not None else np.inf
     return Equilibrium(
         x=x, contraction=c, converged=bool(converged and pd), status=status,
@@ -386,6 +389,9 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
         if factor is not None and not small and not polished:
             # the residual alone misses the certificate: once more, unscaled
             tol = 0.5 * options.gtol * ev.force_scale / np.sqrt(model.n_dofs)
+            # a power of ten below: solvers are cached per option set, and
+            # a pose-dependent tolerance would build a new one every time
+            tol = float(10.0 ** np.floor(np.log10(tol)))
             extra = {"ipopt.nlp_scaling_method": "none", "ipopt.tol": tol,
                      "ipopt.acceptable_iter": 0}
             x, polished = xs, True

@@ -120,10 +120,20 @@ def smallest_eigenpair(H: sp.csc_matrix) -> tuple[float, np.ndarray]:
         w, V = sla.eigh(H.toarray(), subset_by_index=[0, 0], driver="evr")
         return float(w[0]), V[:, 0]
     # the negative eigenvalues of a near-saddle are small: look around 0
-    # first (shift-invert, LU of the indefinite H), then at the far end
+    # first (shift-invert, LU of the indefinite H); if none found below 0
+    # there, look at the far end of the spectrum
     try:
         w, V = spla.eigsh(H, k=min(4, n - 1), sigma=-1e-12, which="LM", tol=1e-10, v0=np.ones(n))
+        if w.min() < 0:
+            k = int(np.argmin(w))
+            return float(w[k]), V[:, k]
     except (RuntimeError, spla.ArpackNoConvergence):
+        pass
+    try:
         w, V = spla.eigsh(H, k=1, which="SA", tol=1e-10, maxiter=50 * n, v0=np.ones(n))
+    except spla.ArpackNoConvergence as exc:
+        if not len(exc.eigenvalues):
+            raise SolverError("smallest Hessian eigenvalue: ARPACK did not converge") from None
+        w, V = exc.eigenvalues, exc.eigenvectors
     k = int(np.argmin(w))
     return float(w[k]), V[:, k]

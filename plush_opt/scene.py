@@ -251,12 +251,22 @@ class _Guard:
             key = self.construct_object(key_node, deep=True)
             try:
                 duplicate = key in seen
+                seen.add(key)
             except TypeError:
                 raise _YamlRefused("a mapping key must be a plain value", key_node.start_mark)
             if duplicate:
                 raise _YamlRefused(f"duplicate key {key!r}", key_node.start_mark)
-            seen.add(key)
         return super().construct_mapping(node, deep=deep)
+
+    def construct_object(self, node, deep=False):
+        # an explicit tag with a value it cannot hold (!!float abc, !!bool
+        # maybe, ...) makes PyYAML's constructors raise plain exceptions
+        try:
+            return super().construct_object(node, deep=deep)
+        except (ValueError, TypeError, KeyError, AttributeError, OverflowError):
+            raise _YamlRefused(f"bad {node.tag} value {node.value!r}"
+                               if isinstance(node, yaml.ScalarNode) else f"bad {node.tag} value",
+                               node.start_mark) from None
 
 
 class _Loader(_Guard, yaml.reader.Reader, yaml.scanner.Scanner, yaml.parser.Parser,
@@ -333,6 +343,10 @@ def _parse_yaml(text: str, source: str):
         raise SceneError(f"{source}: YAML error: {exc}") from None
     except RecursionError:
         raise SceneError(f"{source}: the YAML is nested too deeply") from None
+    except SceneError:
+        raise
+    except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+        raise SceneError(f"{source}: YAML value not understood: {exc}") from None
     finally:
         loader.dispose()
 

@@ -234,6 +234,7 @@ class Driver:
             return
         try:
             with _sigint_deferred(reraise=True):
+                self._end_partial_line()
                 self.stop()
         except HardwareError as e:
             log.error("%s: could not stop the board before closing: %s", self.port, e)
@@ -266,11 +267,21 @@ class Driver:
             return
         with _sigint_deferred(reraise=exc_type is None):
             try:
+                self._end_partial_line()
                 self.stop()
             except HardwareError as e:
                 if exc_type is None:
                     raise
                 log.error("%s: could not stop the board after %s: %s", self.port, exc_type.__name__, e)
+
+    def _end_partial_line(self) -> None:
+        """A bare newline: if a write was cut off half-way, the board would
+        otherwise glue STOP onto the fragment and refuse the whole line. The
+        board ignores blank lines."""
+        try:
+            self._write(b"\n")
+        except HardwareError as e:
+            log.warning("%s: could not end a partial line: %s", self.port, e)
 
     # ------------------------------------------------------------ commands --
     def identify(self) -> P.BoardInfo:
@@ -377,6 +388,9 @@ class Driver:
             line = P.format_command(seq, command, *args)
             log.debug("%s > %s", self.port, line.decode().rstrip())
             self._write(line)
+            # remembered at once: if this wait is interrupted (Ctrl-C), the
+            # late reply must not look like a stranger's to the next command
+            self._recent.append(seq)
             deadline = time.monotonic() + self.timeout
             while True:
                 raw = self._readline(deadline)
@@ -405,7 +419,6 @@ class Driver:
                     f"{self.port}: reply sequence mismatch: sent {command} with sequence number {seq}, "
                     f"got a reply for {reply.seq} ({raw.decode('ascii', 'replace').strip()!r}); "
                     "is another program using the port?")
-            self._recent.append(seq)
             if attempt < attempts:
                 # Silence while the board boots is expected, not worth a warning.
                 level = logging.DEBUG if time.monotonic() - started < patience else logging.WARNING

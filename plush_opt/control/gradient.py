@@ -413,6 +413,7 @@ class Controller:
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self._mu = 1e-3
         self.status = "running"
+        self.converged = False
         return self._iterate(eq, self._grad)
 
     def _stop_reason(self, last: Iterate, stall: int, steps: int):

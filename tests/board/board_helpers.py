@@ -68,6 +68,8 @@ class FakeBoard:
                 return
             while b"\n" in buf:
                 line, buf = buf.split(b"\n", 1)
+                if not line.strip():
+                    continue                 # a blank line is ignored, as by the board
                 self.received.append(line.decode())
                 for out in self.handler(line.decode()) or ():
                     os.write(self.master, out)
