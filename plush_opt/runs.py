@@ -300,8 +300,13 @@ class RunLog:
         self.lines = 0
 
     def write(self, obj: dict) -> None:
-        data = (json.dumps(_jsonable(obj), allow_nan=False, separators=(",", ":")) + "\n").encode()
-        self._f.write(data)
+        data = memoryview((json.dumps(_jsonable(obj), allow_nan=False, separators=(",", ":"))
+                           + "\n").encode())
+        while data:   # an unbuffered write may take only part of the line
+            written = self._f.write(data)
+            if not written:
+                raise OSError(f"{self.path}: could not write the run log")
+            data = data[written:]
         if self._sync:
             os.fsync(self._f.fileno())
         self.lines += 1
