@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import io
 import logging
 import os
@@ -131,9 +132,10 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     from .model import build_model
     from .objective import Targets
     from .results import result_dict
+    from .scene import load_scene
 
     t0 = time.perf_counter()
-    scene = load(problem)
+    scene = load_scene(problem)
     mesh_report = None
     if accuracy is not None:
         from .accuracy import choose_mesh
@@ -163,9 +165,9 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         opts = ControlOptions(equilibrium=EquilibriumOptions(backend=equilibrium,
                                                                             eigenvalue=False))
         if max_iterations is not None:
-            opts = _replace(opts, max_iterations=max_iterations)
+            opts = dataclasses.replace(opts, max_iterations=max_iterations)
         if max_time is not None:
-            opts = _replace(opts, max_time=max_time)
+            opts = dataclasses.replace(opts, max_time=max_time)
         ctl = Controller(model, targets, c, frozen, options=opts)
         for it in ctl.iterates():
             log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
@@ -194,16 +196,6 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
                       total_s=t_end - t0, solve_s=t_end - t_solve, iterations=iterations,
                       extra=extra)
     return model, targets, eq, doc, history
-
-
-def _replace(opts, **kw):
-    import dataclasses
-    return dataclasses.replace(opts, **kw)
-
-
-def load(problem: Path):
-    from .scene import load_scene
-    return load_scene(problem)
 
 
 def cmd_solve(args) -> int:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
@@ -120,11 +119,3 @@ class Targets:
     def rms_error(self, x) -> float:
         e = self.errors(x)
         return float(np.sqrt(np.mean(e**2))) if e.size else 0.0
-
-    def expression(self, x: ca.MX) -> ca.MX:
-        """O as a CasADi expression of the flat pose (bilevel control)."""
-        if self.n_targets == 0:
-            return ca.MX(0)
-        B = ca.DM(self.selection(x.shape[0]))
-        r = ca.diag(ca.DM(np.repeat(np.sqrt(self.weight), 2))) @ (B @ x - ca.DM(self.to.reshape(-1)))
-        return 0.5 * ca.sumsqr(r)

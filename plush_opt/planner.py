@@ -4,6 +4,7 @@ its current certified pose, and the two things a robot is asked to do
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .control.gradient import ControlOptions, Controller
-from .equilibrium import EquilibriumOptions, solve_equilibrium
+from .equilibrium import solve_equilibrium
 from .errors import SceneError, SolverError
 from .mesh import build_mesh
 from .model import build_model
@@ -60,7 +61,7 @@ class ControlPlanner:
                                  [t.get("weight", 1.0) for t in targets])
         frozen = np.array([n in freeze for n in self.winch_names])
         ctl = Controller(self.model, goal, self.contraction, frozen, self.x,
-                         _with_time(self.options, max_time))
+                         dataclasses.replace(self.options, max_time=max_time))
         t0 = time.perf_counter()
         for it in ctl.iterates():
             self.contraction, self.x = it.contraction.copy(), it.x
@@ -69,8 +70,3 @@ class ControlPlanner:
         last = ctl.history[-1]
         yield {"contraction": self._named(last.contraction), "objective": last.objective,
                "converged": ctl.converged, "status": ctl.status, "t": time.perf_counter() - t0}
-
-
-def _with_time(options: ControlOptions, max_time: float) -> ControlOptions:
-    import dataclasses
-    return dataclasses.replace(options, max_time=max_time)
