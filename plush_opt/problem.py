@@ -1,0 +1,150 @@
+"""A problem, built once: the scene read from its file, its mesh, its
+energy model and its targets, with the solvers that own their caches.
+
+Every app starts here (``load(path)`` or ``from_scene(scene)``) instead of
+repeating the pipeline ``scene -> mesh -> model -> targets``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from .errors import SceneError
+from .mesh import Mesh, build_mesh
+from .model import Model, build_model
+from .objective import Targets
+from .scene import Scene, load_scene
+
+
+class Problem:
+    """Scene, mesh, model and targets of one problem file.
+
+    Attributes
+    ----------
+    scene : the validated :class:`~plush_opt.scene.Scene`.
+    mesh : its :class:`~plush_opt.mesh.Mesh`.
+    model : the energy :class:`~plush_opt.model.Model` on that mesh.
+    targets : the file's targets on that mesh (possibly none).
+    mesh_report : how the mesh was chosen for an accuracy, or None.
+    """
+
+    def __init__(self, scene: Scene, mesh: Mesh, model: Model, targets: Targets,
+                 mesh_report: dict | None = None):
+        self._scene, self._mesh, self._model, self._targets = scene, mesh, model, targets
+        self._mesh_report = mesh_report
+
+    scene = property(lambda self: self._scene)
+    mesh = property(lambda self: self._mesh)
+    model = property(lambda self: self._model)
+    targets = property(lambda self: self._targets)
+    mesh_report = property(lambda self: self._mesh_report)
+
+    def __repr__(self) -> str:
+        return (f"Problem({self.scene.name!r}, {self.mesh.n_nodes} nodes, "
+                f"{self.model.n_winches} winches, {self.targets.n_targets} targets)")
+
+    @property
+    def winch_names(self) -> tuple[str, ...]:
+        return self.model.winch_names
+
+    @property
+    def source(self) -> str:
+        return self.scene.source
+
+    # -- contractions and frozen sets by name ------------------------------
+
+    def contraction_vector(self, contraction: Mapping[str, float] | None = None,
+                           start=None, what: str = "contraction") -> np.ndarray:
+        """(n_winches,) contractions: ``start`` (default the scene's) with
+        the named values replaced. Unknown names and values outside the
+        bounds are a :class:`SceneError` naming the winch."""
+        names = self.winch_names
+        c = (self.scene.contraction if start is None else np.asarray(start, dtype=np.float64)).copy()
+        for name, value in (contraction or {}).items():
+            if name not in names:
+                raise SceneError(f"{what} {name}: no winch named {name!r} (winches: {', '.join(names)})")
+            i = names.index(name)
+            value = float(value)
+            lo, hi = self.model.lower[i], self.model.upper[i]
+            if not np.isfinite(value) or not lo <= value <= hi:
+                raise SceneError(f"{what} {name}={value:g}: outside the winch's bounds [{lo:g}, {hi:g}]")
+            c[i] = value
+        return c
+
+    def frozen_vector(self, names: Iterable[str] | None = None) -> np.ndarray:
+        """(n_winches,) bool: the scene's frozen flags, plus ``names``."""
+        frozen = self.scene.frozen.copy()
+        for name in names or ():
+            if name not in self.winch_names:
+                raise SceneError(f"frozen {name}: no winch named {name!r} "
+                                 f"(winches: {', '.join(self.winch_names)})")
+            frozen[self.winch_names.index(name)] = True
+        return frozen
+
+    # -- solving -------------------------------------------------------------
+
+    def equilibrium(self, contraction: Mapping[str, float] | None = None, x0=None,
+                    options: EquilibriumOptions | None = None) -> Equilibrium:
+        """The equilibrium at these contractions (by winch name; the others
+        at the scene's values), from ``x0`` (default the rest pose)."""
+        return solve_equilibrium(self.model, self.contraction_vector(contraction), x0, options)
+
+    def control(self, method: str = "reparam", contraction: Mapping[str, float] | None = None,
+                frozen: Iterable[str] | None = None, x0=None, options=None):
+        """Contractions that bring the body to the targets.
+
+        Parameters
+        ----------
+        method : 'reparam' or 'clip' (the gradient loop with that bounds
+            strategy) or 'bilevel' (IPOPT on the KKT formulation).
+        contraction : where to start, by winch name (default the scene's).
+        frozen : winch names to hold, besides the scene's frozen ones.
+        x0 : a pose near the starting equilibrium (optional).
+        options : the method's options (``ControlOptions`` or ``BilevelOptions``).
+
+        Returns
+        -------
+        ControlResult
+        """
+        from .control import run_control
+        if not self.targets.n_targets:
+            raise SceneError(f"{self.source}: targets: control needs targets; the file has none")
+        return run_control(self.model, self.targets, method, self.contraction_vector(contraction),
+                           self.frozen_vector(frozen), x0, options)
+
+    def with_targets(self, targets: Targets) -> "Problem":
+        """The same problem with other targets (model and mesh shared)."""
+        return Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
+
+
+def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None = None,
+               accuracy: float | None = None) -> Problem:
+    """Build a :class:`Problem` from a scene: mesh it (the file's mesh, a
+    ``max_area``, or the coarsest mesh good to ``accuracy``), model it, and
+    place its targets."""
+    report = None
+    if mesh is None:
+        if accuracy is not None:
+            from .accuracy import choose_mesh
+            mesh, report = choose_mesh(scene, accuracy)
+        else:
+            mesh = build_mesh(scene, max_area)
+    model = build_model(scene, mesh)
+    return Problem(scene, mesh, model, Targets.from_mesh(mesh, scene), report)
+
+
+def load(path, *, max_area: float | None = None, accuracy: float | None = None) -> Problem:
+    """Read a problem file and build its :class:`Problem`.
+
+    Parameters
+    ----------
+    path : the problem file (YAML, ``format: plush-opt/1``).
+    max_area : mesh finer or coarser than the file asks (optional).
+    accuracy : choose the coarsest mesh whose target points are good to
+        this length (optional; see docs/model.md).
+    """
+    return from_scene(load_scene(Path(path)), max_area=max_area, accuracy=accuracy)
