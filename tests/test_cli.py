@@ -14,7 +14,7 @@ GRIPPER = str(ROOT / "problems" / "gripper.yaml")
 
 
 def run(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "plush_opt.cli", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "plush_opt", *args], capture_output=True,
                           text=True, cwd=cwd, timeout=300)
 
 

@@ -155,7 +155,7 @@ def assert_within_bounds(model, c, what: str = ""):
 # -- the command line -----------------------------------------------------------
 
 def cli(*args, cwd=None, timeout=120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "plush_opt.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "plush_opt", *map(str, args)],
                           capture_output=True, text=True, cwd=cwd, timeout=timeout)
 
 

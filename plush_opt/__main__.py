@@ -1,0 +1,7 @@
+"""``python -m plush_opt``: the same as the ``plush-opt`` command."""
+
+import sys
+
+from plush_opt.cli import main
+
+sys.exit(main())
