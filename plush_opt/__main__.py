@@ -2,6 +2,6 @@
 
 import sys
 
-from plush_opt.cli import main
+from plush_opt.apps.cli import main
 
 sys.exit(main())

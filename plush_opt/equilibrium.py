@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import time
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -137,6 +137,39 @@ def solve_equilibrium(model: Model, contraction, x0=None,
     if options.backend == "ipopt":
         return _solve_ipopt(model, c, x, options)
     return _solve_newton(model, c, x, options)
+
+
+def residual(model: Model, x, contraction) -> np.ndarray:
+    """The equilibrium residual grad_x E(x; c), (n_dofs,) force units.
+
+    Zero at an equilibrium; the same residual drives the solvers, their
+    certificate, the implicit sensitivities and the tests."""
+    ev = model.evaluate(x, contraction, order=1)
+    if not ev.admissible:
+        raise SolverError("residual: the pose is not admissible (some element has J <= 0)")
+    return ev.gradient
+
+
+def certify(model: Model, eq: Equilibrium) -> Equilibrium:
+    """``eq`` with its smallest Hessian eigenvalue, for a result file.
+
+    Uses the factor the solver kept (shift-invert Lanczos, no new
+    factorisation) when there is one; a failure of this diagnostic never
+    discards the pose."""
+    if eq.min_eigenvalue is not None:
+        return eq
+    try:
+        if eq.factor is not None and eq.factor.shift == 0.0:
+            lam = eq.factor.min_eigenvalue()
+        else:
+            ev = model.evaluate(eq.x, eq.contraction, order=2)
+            if ev.hessian is None:
+                return eq
+            lam, _ = smallest_eigenpair(ev.hessian)
+    except SolverError as exc:
+        log.warning("smallest Hessian eigenvalue not computed: %s", exc)
+        return eq
+    return replace(eq, min_eigenvalue=float(lam))
 
 
 # --------------------------------------------------------------------------

@@ -656,7 +656,7 @@ class PosingSession:
         from matplotlib.lines import Line2D
         from matplotlib.patches import Rectangle
 
-        from .plot import REST_COLOR, TARGET_COLOR, draw_pose
+        from .apps.plot import REST_COLOR, TARGET_COLOR, draw_pose
 
         model = self.model
         n_w = model.n_winches

@@ -36,6 +36,7 @@ class Problem:
                  mesh_report: dict | None = None):
         self._scene, self._mesh, self._model, self._targets = scene, mesh, model, targets
         self._mesh_report = mesh_report
+        self._bilevel = None     # the bilevel solver keeps its built NLPs: made on first use
 
     scene = property(lambda self: self._scene)
     mesh = property(lambda self: self._mesh)
@@ -61,26 +62,28 @@ class Problem:
                            start=None, what: str = "contraction") -> np.ndarray:
         """(n_winches,) contractions: ``start`` (default the scene's) with
         the named values replaced. Unknown names and values outside the
-        bounds are a :class:`SceneError` naming the winch."""
+        bounds are a :class:`SceneError` naming the winch (``what`` names
+        where the value came from, e.g. ``--contraction``)."""
         names = self.winch_names
         c = (self.scene.contraction if start is None else np.asarray(start, dtype=np.float64)).copy()
         for name, value in (contraction or {}).items():
-            if name not in names:
-                raise SceneError(f"{what} {name}: no winch named {name!r} (winches: {', '.join(names)})")
-            i = names.index(name)
             value = float(value)
+            if name not in names:
+                raise SceneError(f"{what} {name}={value:g}: no winch named {name!r} "
+                                 f"(winches: {', '.join(names)})")
+            i = names.index(name)
             lo, hi = self.model.lower[i], self.model.upper[i]
-            if not np.isfinite(value) or not lo <= value <= hi:
+            if not lo <= value <= hi:
                 raise SceneError(f"{what} {name}={value:g}: outside the winch's bounds [{lo:g}, {hi:g}]")
             c[i] = value
         return c
 
-    def frozen_vector(self, names: Iterable[str] | None = None) -> np.ndarray:
+    def frozen_vector(self, names: Iterable[str] | None = None, what: str = "frozen") -> np.ndarray:
         """(n_winches,) bool: the scene's frozen flags, plus ``names``."""
         frozen = self.scene.frozen.copy()
         for name in names or ():
             if name not in self.winch_names:
-                raise SceneError(f"frozen {name}: no winch named {name!r} "
+                raise SceneError(f"{what} {name}: no winch named {name!r} "
                                  f"(winches: {', '.join(self.winch_names)})")
             frozen[self.winch_names.index(name)] = True
         return frozen
@@ -114,11 +117,22 @@ class Problem:
         if not self.targets.n_targets:
             raise SceneError(f"{self.source}: targets: control needs targets; the file has none")
         return run_control(self.model, self.targets, method, self.contraction_vector(contraction),
-                           self.frozen_vector(frozen), x0, options)
+                           self.frozen_vector(frozen), x0, options,
+                           bilevel=self.bilevel_solver if method == "bilevel" else None)
+
+    @property
+    def bilevel_solver(self):
+        """The bilevel method's solver for this model (built NLPs kept across runs)."""
+        if self._bilevel is None:
+            from .control import BilevelSolver
+            self._bilevel = BilevelSolver(self.model)
+        return self._bilevel
 
     def with_targets(self, targets: Targets) -> "Problem":
-        """The same problem with other targets (model and mesh shared)."""
-        return Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
+        """The same problem with other targets (model, mesh and solvers shared)."""
+        other = Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
+        other._bilevel = self._bilevel
+        return other
 
 
 def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None = None,

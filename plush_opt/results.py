@@ -20,7 +20,9 @@ from .model import Model
 from .objective import Targets
 
 FORMAT = "plush-opt-result/1"
-METHODS = ("forward", "reparam", "bilevel")
+# The spec names forward, reparam and bilevel; clip (the gradient loop with
+# clipped bounds, the baseline) is recorded as itself (docs/problem-format.md).
+METHODS = ("forward", "reparam", "clip", "bilevel")
 
 
 def model_dict(model: Model, targets: Targets) -> dict:
@@ -96,6 +98,23 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
     if extra:
         doc.update(extra)
     return doc
+
+
+def control_result_dict(result, *, total_s: float | None = None, extra: dict | None = None) -> dict:
+    """The spec's result document for a :class:`~plush_opt.control.result.ControlResult`."""
+    stats = result.stats
+    if stats.solver == "ipopt":
+        details = {"bilevel": stats.details.to_dict()} if stats.details is not None else {}
+    else:
+        details = {"control": {"equilibrium_solves": stats.equilibrium_solves,
+                               "newton_iterations": stats.newton_iterations,
+                               "active_bounds": list(result.active_bounds),
+                               "frozen": list(result.frozen)}}
+    return result_dict(result.model, result.targets, result.equilibrium, method=result.method,
+                       converged=result.converged, status=result.status,
+                       total_s=stats.t_wall if total_s is None else total_s, solve_s=stats.t_wall,
+                       iterations=stats.iterations,
+                       extra={"reason": result.reason, **details, **(extra or {})})
 
 
 def write_json_atomic(path, doc: dict) -> Path:

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from plush_opt.control.bilevel import (BilevelOptions, _objective_expression, force_reference,
-                                       solve_bilevel)
+from plush_opt.control.bilevel import BilevelOptions, BilevelSolver, solve_bilevel
+from plush_opt.control.bilevel_nlp import _objective_expression, force_reference
 from plush_opt.control.gradient import solve_control
 from plush_opt.equilibrium import solve_equilibrium
 from plush_opt.mesh import build_mesh
@@ -34,19 +34,19 @@ def test_shipped_problems_end_at_certified_stable_equilibria(name):
     assert res.converged, res.status
     assert res.status.startswith("ipopt: Solve_Succeeded; certified")
     _certified(model, res)
-    info = res.info
-    assert info["ipopt_pose"]["stable_equilibrium"] and info["ipopt_pose"]["min_eigenvalue"] > 0
-    assert info["certified_distance"] <= 1e-6 * body_size(model)
-    assert info["bound_violation"] == 0.0
-    assert info["kkt"]["feasibility"] <= 1e-8 and info["kkt"]["stationarity"] <= 1e-5
+    info = res.stats.details
+    assert info.ipopt_pose["stable_equilibrium"] and info.ipopt_pose["min_eigenvalue"] > 0
+    assert info.certified_distance <= 1e-6 * body_size(model)
+    assert info.bound_violation == 0.0
+    assert info.kkt["feasibility"] <= 1e-8 and info.kkt["stationarity"] <= 1e-5
     assert res.objective == pytest.approx(targets.value(res.equilibrium.x), rel=1e-12)
-    assert info["objective_ipopt"] == pytest.approx(res.objective, rel=1e-6, abs=1e-12)
+    assert info.objective_ipopt == pytest.approx(res.objective, rel=1e-6, abs=1e-12)
     # the anytime history: one point per IPOPT iteration (plus the start), in time order
-    assert len(res.history) == res.iterations + 1
+    assert len(res.history) == res.stats.iterations + 1
     t = [h.t_wall for h in res.history]
     assert t == sorted(t)
     assert res.history[-1].constraint_violation <= 1e-8
-    json.dumps(res.info, allow_nan=False)
+    json.dumps(res.stats.details.to_dict(), allow_nan=False)
     json.dumps(res.to_dict(), allow_nan=False)
 
 
@@ -69,7 +69,7 @@ def test_hexapod_leg_bilevel_stops_at_a_true_local_minimum_on_the_bound():
     (docs/control.md); IPOPT, a local method, stays."""
     _, _, model, targets = built("hexapod_leg")
     res = solve_bilevel(model, targets)
-    assert res.converged and res.info["active_bounds"] == ["leg"]
+    assert res.converged and res.stats.details.active_bounds == ["leg"]
     assert res.contraction[0] == pytest.approx(0.0, abs=1e-6)
     for c in (0.05, 0.2):
         eq = solve_equilibrium(model, [c], res.equilibrium.x)
@@ -89,18 +89,20 @@ def test_targets_from_a_forward_solve_are_reached():
 
 def test_solver_is_cached_and_targets_are_parameters():
     _, _, model, targets = built("gripper")
-    first = solve_bilevel(model, targets)
-    again = solve_bilevel(model, targets)
-    assert again.info["cached_solver"] and again.info["t_build"] == 0.0
+    solver = BilevelSolver(model)
+    first = solver.solve(targets)
+    assert not first.stats.details.cached_solver and first.stats.t_setup > 0
+    again = solver.solve(targets)
+    assert again.stats.details.cached_solver and again.stats.details.t_build == 0.0
     assert np.array_equal(first.contraction, again.contraction)
     moved = targets.replace_to(targets.to + np.array([3.0, -2.0]))
-    other = solve_bilevel(model, moved)
-    assert other.info["cached_solver"], "new target positions must not rebuild the solver"
+    other = solver.solve(moved)
+    assert other.stats.details.cached_solver, "new target positions must not rebuild the solver"
     assert other.converged and not np.allclose(other.contraction, first.contraction)
     assert other.objective == pytest.approx(moved.value(other.equilibrium.x))
     reweighted = Targets(targets.triangles, targets.nodes, targets.beta, targets.to,
                          [5.0, 1.0, 1.0])
-    assert solve_bilevel(model, reweighted).info["cached_solver"]
+    assert solver.solve(reweighted).stats.details.cached_solver
 
 
 def test_objective_expression_equals_targets_value():
@@ -126,7 +128,7 @@ def test_frozen_winch_keeps_its_contraction_bit_for_bit():
     res = solve_bilevel(model, targets, c0, frozen=[False, False, True])
     assert res.converged, res.status
     assert res.contraction[2] == 7.3
-    assert res.info["frozen"] == ["grip"]
+    assert res.stats.details.frozen == ["grip"]
     _certified(model, res)
 
 
@@ -169,11 +171,11 @@ def test_a_kkt_point_that_is_a_saddle_of_E_is_never_reported_as_success():
     mirrored = {tuple(np.round(p * [1, -1], 9)) for p in X}
     assert mirrored == {tuple(np.round(p, 9)) for p in X}
     res = solve_bilevel(model, targets)
-    pose = res.info["ipopt_pose"]
+    pose = res.stats.details.ipopt_pose
     # IPOPT itself succeeds: the straight, compressed strip satisfies the KKT
     # conditions with the tip exactly on its target...
-    assert res.info["return_status"] == "Solve_Succeeded"
-    assert res.info["objective_ipopt"] <= 1e-8
+    assert res.stats.details.return_status == "Solve_Succeeded"
+    assert res.stats.details.objective_ipopt <= 1e-8
     assert pose["relative_residual"] <= 1e-8
     # ...but it is a saddle of E, and certification says so
     assert not pose["positive_definite"] and pose["min_eigenvalue"] < 0
@@ -181,7 +183,7 @@ def test_a_kkt_point_that_is_a_saddle_of_E_is_never_reported_as_success():
     assert "saddle of E" in res.status
     # what is returned is the stable (buckled) pose Newton finds from it
     _certified(model, res)
-    assert res.info["certified_distance"] > 1.0
+    assert res.stats.details.certified_distance > 1.0
     assert res.objective > 1.0
 
 
@@ -191,7 +193,7 @@ def test_slack_winches_are_taken_up_before_ipopt():
     model = build_model(scene, mesh)
     targets = Targets.from_mesh(mesh, scene)
     res = solve_bilevel(model, targets)
-    assert res.info["start"]["slack_taken_up"] == ["flex", "extend"]
+    assert res.stats.details.start["slack_taken_up"] == ["flex", "extend"]
     assert res.converged and res.objective < 1e-2
     off = solve_bilevel(model, targets, options=BilevelOptions(take_up_slack=False))
     # without it every tendon stays slack: a flat, useless stationary point
@@ -203,9 +205,9 @@ def test_time_limit_is_an_honest_status():
     _, _, model, targets = built("gripper")
     res = solve_bilevel(model, targets, options=BilevelOptions(max_time=1e-9))
     assert not res.converged
-    assert "time limit" in res.status and res.info["stopped_by_time_limit"]
+    assert "time limit" in res.status and res.stats.details.stopped_by_time_limit
     assert res.equilibrium.converged      # whatever is returned is a certified pose
-    assert res.iterations <= 1
+    assert res.stats.iterations <= 1
 
 
 def test_force_reference_is_a_model_constant():

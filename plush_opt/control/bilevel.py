@@ -35,18 +35,18 @@ from __future__ import annotations
 import logging
 import math
 import time
-import weakref
-from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from dataclasses import asdict, dataclass, field, replace
 
-import casadi as ca
 import numpy as np
 
-from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
 from ..errors import SolverError
 from ..linalg import NotPositiveDefinite, smallest_eigenpair
 from ..model import Model
 from ..objective import Targets
+from .bilevel_nlp import NlpEntry, build_nlp, force_reference
+from .result import ControlIterate, ControlResult, ControlStats
+from .slack import slack_winches, take_up
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +56,19 @@ ALPHA_FOR_Y = ("primal", "bound-mult", "min", "max", "full", "min-dual-infeas",
 
 #: IPOPT return statuses counted as success.
 SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+#: IPOPT statuses that end a run on a budget rather than by failing.
+BUDGET = {"Maximum_Iterations_Exceeded": "max_iterations",
+          "Maximum_CpuTime_Exceeded": "max_time", "Maximum_WallTime_Exceeded": "max_time"}
+
+# A pose whose relative residual is this small is an equilibrium in all but
+# stability: an indefinite Hessian there is reported as a saddle.
+SADDLE_RESIDUAL = 1e-6
+# Contractions outside the bounds by more than this fraction of the largest
+# range are not a success (IPOPT's bound_push keeps them inside otherwise).
+BOUND_SLACK = 1e-9
+# A free winch within this fraction of its range from a bound is "active".
+ACTIVE_BOUND = 1e-6
 
 
 @dataclass(frozen=True)
@@ -154,258 +167,196 @@ class BilevelOptions:
         return opts
 
 
-class BilevelIterate(NamedTuple):
-    """One IPOPT iteration, for anytime curves. NOT a dispatchable pose: x
-    does not satisfy the equilibrium constraint until IPOPT has converged.
-
-    t_wall : seconds since IPOPT started.
-    objective : O at IPOPT's iterate x (length^2).
-    constraint_violation : max(|grad_x E|_inf / F_ref, max_e(delta - J_e, 0)).
-    contraction : (n_winches,) IPOPT's contractions (frozen ones included).
-    """
-
-    t_wall: float
-    objective: float
-    constraint_violation: float
-    contraction: np.ndarray
-
-
 @dataclass(frozen=True)
-class BilevelResult:
-    """The outcome of :func:`solve_bilevel`.
+class BilevelStats:
+    """What the bilevel method measured and checked (the result file's
+    ``bilevel`` section). Fields that do not apply are None.
 
     Attributes
     ----------
-    converged : IPOPT succeeded, its pose is a stable equilibrium within the
-        bounds, and Newton's certified pose is within ``pose_tol`` of it.
-    status : short human-readable reason.
-    equilibrium : the certified equilibrium at :attr:`contraction` (Newton
-        from IPOPT's pose); if that fails, the starting equilibrium.
-    contraction : (n_winches,) contractions of :attr:`equilibrium`.
-    iterations : IPOPT iterations.
-    info : JSON-able details (IPOPT status and timings, options, the check
-        of IPOPT's pose, KKT residuals); see docs/bilevel.md.
-    history : IPOPT's iterations (:class:`BilevelIterate`), not dispatchable.
-    t_wall : seconds for the whole call (start equilibrium, build if not
-        cached, IPOPT, certification).
+    start : the starting equilibrium (contraction, objective, t_wall,
+        slack_taken_up).
+    return_status, ipopt_success, iter_count, stopped_by_time_limit : IPOPT's verdict.
+    t_build, cached_solver : solver set-up (0 when the solver was cached).
+    t_ipopt_total, t_function_evaluations, t_inside_ipopt, t_callback,
+    t_certification, timing, calls : where the time went (seconds, counts).
+    options : the options the solver ran with.
+    frozen, contraction_ipopt, bound_violation : IPOPT's answer.
+    objective_ipopt, objective_certified : O at IPOPT's and at the certified pose.
+    kkt : stationarity, feasibility and complementarity at IPOPT's answer.
+    ipopt_pose : the check of IPOPT's own pose (admissible, residual,
+        positive definite, eigenvalue, stable_equilibrium).
+    certified_distance, certified : Newton's certification from IPOPT's pose.
+    min_jacobian_at_solution, jacobian_bound_active : the J >= delta constraints.
+    active_bounds, slack_winches : winch names.
+    equilibrium_solves, history_points : counts.
     """
 
-    converged: bool
-    status: str
-    equilibrium: Equilibrium
-    contraction: np.ndarray
-    iterations: int
-    info: dict
-    history: tuple = ()
-    t_wall: float = 0.0
-
-    @property
-    def objective(self) -> float:
-        """O at the certified equilibrium."""
-        return float(self.info.get("objective_certified", float("nan")))
+    start: dict
+    objective_certified: float
+    solver: str = "ipopt"
+    return_status: str | None = None
+    ipopt_success: bool | None = None
+    iter_count: int | None = None
+    stopped_by_time_limit: bool | None = None
+    t_build: float | None = None
+    cached_solver: bool | None = None
+    t_ipopt_total: float | None = None
+    t_function_evaluations: float | None = None
+    t_inside_ipopt: float | None = None
+    t_callback: float | None = None
+    t_certification: float | None = None
+    timing: dict | None = None
+    calls: dict | None = None
+    options: dict | None = None
+    frozen: list | None = None
+    contraction_ipopt: dict | None = None
+    bound_violation: float | None = None
+    objective_ipopt: float | None = None
+    kkt: dict | None = None
+    ipopt_pose: dict | None = None
+    certified_distance: float | None = None
+    certified: dict | None = None
+    min_jacobian_at_solution: float | None = None
+    jacobian_bound_active: bool | None = None
+    active_bounds: list | None = None
+    slack_winches: list | None = None
+    equilibrium_solves: int | None = None
+    history_points: int | None = None
 
     def to_dict(self) -> dict:
-        """JSON-able summary (without the pose)."""
-        return {"method": "bilevel", "converged": bool(self.converged), "status": self.status,
-                "contraction": [float(v) for v in self.contraction],
-                "objective": _finite(self.objective), "iterations": int(self.iterations),
-                "t_wall": float(self.t_wall), "info": self.info,
-                "history": [[h.t_wall, _finite(h.objective), _finite(h.constraint_violation)]
-                            for h in self.history]}
+        """JSON-able, without the fields that do not apply."""
+        return {k: v for k, v in asdict(self).items() if v is not None or k == "min_jacobian_at_solution"}
 
 
-def _finite(v):
-    v = float(v)
-    return v if math.isfinite(v) else None
+class BilevelSolver:
+    """The bilevel method for one model, keeping its built NLPs.
+
+    Building IPOPT's NLP (and its exact Lagrangian Hessian) is the
+    expensive part; a solver keeps one per (frozen set, target triangles,
+    options), so moving a target or re-running is cheap.
+    """
+
+    def __init__(self, model: Model):
+        self.model = model
+        self._entries: dict = {}
+        self._store: dict = {}     # grad_x E, shared by every entry
+
+    def clear(self) -> None:
+        """Drop the built NLPs."""
+        self._entries.clear()
+
+    def _entry(self, frozen: np.ndarray, targets: Targets, options: BilevelOptions):
+        """The NLP for this frozen set, target triangles and options; (entry, built_now)."""
+        key = (tuple(bool(f) for f in frozen), targets.nodes.tobytes(), targets.n_targets,
+               repr(sorted(options.ipopt_options().items())), options.min_jacobian, options.expand)
+        if key not in self._entries:
+            self._entries[key] = build_nlp(self.model, frozen, targets.nodes, options, self._store)
+            return self._entries[key], True
+        return self._entries[key], False
+
+    def solve(self, targets: Targets, contraction0=None, frozen=None, x0=None,
+              options: BilevelOptions | None = None) -> ControlResult:
+        """Contractions that bring the equilibrium to the targets, by IPOPT on
+        the KKT formulation, certified by Newton.
+
+        Parameters
+        ----------
+        targets : where body points should go.
+        contraction0 : (n_winches,) start, within bounds (default: the scene's).
+            The equilibrium there (Newton) is IPOPT's starting point.
+        frozen : (n_winches,) bool, winches kept at ``contraction0`` (default:
+            the scene's ``frozen`` flags).
+        x0 : starting pose for that first Newton solve (flat or (n_nodes, 2)).
+        options : :class:`BilevelOptions`.
+
+        Raises
+        ------
+        SolverError
+            Bad sizes, a start outside the bounds, or a starting equilibrium
+            that cannot be certified.
+        """
+        options = options or BilevelOptions()
+        t_start = time.perf_counter()
+        c0, frozen = _checked_start(self.model, contraction0, frozen)
+        start, taken = _start(self.model, targets, c0, frozen, x0, options)
+        start_info = {"contraction": start.contraction.tolist(),
+                      "objective": float(targets.value(start.x)),
+                      "t_wall": time.perf_counter() - t_start,
+                      "slack_taken_up": [self.model.winch_names[w] for w in taken]}
+        if targets.n_targets == 0 or frozen.all():
+            status = "no targets" if targets.n_targets == 0 else "every winch is frozen"
+            stats = BilevelStats(start=start_info, objective_certified=float(targets.value(start.x)))
+            return self._result(targets, frozen, start, True,
+                                "targets_reached" if targets.n_targets == 0 else "stationary",
+                                status, (), 0, 0.0, stats, t_start)
+        run = _IpoptRun(self.model, targets, options, frozen, start, taken, start_info)
+        run.entry, run.built = self._entry(frozen, targets, options)
+        run.solve()
+        run.certify()
+        return self._result(targets, frozen, run.eq, run.ok, run.reason(), run.status(),
+                            run.history, run.iterations, run.entry.t_build if run.built else 0.0,
+                            run.stats(), t_start)
+
+    def _result(self, targets, frozen, eq, ok, reason, status, history, iterations, t_setup,
+                stats: BilevelStats, t_start) -> ControlResult:
+        model = self.model
+        names = model.winch_names
+        eq = certify(model, eq)
+        common = ControlStats(solver="ipopt", iterations=int(iterations),
+                              equilibrium_solves=int(stats.equilibrium_solves or 1),
+                              newton_iterations=int(eq.iterations),
+                              t_wall=time.perf_counter() - t_start, t_setup=float(t_setup),
+                              details=stats)
+        log.info("bilevel: %s; O = %.6g; %d iterations", status, stats.objective_certified, iterations)
+        return ControlResult(
+            method="bilevel", converged=bool(ok), reason=reason, status=status, equilibrium=eq,
+            objective=float(stats.objective_certified), active_bounds=tuple(stats.active_bounds or ()),
+            frozen=tuple(names[i] for i in np.flatnonzero(frozen)), history=tuple(history),
+            stats=common, model=model, targets=targets)
 
 
-# --------------------------------------------------------------------------
-# The NLP, built once per (model, frozen set, target triangles, options)
-# --------------------------------------------------------------------------
-
-class _Recorder(ca.Callback):
-    """IPOPT iteration callback: records (t, O, violation, c) and stops
-    IPOPT (by returning 1) once the time limit has passed."""
-
-    def __init__(self, name: str, n_z: int, n_g: int, n_p: int):
-        ca.Callback.__init__(self)
-        self._n = {"x": n_z, "lam_x": n_z, "g": n_g, "lam_g": n_g, "p": n_p, "lam_p": n_p, "f": 1}
-        self.reset(None)
-        self.construct(name, {})
-
-    def reset(self, run: dict | None):
-        self.run = run
-        self.points: list[BilevelIterate] = []
-        self.stopped = False
-
-    def get_n_in(self):
-        return ca.nlpsol_n_out()
-
-    def get_n_out(self):
-        return 1
-
-    def get_name_in(self, i):
-        return ca.nlpsol_out(i)
-
-    def get_name_out(self, i):
-        return "ret"
-
-    def get_sparsity_in(self, i):
-        n = self._n.get(ca.nlpsol_out(i), 0)
-        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
-
-    def eval(self, arg):
-        run = self.run
-        if run is None:
-            return [0]
-        t = time.perf_counter() - run["t0"]
-        z = np.asarray(arg[0], dtype=np.float64).reshape(-1)
-        f = float(arg[1])
-        g = np.asarray(arg[2], dtype=np.float64).reshape(-1)
-        n_dofs, delta = run["n_dofs"], run["delta"]
-        viol = float(np.max(np.abs(g[:n_dofs]), initial=0.0))
-        if delta is not None and g.size > n_dofs:
-            viol = max(viol, float(np.max(delta - g[n_dofs:], initial=0.0)))
-        c = run["c_fixed"].copy()
-        c[run["free"]] = z[n_dofs:]
-        self.points.append(BilevelIterate(t, f, viol, c))
-        if run["max_time"] is not None and t >= run["max_time"]:
-            self.stopped = True
-            return [1]
-        return [0]
+def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None, x0=None,
+                  options: BilevelOptions | None = None, solver: BilevelSolver | None = None
+                  ) -> ControlResult:
+    """:meth:`BilevelSolver.solve` with ``solver`` (a new one if None: no NLP reuse)."""
+    return (solver or BilevelSolver(model)).solve(targets, contraction0, frozen, x0, options)
 
 
-@dataclass
-class _Entry:
-    solver: ca.Function
-    recorder: _Recorder
-    grad_lag: ca.Function
-    free: np.ndarray
-    frozen: np.ndarray
-    n_g: int
-    lbg: np.ndarray
-    ubg: np.ndarray
-    t_build: float
-    ipopt_options: dict
+def _checked_start(model: Model, contraction0, frozen) -> tuple[np.ndarray, np.ndarray]:
+    c0 = model.scene.contraction.copy() if contraction0 is None \
+        else np.array(contraction0, dtype=np.float64).reshape(-1)
+    if c0.shape != (model.n_winches,):
+        raise SolverError(f"contraction: expected {model.n_winches} values, got {c0.size}")
+    if np.any(c0 < model.lower) or np.any(c0 > model.upper):
+        raise SolverError("contraction: outside the winch bounds "
+                          f"{list(zip(model.lower.tolist(), model.upper.tolist()))}: {c0.tolist()}")
+    frozen = model.scene.frozen.copy() if frozen is None else np.array(frozen, dtype=bool).reshape(-1)
+    if frozen.shape != (model.n_winches,):
+        raise SolverError(f"frozen: expected {model.n_winches} flags, got {frozen.size}")
+    return c0, frozen
 
 
-_cache: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
+def _start(model: Model, targets: Targets, c0, frozen, x0, options: BilevelOptions):
+    """The certified starting equilibrium, with the slack taken up; (eq, winches taken up)."""
+    quick = replace(options.equilibrium, eigenvalue=False)
+    start = solve_equilibrium(model, c0, x0, quick)
+    if not start.converged:
+        raise SolverError(f"the starting equilibrium is not certified: {start.status}")
+    if not (options.take_up_slack and targets.n_targets):
+        return start, []
+    free = ~frozen
+    taken = slack_winches(model, start.x, c0, free)
+    if not taken:
+        return start, []
+    c1 = c0.copy()
+    for w in taken:
+        c1[w] = min(take_up(model, start.x, c0, w), model.upper[w])
+    moved = solve_equilibrium(model, c1, start.x, quick)
+    return (moved, taken) if moved.converged else (start, [])
 
 
-def force_reference(model: Model) -> float:
-    """F_ref: the elastic force of a unit strain across the body,
-    mu * thickness * sqrt(body area) (force units). The equilibrium
-    constraint is divided by it, so IPOPT's tolerances are relative."""
-    return float(model.mu * model.thickness * math.sqrt(model.rest_area.sum()))
-
-
-def _gradient_expression(model: Model, store: dict) -> ca.MX:
-    if "grad" not in store:
-        store["grad"] = ca.gradient(model.E_sym, model.x_sym)
-    return store["grad"]
-
-
-def _objective_expression(x: ca.MX, nodes: np.ndarray, beta: ca.MX, q: ca.MX, sqrt_w: ca.MX) -> ca.MX:
-    """O(x) = 1/2 sum_k w_k |sum_j beta_kj x_{n_kj} - q_k|^2 with beta, q,
-    w symbolic (the same value as Targets.value)."""
-    k = nodes.shape[0]
-    if k == 0:
-        return ca.MX(0)
-    yx = ca.MX.zeros(k, 1)
-    yy = ca.MX.zeros(k, 1)
-    for j in range(3):
-        yx += beta[:, j] * x[(2 * nodes[:, j]).tolist()]
-        yy += beta[:, j] * x[(2 * nodes[:, j] + 1).tolist()]
-    rx = sqrt_w * (yx - q[:, 0])
-    ry = sqrt_w * (yy - q[:, 1])
-    return 0.5 * (ca.sumsqr(rx) + ca.sumsqr(ry))
-
-
-def _jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
-    """J = det F of every element, (n_elems,), as a CasADi expression."""
-    e = model._elem_dofs
-    xe = [x[e[:, i].tolist()] for i in range(6)]
-    det = (xe[2] - xe[0]) * (xe[5] - xe[1]) - (xe[3] - xe[1]) * (xe[4] - xe[0])
-    return det / ca.DM(2 * model.rest_area)
-
-
-def _build(model: Model, frozen: np.ndarray, nodes: np.ndarray, options: BilevelOptions,
-           store: dict) -> _Entry:
-    t0 = time.perf_counter()
-    free = np.flatnonzero(~frozen)
-    fixed = np.flatnonzero(frozen)
-    n_free, n_fixed, k = len(free), len(fixed), nodes.shape[0]
-    c_free = ca.MX.sym("c", n_free)
-    c_fixed = ca.MX.sym("c_frozen", n_fixed)
-    q = ca.MX.sym("q", k, 2)
-    sqrt_w = ca.MX.sym("sqrt_w", k)
-    beta = ca.MX.sym("beta", k, 3)
-    # c_full = P_free c_free + P_fixed c_fixed
-    P_free = ca.DM.zeros(model.n_winches, n_free)
-    for j, w in enumerate(free):
-        P_free[int(w), j] = 1
-    P_fixed = ca.DM.zeros(model.n_winches, n_fixed)
-    for j, w in enumerate(fixed):
-        P_fixed[int(w), j] = 1
-    c_full = P_free @ c_free + (P_fixed @ c_fixed if n_fixed else 0)
-    x = model.x_sym
-    grad = ca.substitute(_gradient_expression(model, store), model.c_sym, c_full)
-    F_ref = force_reference(model)
-    g = [grad / F_ref]
-    lbg = [np.zeros(model.n_dofs)]
-    ubg = [np.zeros(model.n_dofs)]
-    if options.min_jacobian is not None:
-        g.append(_jacobian_expression(model, x))
-        lbg.append(np.full(model.n_elems, options.min_jacobian))
-        ubg.append(np.full(model.n_elems, np.inf))
-    z = ca.vertcat(x, c_free)
-    p = ca.vertcat(c_fixed, ca.vec(q), sqrt_w, ca.vec(beta))
-    f = _objective_expression(x, nodes, beta, q, sqrt_w)
-    gz = ca.vertcat(*g)
-    nlp = {"x": z, "p": p, "f": f, "g": gz}
-    recorder = _Recorder("bilevel_iterations", z.shape[0], gz.shape[0], p.shape[0])
-    ipopt = options.ipopt_options()
-    opts = {"ipopt." + key: v for key, v in ipopt.items()}
-    opts.update({"print_time": False, "show_eval_warnings": False, "expand": options.expand,
-                 "iteration_callback": recorder, "iteration_callback_step": 1,
-                 "iteration_callback_ignore_errors": False})
-    solver = ca.nlpsol("bilevel", "ipopt", nlp, opts)
-    lam_g = ca.MX.sym("lam_g", gz.shape[0])
-    lam_x = ca.MX.sym("lam_x", z.shape[0])
-    grad_lag = ca.Function("grad_lag", [z, p, lam_g, lam_x],
-                           [ca.gradient(f, z) + ca.jtimes(gz, z, lam_g, True) + lam_x, gz],
-                           ["z", "p", "lam_g", "lam_x"], ["grad_lag", "g"])
-    if options.expand:
-        grad_lag = grad_lag.expand()
-    return _Entry(solver, recorder, grad_lag, free, fixed, gz.shape[0],
-                  np.concatenate(lbg), np.concatenate(ubg), time.perf_counter() - t0, ipopt)
-
-
-def _entry(model: Model, frozen: np.ndarray, targets: Targets, options: BilevelOptions):
-    """The cached solver for this model, frozen set, target triangles and
-    options; returns (entry, built_now)."""
-    store = _cache.setdefault(model, {})
-    key = (tuple(bool(f) for f in frozen), targets.nodes.tobytes(), targets.n_targets,
-           repr(sorted(options.ipopt_options().items())), options.min_jacobian, options.expand)
-    if key not in store:
-        store[key] = _build(model, frozen, targets.nodes, options, store)
-        return store[key], True
-    return store[key], False
-
-
-def clear_cache(model: Model | None = None) -> None:
-    """Drop the cached solvers (of one model, or of all)."""
-    if model is None:
-        _cache.clear()
-    else:
-        _cache.pop(model, None)
-
-
-# --------------------------------------------------------------------------
-# Solve and certify
-# --------------------------------------------------------------------------
-
-def _parameters(entry: _Entry, c: np.ndarray, targets: Targets) -> np.ndarray:
+def _parameters(entry: NlpEntry, c: np.ndarray, targets: Targets) -> np.ndarray:
     return np.concatenate([c[entry.frozen], targets.to.T.reshape(-1), np.sqrt(targets.weight),
                            targets.beta.T.reshape(-1)])
 
@@ -429,37 +380,12 @@ def _pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float)
     return out
 
 
-def _slack_winches(model: Model, x, c, free) -> list[int]:
-    """Free winches whose tendons are all slack (G <= -eps) at (x, c)."""
-    if not model.has_tendons:
-        return []
-    G = model.tendon_state(x, c)["stretch"]
-    eps = model.tendon_smoothing
-    return [int(w) for w in np.flatnonzero(free)
-            if np.any(model.tendon_winch == w) and np.all(G[model.tendon_winch == w] <= -eps)]
-
-
-def _take_up_slack(model: Model, eq: Equilibrium, free) -> tuple[np.ndarray, list[int]]:
-    """Contractions at which every all-slack free winch has its tightest
-    tendon just inside the smoothing zone (G = -0.9 eps): same pose."""
-    c = eq.contraction.copy()
-    winches = _slack_winches(model, eq.x, c, free)
-    if not winches:
-        return c, []
-    G = model.tendon_state(eq.x, c)["stretch"]
-    eps = model.tendon_smoothing
-    for w in winches:
-        mine = model.tendon_winch == w
-        c[w] = min(c[w] + float(np.min(-G[mine] - eps)) + 0.1 * eps, model.upper[w])
-    return c, winches
-
-
 def _describe_pose(check: dict) -> str:
     if not check["admissible"]:
         return "ipopt pose is not admissible (some element has J <= 0)"
     rel = check["relative_residual"]
     if not check["positive_definite"]:
-        if rel is not None and rel <= 1e-6:
+        if rel is not None and rel <= SADDLE_RESIDUAL:
             return (f"ipopt pose is a saddle of E (min Hessian eigenvalue "
                     f"{check['min_eigenvalue']:.3g}, relative residual {rel:.2g})")
         return (f"ipopt pose is not an equilibrium (relative residual {rel:.2g}) and its Hessian "
@@ -467,101 +393,10 @@ def _describe_pose(check: dict) -> str:
     return f"ipopt pose is not an equilibrium (relative residual {rel:.2g})"
 
 
-def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None, x0=None,
-                  options: BilevelOptions | None = None) -> BilevelResult:
-    """Contractions that bring the equilibrium to the targets, by IPOPT on
-    the KKT formulation, certified by Newton.
-
-    Parameters
-    ----------
-    model : the energy model.
-    targets : where body points should go.
-    contraction0 : (n_winches,) start, within bounds (default: the scene's).
-        The equilibrium there (Newton) is IPOPT's starting point.
-    frozen : (n_winches,) bool, winches kept at ``contraction0`` (default:
-        the scene's ``frozen`` flags).
-    x0 : starting pose for that first Newton solve (flat or (n_nodes, 2)).
-    options : :class:`BilevelOptions`.
-
-    Returns
-    -------
-    BilevelResult
-
-    Raises
-    ------
-    SolverError
-        Bad sizes, a start outside the bounds, or a starting equilibrium
-        that cannot be certified.
-    """
-    options = options or BilevelOptions()
-    t_start = time.perf_counter()
-    c0 = model.scene.contraction.copy() if contraction0 is None \
-        else np.array(contraction0, dtype=np.float64).reshape(-1)
-    if c0.shape != (model.n_winches,):
-        raise SolverError(f"contraction: expected {model.n_winches} values, got {c0.size}")
-    if np.any(c0 < model.lower) or np.any(c0 > model.upper):
-        raise SolverError("contraction: outside the winch bounds "
-                          f"{list(zip(model.lower.tolist(), model.upper.tolist()))}: {c0.tolist()}")
-    frozen = model.scene.frozen.copy() if frozen is None else np.array(frozen, dtype=bool).reshape(-1)
-    if frozen.shape != (model.n_winches,):
-        raise SolverError(f"frozen: expected {model.n_winches} flags, got {frozen.size}")
-
-    quick = replace(options.equilibrium, eigenvalue=False)
-    start = solve_equilibrium(model, c0, x0, quick)
-    if not start.converged:
-        raise SolverError(f"the starting equilibrium is not certified: {start.status}")
-    taken = []
-    if options.take_up_slack and targets.n_targets:
-        c1, taken = _take_up_slack(model, start, ~frozen)
-        if taken:
-            moved = solve_equilibrium(model, c1, start.x, quick)
-            if moved.converged:
-                c0, start = c1, moved
-            else:
-                taken = []
-    t_start_eq = time.perf_counter() - t_start
-    names = model.winch_names
-    info = {"solver": "ipopt", "start": {"contraction": c0.tolist(),
-                                         "objective": float(targets.value(start.x)),
-                                         "t_wall": t_start_eq,
-                                         "slack_taken_up": [names[w] for w in taken]}}
-    if targets.n_targets == 0 or frozen.all():
-        reason = "no targets" if targets.n_targets == 0 else "every winch is frozen"
-        info["objective_certified"] = float(targets.value(start.x))
-        return BilevelResult(True, reason, start, start.contraction.copy(), 0, info, (),
-                             time.perf_counter() - t_start)
-
-    entry, built = _entry(model, frozen, targets, options)
-    free = entry.free
+def _kkt(model: Model, entry: NlpEntry, sol, z, p, options: BilevelOptions) -> dict:
+    """Stationarity, feasibility and complementarity at IPOPT's answer."""
     n = model.n_dofs
-    p = _parameters(entry, c0, targets)
-    z0 = np.concatenate([start.x, c0[free]])
-    lbx = np.concatenate([np.full(n, -np.inf), model.lower[free]])
-    ubx = np.concatenate([np.full(n, np.inf), model.upper[free]])
-    entry.recorder.reset({"t0": time.perf_counter(), "n_dofs": n, "delta": options.min_jacobian,
-                          "free": free, "c_fixed": c0.copy(), "max_time": options.max_time})
-    t_ipopt = time.perf_counter()
-    try:
-        sol = entry.solver(x0=z0, p=p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
-    finally:
-        t_ipopt = time.perf_counter() - t_ipopt
-        history = tuple(entry.recorder.points)
-        stopped = entry.recorder.stopped
-        entry.recorder.reset(None)
-    stats = entry.solver.stats()
-    return_status = str(stats.get("return_status", "unknown"))
-    ipopt_ok = return_status in SUCCESS
-    iterations = int(stats.get("iter_count", len(history)))
-
-    z = np.asarray(sol["x"], dtype=np.float64).reshape(-1)
-    x_ip = z[:n]
-    c_ip = c0.copy()
-    c_ip[free] = z[n:]
-    bound_violation = float(np.max(np.maximum(model.lower - c_ip, c_ip - model.upper), initial=0.0))
-    bound_violation = max(bound_violation, 0.0)
-    c_cert = np.clip(c_ip, model.lower, model.upper)
-
-    # the KKT triple at IPOPT's answer
+    free = entry.free
     lam_g = np.asarray(sol["lam_g"], dtype=np.float64).reshape(-1)
     lam_x = np.asarray(sol["lam_x"], dtype=np.float64).reshape(-1)
     gl, gval = entry.grad_lag(z, p, lam_g, lam_x)
@@ -577,97 +412,148 @@ def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None
     if options.min_jacobian is not None:
         comp = max(comp, float(np.max(np.abs(lam_g[n:] * (gval[n:] - options.min_jacobian)),
                                       initial=0.0)))
-    kkt = {"stationarity": float(np.max(np.abs(gl), initial=0.0)),
-           "feasibility": float(np.max(feas, initial=0.0)),
-           "complementarity": comp}
+    return {"stationarity": float(np.max(np.abs(gl), initial=0.0)),
+            "feasibility": float(np.max(feas, initial=0.0)),
+            "complementarity": comp}
 
-    # certification: IPOPT's own pose, then Newton from it
-    t_cert = time.perf_counter()
-    check = _pose_check(model, x_ip, c_cert, options.residual_tol)
-    x_newton = x_ip if check["admissible"] else start.x
-    cert = solve_equilibrium(model, c_cert, x_newton, options.equilibrium)
-    t_cert = time.perf_counter() - t_cert
-    pose_tol = options.pose_tol if options.pose_tol is not None else 1e-6 * model.mesh.diameter
-    distance = float(np.max(np.linalg.norm((cert.x - x_ip).reshape(-1, 2), axis=1)))
-    jmin = float(model.jacobians(cert.x).min()) if cert.converged else None
-    if check["positive_definite"] and cert.converged and distance <= pose_tol:
-        check["min_eigenvalue"] = cert.min_eigenvalue
 
-    ok = bool(ipopt_ok and check["stable_equilibrium"] and cert.converged
-              and distance <= pose_tol and bound_violation <= 1e-9 * float(np.max(model.upper - model.lower)))
-    head = f"ipopt: {return_status}" + (f" (time limit {options.max_time:g} s)" if stopped else "")
-    if ok:
-        status = f"{head}; certified"
-        eq = cert
-    elif cert.converged:
-        eq = cert
-        if not check["stable_equilibrium"]:
-            status = (f"{head}; {_describe_pose(check)}; Newton from it settled "
-                      f"{distance:.3g} away (objective {targets.value(cert.x):.6g})")
-        elif distance > pose_tol:
-            status = (f"{head}; Newton moved IPOPT's pose by {distance:.3g} "
-                      f"(more than pose_tol {pose_tol:.3g})")
-        elif not ipopt_ok:
-            status = f"{head}; certified equilibrium at IPOPT's last contractions (not a KKT point)"
+class _IpoptRun:
+    """One IPOPT solve from a certified start, and its certification."""
+
+    def __init__(self, model, targets, options, frozen, start, taken, start_info):
+        self.model, self.targets, self.options = model, targets, options
+        self.frozen, self.start, self.taken, self.start_info = frozen, start, taken, start_info
+        self.entry: NlpEntry | None = None
+        self.built = False
+
+    def solve(self) -> None:
+        model, entry, options = self.model, self.entry, self.options
+        c0, n, free = self.start.contraction, model.n_dofs, self.entry.free
+        self.p = _parameters(entry, c0, self.targets)
+        z0 = np.concatenate([self.start.x, c0[free]])
+        lbx = np.concatenate([np.full(n, -np.inf), model.lower[free]])
+        ubx = np.concatenate([np.full(n, np.inf), model.upper[free]])
+        entry.recorder.reset({"t0": time.perf_counter(), "n_dofs": n, "delta": options.min_jacobian,
+                              "free": free, "c_fixed": c0.copy(), "max_time": options.max_time})
+        t_ipopt = time.perf_counter()
+        try:
+            self.sol = entry.solver(x0=z0, p=self.p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
+        finally:
+            self.t_ipopt = time.perf_counter() - t_ipopt
+            self.history = tuple(entry.recorder.points)
+            self.stopped = entry.recorder.stopped
+            entry.recorder.reset(None)
+        self.ipopt_stats = entry.solver.stats()
+        self.return_status = str(self.ipopt_stats.get("return_status", "unknown"))
+        self.ipopt_ok = self.return_status in SUCCESS
+        self.iterations = int(self.ipopt_stats.get("iter_count", len(self.history)))
+        self.z = np.asarray(self.sol["x"], dtype=np.float64).reshape(-1)
+        self.c_ip = c0.copy()
+        self.c_ip[free] = self.z[n:]
+        violation = float(np.max(np.maximum(model.lower - self.c_ip, self.c_ip - model.upper), initial=0.0))
+        self.bound_violation = max(violation, 0.0)
+        self.kkt = _kkt(model, entry, self.sol, self.z, self.p, options)
+
+    def certify(self) -> None:
+        """IPOPT's own pose checked, then Newton from it at IPOPT's (clipped) contractions."""
+        model, options = self.model, self.options
+        x_ip = self.z[:model.n_dofs]
+        self.c_cert = np.clip(self.c_ip, model.lower, model.upper)
+        t_cert = time.perf_counter()
+        self.check = _pose_check(model, x_ip, self.c_cert, options.residual_tol)
+        x_newton = x_ip if self.check["admissible"] else self.start.x
+        self.cert = solve_equilibrium(model, self.c_cert, x_newton, options.equilibrium)
+        self.t_cert = time.perf_counter() - t_cert
+        self.pose_tol = options.pose_tol if options.pose_tol is not None else 1e-6 * model.mesh.diameter
+        self.distance = float(np.max(np.linalg.norm((self.cert.x - x_ip).reshape(-1, 2), axis=1)))
+        self.jmin = float(model.jacobians(self.cert.x).min()) if self.cert.converged else None
+        if self.check["positive_definite"] and self.cert.converged and self.distance <= self.pose_tol:
+            self.check["min_eigenvalue"] = self.cert.min_eigenvalue
+        span = float(np.max(model.upper - model.lower))
+        self.ok = bool(self.ipopt_ok and self.check["stable_equilibrium"] and self.cert.converged
+                       and self.distance <= self.pose_tol and self.bound_violation <= BOUND_SLACK * span)
+        self.eq = self.cert if self.cert.converged else self.start
+        self.slack = [model.winch_names[w]
+                      for w in slack_winches(model, self.eq.x, self.eq.contraction, ~self.frozen)]
+
+    def reason(self) -> str:
+        if self.ok:
+            return "stationary"
+        if not self.cert.converged or not self.check["stable_equilibrium"]:
+            return "not_certified"
+        if self.stopped:
+            return "max_time"
+        if self.return_status in BUDGET:
+            return BUDGET[self.return_status]
+        if not self.ipopt_ok:
+            return "solver_failed"
+        return "not_certified"
+
+    def status(self) -> str:
+        check, cert = self.check, self.cert
+        head = f"ipopt: {self.return_status}" + (
+            f" (time limit {self.options.max_time:g} s)" if self.stopped else "")
+        if self.ok:
+            status = f"{head}; certified"
+        elif cert.converged:
+            if not check["stable_equilibrium"]:
+                status = (f"{head}; {_describe_pose(check)}; Newton from it settled "
+                          f"{self.distance:.3g} away (objective {self.targets.value(cert.x):.6g})")
+            elif self.distance > self.pose_tol:
+                status = (f"{head}; Newton moved IPOPT's pose by {self.distance:.3g} "
+                          f"(more than pose_tol {self.pose_tol:.3g})")
+            elif not self.ipopt_ok:
+                status = f"{head}; certified equilibrium at IPOPT's last contractions (not a KKT point)"
+            else:
+                status = f"{head}; contractions outside the bounds by {self.bound_violation:.3g}"
         else:
-            status = f"{head}; contractions outside the bounds by {bound_violation:.3g}"
-    else:
-        eq = start
-        status = (f"{head}; certification failed at IPOPT's contractions ({cert.status}); "
-                  "returned the starting equilibrium")
-        if not check["stable_equilibrium"]:
-            status = f"{head}; {_describe_pose(check)}; " + status[len(head) + 2:]
+            status = (f"{head}; certification failed at IPOPT's contractions ({cert.status}); "
+                      "returned the starting equilibrium")
+            if not check["stable_equilibrium"]:
+                status = f"{head}; {_describe_pose(check)}; " + status[len(head) + 2:]
+        if self.slack:
+            status += f"; winch {', '.join(self.slack)}: all tendons slack (zero gradient)"
+        return status
 
-    slack = [names[w] for w in _slack_winches(model, eq.x, eq.contraction, ~frozen)]
-    if slack:
-        status += f"; winch {', '.join(slack)}: all tendons slack (zero gradient)"
-    timing = {k: float(v) for k, v in stats.items() if k.startswith("t_wall_")}
-    calls = {k: int(v) for k, v in stats.items() if k.startswith("n_call_")}
-    t_functions = sum(v for k, v in timing.items() if k.startswith("t_wall_nlp_"))
-    t_total_ipopt = timing.get("t_wall_total", t_ipopt)
-    t_callback = timing.get("t_wall_callback_fun", 0.0)
-    info.update({
-        "return_status": return_status,
-        "ipopt_success": ipopt_ok,
-        "iter_count": iterations,
-        "stopped_by_time_limit": stopped,
-        "t_build": entry.t_build if built else 0.0,
-        "cached_solver": not built,
-        "t_ipopt_total": float(t_total_ipopt),
-        "t_function_evaluations": float(t_functions),
-        "t_inside_ipopt": float(t_total_ipopt - t_functions - t_callback),
-        "t_callback": t_callback,
-        "t_certification": t_cert,
-        "timing": timing,
-        "calls": calls,
-        "options": {"ipopt": _jsonable(entry.ipopt_options), "expand": options.expand,
-                    "min_jacobian": options.min_jacobian, "max_time": options.max_time,
-                    "residual_tol": options.residual_tol, "pose_tol": pose_tol,
-                    "force_reference": force_reference(model)},
-        "frozen": [names[i] for i in np.flatnonzero(frozen)],
-        "contraction_ipopt": {names[i]: float(c_ip[i]) for i in range(model.n_winches)},
-        "bound_violation": bound_violation,
-        "objective_ipopt": float(np.asarray(sol["f"]).reshape(-1)[0]),
-        "objective_certified": float(targets.value(eq.x)),
-        "kkt": kkt,
-        "ipopt_pose": check,
-        "certified_distance": distance,
-        "certified": {"converged": bool(cert.converged), "status": cert.status,
-                      "newton_iterations": int(cert.iterations),
-                      "saddle_escapes": int(cert.saddle_escapes)},
-        "min_jacobian_at_solution": jmin,
-        "jacobian_bound_active": bool(jmin is not None and options.min_jacobian is not None
-                                      and jmin <= options.min_jacobian * (1 + 1e-6)),
-        "active_bounds": [names[w] for w in free
-                          if min(c_cert[w] - model.lower[w], model.upper[w] - c_cert[w])
-                          <= 1e-6 * (model.upper[w] - model.lower[w])],
-        "slack_winches": slack,
-        "equilibrium_solves": 2 + (1 if taken else 0),
-        "history_points": len(history),
-    })
-    log.info("bilevel: %s; O = %.6g; %d iterations", status, info["objective_certified"], iterations)
-    return BilevelResult(ok, status, eq, eq.contraction.copy(), iterations, info, history,
-                         time.perf_counter() - t_start)
+    def stats(self) -> BilevelStats:
+        model, options, entry = self.model, self.options, self.entry
+        names = model.winch_names
+        raw = self.ipopt_stats
+        timing = {k: float(v) for k, v in raw.items() if k.startswith("t_wall_")}
+        calls = {k: int(v) for k, v in raw.items() if k.startswith("n_call_")}
+        t_functions = sum(v for k, v in timing.items() if k.startswith("t_wall_nlp_"))
+        t_total = timing.get("t_wall_total", self.t_ipopt)
+        t_callback = timing.get("t_wall_callback_fun", 0.0)
+        free = entry.free
+        span = model.upper - model.lower
+        return BilevelStats(
+            start=self.start_info, objective_certified=float(self.targets.value(self.eq.x)),
+            return_status=self.return_status, ipopt_success=self.ipopt_ok,
+            iter_count=self.iterations, stopped_by_time_limit=self.stopped,
+            t_build=entry.t_build if self.built else 0.0, cached_solver=not self.built,
+            t_ipopt_total=float(t_total), t_function_evaluations=float(t_functions),
+            t_inside_ipopt=float(t_total - t_functions - t_callback), t_callback=t_callback,
+            t_certification=self.t_cert, timing=timing, calls=calls,
+            options={"ipopt": _jsonable(entry.ipopt_options), "expand": options.expand,
+                     "min_jacobian": options.min_jacobian, "max_time": options.max_time,
+                     "residual_tol": options.residual_tol, "pose_tol": self.pose_tol,
+                     "force_reference": force_reference(model)},
+            frozen=[names[i] for i in np.flatnonzero(self.frozen)],
+            contraction_ipopt={names[i]: float(self.c_ip[i]) for i in range(model.n_winches)},
+            bound_violation=self.bound_violation,
+            objective_ipopt=float(np.asarray(self.sol["f"]).reshape(-1)[0]),
+            kkt=self.kkt, ipopt_pose=self.check, certified_distance=self.distance,
+            certified={"converged": bool(self.cert.converged), "status": self.cert.status,
+                       "newton_iterations": int(self.cert.iterations),
+                       "saddle_escapes": int(self.cert.saddle_escapes)},
+            min_jacobian_at_solution=self.jmin,
+            jacobian_bound_active=bool(self.jmin is not None and options.min_jacobian is not None
+                                       and self.jmin <= options.min_jacobian * (1 + 1e-6)),
+            active_bounds=[names[w] for w in free
+                           if min(self.c_cert[w] - model.lower[w], model.upper[w] - self.c_cert[w])
+                           <= ACTIVE_BOUND * span[w]],
+            slack_winches=self.slack, equilibrium_solves=2 + (1 if self.taken else 0),
+            history_points=len(self.history))
 
 
 def _jsonable(d: dict) -> dict:

@@ -77,3 +77,76 @@ class Reparametrisation:
 
     def clamp(self, xi) -> np.ndarray:
         return np.clip(xi, self.lower - self.delta, self.upper + self.delta)
+
+
+class ReparamBounds:
+    """Bounds by reparametrisation: the loop steps on xi, c = f(xi).
+
+    ``blend`` is the blend zone's width as a fraction of each range; a
+    winch within that fraction of a bound counts as held there."""
+
+    name = "reparam"
+
+    def __init__(self, lower, upper, blend: float):
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.reparam = Reparametrisation.for_bounds(lower, upper, blend)
+        self.blend = blend
+
+    def to_xi(self, c) -> np.ndarray:
+        return self.reparam.inverse(c)
+
+    def f(self, xi) -> np.ndarray:
+        return self.reparam.f(xi)
+
+    def slope(self, xi, floor: float) -> np.ndarray:
+        """f', floored so a winch sitting on a bound can come back."""
+        return np.maximum(self.reparam.df(xi), floor)
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where xi stops: past these f is flat."""
+        return self.lower - self.reparam.delta, self.upper + self.reparam.delta
+
+    def clamp(self, xi) -> np.ndarray:
+        return self.reparam.clamp(xi)
+
+    def margin(self) -> np.ndarray:
+        """How close to a bound a winch counts as held there."""
+        return (self.upper - self.lower) * self.blend
+
+
+class ClipBounds:
+    """Bounds by clipping: the loop steps on c itself and clips (the baseline)."""
+
+    name = "clip"
+    # a winch counts as held when it is at its bound to round-off
+    HELD = 1e-12
+
+    def __init__(self, lower, upper):
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+
+    def to_xi(self, c) -> np.ndarray:
+        return np.array(c, dtype=np.float64)
+
+    def f(self, xi) -> np.ndarray:
+        return np.clip(xi, self.lower, self.upper)
+
+    def slope(self, xi, floor: float) -> np.ndarray:
+        return np.ones_like(xi)
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lower, self.upper
+
+    def clamp(self, xi) -> np.ndarray:
+        return np.clip(xi, self.lower, self.upper)
+
+    def margin(self) -> np.ndarray:
+        return (self.upper - self.lower) * self.HELD
+
+
+def bounds_strategy(name: str, lower, upper, blend: float):
+    """The bounds strategy called ``name`` ('reparam' or 'clip')."""
+    if name == "reparam":
+        return ReparamBounds(lower, upper, blend)
+    if name == "clip":
+        return ClipBounds(lower, upper)
+    raise ValueError(f"bounds: expected 'reparam' or 'clip', got {name!r}")

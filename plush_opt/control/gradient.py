@@ -27,12 +27,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
 from ..errors import SolverError
 from ..model import Model
 from ..objective import Targets
 from ..sensitivity import objective_gradient, state_sensitivity
-from .bounds import Reparametrisation
+from .bounds import bounds_strategy
+from .result import ControlIterate, ControlResult, ControlStats
+from .slack import slack_winches, take_up
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +69,24 @@ class ControlOptions:
         of its range (keeps the loop in the basin it starts in and every
         streamed iterate a modest move for the robot).
     max_backtracks : line-search trials per iterate.
+    initial_damping : Levenberg-Marquardt damping at the start and after
+        every restart, relative to the largest curvature of J^T J (small:
+        the first step is nearly Gauss-Newton).
+    min_damping : the damping never falls below this (keeps J^T J + damping
+        well conditioned when a column vanishes).
+    damping_decrease, damping_increase : the damping is divided by the first
+        after an accepted step and multiplied by the second after a rejected
+        trial (the usual asymmetric Levenberg-Marquardt schedule).
+    initial_gradient_step : first steepest-descent step, as a fraction of the
+        mean bound range per unit of gradient norm (later steps are
+        Barzilai-Borwein).
+    stuck_fraction : a loop whose O is still above this fraction of its O
+        at the start of the current targets is "stuck near its start", which
+        enables the bound probes of a restart.
+    probe_fractions : how far a restart probes inwards from a bound, as
+        fractions of the range.
+    probe_gain : a probe is taken only if it lowers O by this relative amount
+        (a real improvement, not round-off).
     equilibrium : options of every equilibrium solve.
     """
 
@@ -82,6 +102,14 @@ class ControlOptions:
     slope_floor: float = 0.1
     max_step: float = 0.2
     max_backtracks: int = 12
+    initial_damping: float = 1e-3
+    min_damping: float = 1e-9
+    damping_decrease: float = 3.0
+    damping_increase: float = 10.0
+    initial_gradient_step: float = 0.1
+    stuck_fraction: float = 0.5
+    probe_fractions: tuple[float, ...] = (0.05, 0.15, 0.4)
+    probe_gain: float = 1e-3
     equilibrium: EquilibriumOptions = field(
         default_factory=lambda: EquilibriumOptions(eigenvalue=False))
 
@@ -92,64 +120,20 @@ class ControlOptions:
             raise ValueError(f"direction: expected one of {DIRECTIONS}, got {self.direction!r}")
         if self.max_iterations < 0:
             raise ValueError(f"max_iterations: expected >= 0, got {self.max_iterations!r}")
+        if not 0 < self.min_damping <= self.initial_damping:
+            raise ValueError("damping: expected 0 < min_damping <= initial_damping, got "
+                             f"{self.min_damping!r}, {self.initial_damping!r}")
+        if not (self.damping_decrease > 1 and self.damping_increase > 1):
+            raise ValueError("damping_decrease, damping_increase: expected > 1, got "
+                             f"{self.damping_decrease!r}, {self.damping_increase!r}")
+        if not all(0 < f < 1 for f in self.probe_fractions):
+            raise ValueError(f"probe_fractions: expected fractions in (0, 1), got {self.probe_fractions!r}")
         if not 0 < self.slope_floor <= 1:
             raise ValueError(f"slope_floor: expected 0 < slope_floor <= 1, got {self.slope_floor!r}")
 
 
-@dataclass(frozen=True)
-class Iterate:
-    """One accepted iterate: a certified equilibrium within bounds.
-
-    Attributes
-    ----------
-    iteration : 0 for the starting equilibrium.
-    contraction : (n_winches,) contractions (length units).
-    equilibrium : the certified equilibrium at ``contraction``.
-    objective : O at the equilibrium.
-    gradient : (n_winches,) dO/dc (zero for frozen winches).
-    active_bounds : names of winches held at a bound by the gradient.
-    t_wall : seconds since the loop started.
-    equilibrium_solves, newton_iterations : cumulative counts.
-    """
-
-    iteration: int
-    contraction: np.ndarray
-    equilibrium: Equilibrium
-    objective: float
-    gradient: np.ndarray
-    active_bounds: tuple[str, ...]
-    t_wall: float
-    equilibrium_solves: int
-    newton_iterations: int
-
-    @property
-    def x(self) -> np.ndarray:
-        return self.equilibrium.x
-
-
-@dataclass(frozen=True)
-class ControlResult:
-    """The outcome of a control run: the last accepted iterate, why it
-    stopped, and the history of every accepted iterate."""
-
-    converged: bool
-    status: str
-    final: Iterate
-    history: tuple[Iterate, ...]
-    method: str
-    t_wall: float
-
-    @property
-    def contraction(self) -> np.ndarray:
-        return self.final.contraction
-
-    @property
-    def equilibrium(self) -> Equilibrium:
-        return self.final.equilibrium
-
-    @property
-    def objective(self) -> float:
-        return self.final.objective
+# Every accepted iterate is a ControlIterate carrying its certified equilibrium.
+Iterate = ControlIterate
 
 
 class Controller:
@@ -178,17 +162,18 @@ class Controller:
             raise SolverError("contraction: outside the winch bounds "
                               f"{list(zip(model.lower.tolist(), model.upper.tolist()))}: {c.tolist()}")
         self.frozen = model.scene.frozen.copy() if frozen is None else np.array(frozen, dtype=bool)
-        self.reparam = Reparametrisation.for_bounds(model.lower, model.upper, self.options.blend)
-        self.xi = self.reparam.inverse(c) if self.options.bounds == "reparam" else c.copy()
+        self.bounds = bounds_strategy(self.options.bounds, model.lower, model.upper, self.options.blend)
+        self.xi = self.bounds.to_xi(c)
         self.contraction = c.copy()
         self.status = "not started"
+        self.reason = "no_decrease"
         self.converged = False
         self.history: list[Iterate] = []
         self._x0 = x0
         self._solves = 0
         self._newton = 0
         self._t0 = None
-        self._mu = 1e-3          # Levenberg-Marquardt damping
+        self._mu = self.options.initial_damping      # Levenberg-Marquardt damping
         self._bb_step = None     # Barzilai-Borwein step (gradient direction)
         self._eq: Equilibrium | None = None
         self._dirty = False      # targets or frozen set changed since the last iterate
@@ -212,7 +197,7 @@ class Controller:
         self._reset_memory()
 
     def _reset_memory(self):
-        self._mu = 1e-3
+        self._mu = self.options.initial_damping
         self._bb_step = None
         self.status = "running"
         self.converged = False
@@ -227,23 +212,23 @@ class Controller:
         return eq
 
     def _f(self, xi):
-        if self.options.bounds == "reparam":
-            return self.reparam.f(xi)
-        return np.clip(xi, self.model.lower, self.model.upper)
+        return self.bounds.f(xi)
 
     def _iterate(self, eq: Equilibrium, grad_c: np.ndarray) -> Iterate:
         # the history keeps poses, not Cholesky factors (the loop keeps the
         # current one itself): long interactive sessions stay small
         eq = dataclasses.replace(eq, factor=None) if eq.factor is not None else eq
-        it = Iterate(len(self.history), eq.contraction.copy(), eq, self.targets.value(eq.x),
-                     grad_c, self._active(eq.contraction, grad_c), time.perf_counter() - self._t0,
-                     self._solves, self._newton)
+        it = ControlIterate(
+            iteration=len(self.history), t_wall=time.perf_counter() - self._t0,
+            contraction=eq.contraction.copy(), objective=self.targets.value(eq.x), equilibrium=eq,
+            gradient=grad_c, active_bounds=self._active(eq.contraction, grad_c),
+            equilibrium_solves=self._solves, newton_iterations=self._newton)
         self.history.append(it)
         return it
 
     def _active(self, c, grad_c) -> tuple[str, ...]:
         """Winches whose bound stops them from going where the gradient points."""
-        tol = (self.model.upper - self.model.lower) * (self.options.blend if self.options.bounds == "reparam" else 1e-12)
+        tol = self.bounds.margin()
         up = (c >= self.model.upper - tol) & (grad_c < 0)
         lo = (c <= self.model.lower + tol) & (grad_c > 0)
         names = self.model.winch_names
@@ -301,7 +286,7 @@ class Controller:
             step = self._step(last) if reason is None else None
             if step is None:
                 if reason is not None:
-                    self.converged, self.status = reason
+                    self.converged, self.reason, self.status = reason
                 if not self._out_of_budget(steps, last):
                     moved = self._restart(last)
                     if moved is not None:
@@ -325,14 +310,7 @@ class Controller:
 
     def _slack_winches(self, last: Iterate) -> list[int]:
         """Free winches with zero gradient because all their tendons are slack."""
-        G = self.model.tendon_state(last.x, last.contraction)["stretch"]
-        eps = self.model.tendon_smoothing
-        out = []
-        for w in np.flatnonzero(~self.frozen):
-            mine = self.model.tendon_winch == w
-            if last.gradient[w] == 0.0 and mine.any() and np.all(G[mine] <= -eps):
-                out.append(int(w))
-        return out
+        return slack_winches(self.model, last.x, last.contraction, ~self.frozen, last.gradient)
 
     def _slack_note(self, last: Iterate) -> str:
         slack = self._slack_winches(last)
@@ -364,24 +342,21 @@ class Controller:
         slack = self._slack_winches(last)
         # the bound trap shows as a loop stuck near where it started; a loop
         # that has already made most of its progress is at a real optimum
-        stuck = last.objective > 0.5 * self._objective_at_start
+        stuck = last.objective > self.options.stuck_fraction * self._objective_at_start
         held = [names.index(n) for n in last.active_bounds] if stuck else []
         cand = [w for w in dict.fromkeys(slack + held) if w not in self._restarted]
         if not cand:
             return None
-        G = self.model.tendon_state(last.x, last.contraction)["stretch"]
-        eps = self.model.tendon_smoothing
         lower, upper = self.model.lower, self.model.upper
         span = upper - lower
         for w in cand:
             # a winch counts as tried once its moves are spent or one is
             # taken; the others keep their turn for the next stop
             self._restarted.add(w)
-            for frac in (0.0, 0.05, 0.15, 0.4):
+            for frac in (0.0, *self.options.probe_fractions):
                 c = last.contraction.copy()
                 if w in slack:
-                    mine = self.model.tendon_winch == w
-                    c[w] += float(np.min(-G[mine] - eps)) + 0.1 * eps
+                    c[w] = take_up(self.model, last.x, last.contraction, w)
                     inward = 1.0
                 elif frac == 0.0:
                     continue
@@ -400,18 +375,18 @@ class Controller:
                     if grad[w] < 0 and value <= last.objective * (1 + 1e-9):
                         log.info("took up the slack of %s", names[w])
                         return self._jump(c, eq)
-                elif value < last.objective * (1 - 1e-3):
+                elif value < last.objective * (1 - self.options.probe_gain):
                     log.info("probe: moving %s to %.4g lowered O", names[w], c[w])
                     return self._jump(c, eq)
         return None
 
     def _jump(self, c, eq) -> Iterate:
         """Continue the loop from a certified equilibrium found off the line search."""
-        self.xi = self.reparam.inverse(c) if self.options.bounds == "reparam" else c.copy()
+        self.xi = self.bounds.to_xi(c)
         self.contraction = c
         self._eq = eq
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
-        self._mu = 1e-3
+        self._mu = self.options.initial_damping
         self.status = "running"
         self.converged = False
         return self._iterate(eq, self._grad)
@@ -422,26 +397,26 @@ class Controller:
         free = ~self.frozen
         bound_note = (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else "")
         if self.targets.n_targets == 0:
-            return True, "no targets"
+            return True, "targets_reached", "no targets"
         if not free.any():
-            return True, "every winch is frozen"
+            return True, "stationary", "every winch is frozen"
         if last.objective <= opts.objective_floor:
-            return True, "targets reached" + bound_note
+            return True, "targets_reached", "targets reached" + bound_note
         proj = last.gradient.copy()
         proj[[names.index(n) for n in last.active_bounds]] = 0.0
         span = float(np.mean(self.model.upper - self.model.lower))
         if np.all(last.gradient[free] == 0.0):
             slack = [names[i] for i in np.flatnonzero(free)]
-            return False, ("no free winch moves the targets (zero gradient: all tendons of "
+            return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
                            f"{', '.join(slack)} slack)")
         if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, opts.objective_floor):
-            return True, "stationary: projected gradient below tolerance" + bound_note
+            return True, "stationary", "stationary: projected gradient below tolerance" + bound_note
         if stall >= opts.patience:
-            return True, "objective stopped decreasing (relative decrease below ftol)" + bound_note
+            return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + bound_note
         if steps >= opts.max_iterations:
-            return False, f"iteration limit ({opts.max_iterations}) reached" + bound_note
+            return False, "max_iterations", f"iteration limit ({opts.max_iterations}) reached" + bound_note
         if opts.max_time is not None and last.t_wall >= opts.max_time:
-            return False, f"time limit ({opts.max_time:g} s) reached" + bound_note
+            return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
         return None
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
@@ -451,13 +426,9 @@ class Controller:
         are held (projected Gauss-Newton): otherwise a winch that cannot
         move would still take the length of the step from the others.
         """
-        slope = (np.maximum(self.reparam.df(self.xi), self.options.slope_floor)
-                 if self.options.bounds == "reparam" else np.ones_like(self.xi))
+        slope = self.bounds.slope(self.xi, self.options.slope_floor)
         g = last.gradient * slope
-        if self.options.bounds == "reparam":
-            lo_edge, hi_edge = self.model.lower - self.reparam.delta, self.model.upper + self.reparam.delta
-        else:
-            lo_edge, hi_edge = self.model.lower, self.model.upper
+        lo_edge, hi_edge = self.bounds.edges()
         span = self.model.upper - self.model.lower
         at_lower = self.xi <= lo_edge + 1e-12 * span
         at_upper = self.xi >= hi_edge - 1e-12 * span
@@ -476,7 +447,7 @@ class Controller:
                 step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
             else:
                 if self._bb_step is None:
-                    self._bb_step = 0.1 * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
+                    self._bb_step = self.options.initial_gradient_step * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
                 step[move] = -self._bb_step * g[move]
             outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
             if not outward.any():
@@ -494,26 +465,23 @@ class Controller:
             if not gn:
                 step = step * 0.5 ** attempt
             xi_t = self.xi + step
-            if opts.bounds == "reparam":
-                xi_t = self.reparam.clamp(xi_t)
-            else:
-                xi_t = np.clip(xi_t, self.model.lower, self.model.upper)
+            xi_t = self.bounds.clamp(xi_t)
             xi_t[self.frozen] = self.xi[self.frozen]
             c_t = self._f(xi_t)
             c_t[self.frozen] = self.contraction[self.frozen]      # bit-identical
             if np.array_equal(c_t, self.contraction):
-                self.converged, self.status = True, self._at_bounds_status(last)
+                self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
                 return None
             x0 = self._predict(c_t)
             eq = self._solve(c_t, x0)
             if eq.converged and self.targets.value(eq.x) < last.objective:
                 self._accept(xi_t, eq, last)
                 if gn:
-                    self._mu = max(self._mu / 3, 1e-9)
+                    self._mu = max(self._mu / opts.damping_decrease, opts.min_damping)
                 return self._iterate(eq, self._grad)
             if gn:
-                self._mu *= 10
-        self.converged = False
+                self._mu *= opts.damping_increase
+        self.converged, self.reason = False, "no_decrease"
         self.status = ("cannot decrease the objective further: line search failed"
                        + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
         return None
@@ -545,13 +513,31 @@ class Controller:
         self._eq = eq
         self._grad = grad
 
-    def result(self) -> ControlResult:
-        """Run to the end (if not done yet) and collect the outcome."""
+    def result(self, eigenvalue: bool = True) -> ControlResult:
+        """Run to the end (if not done yet) and collect the outcome.
+
+        The final pose is certified once more with its smallest Hessian
+        eigenvalue (from the factor the loop already holds), so callers
+        need no further solve for the result file."""
         if not self._finished:
             for _ in self.iterates():
                 pass
-        return ControlResult(self.converged, self.status, self.history[-1], tuple(self.history),
-                             self.options.bounds, time.perf_counter() - self._t0)
+        last = self.history[-1]
+        eq = certify(self.model, self._eq) if eigenvalue else last.equilibrium
+        converged = self.converged and eq.converged
+        status = self.status if eq.converged else f"{self.status}; final pose: {eq.status}"
+        names = self.model.winch_names
+        stats = ControlStats(solver="gradient-loop", iterations=len(self.history) - 1,
+                             equilibrium_solves=last.equilibrium_solves,
+                             newton_iterations=last.newton_iterations,
+                             t_wall=time.perf_counter() - self._t0)
+        return ControlResult(
+            method=self.options.bounds, converged=converged,
+            reason=self.reason if eq.converged else "not_certified", status=status,
+            equilibrium=eq, objective=float(self.targets.value(eq.x)),
+            active_bounds=last.active_bounds,
+            frozen=tuple(n for n, f in zip(names, self.frozen) if f),
+            history=tuple(self.history), stats=stats, model=self.model, targets=self.targets)
 
 
 def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,

@@ -153,3 +153,13 @@ class ControlResult:
     def contractions(self) -> dict[str, float]:
         """The final contractions by winch name."""
         return {n: float(v) for n, v in zip(self.model.winch_names, self.contraction)}
+
+    def to_dict(self) -> dict:
+        """The result file's document (``plush-opt-result/1``)."""
+        from ..results import control_result_dict
+        return control_result_dict(self)
+
+    def save(self, path) -> None:
+        """Write the result file to ``path`` atomically."""
+        from ..results import control_result_dict, write_json_atomic
+        write_json_atomic(path, control_result_dict(self))

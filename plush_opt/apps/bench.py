@@ -22,14 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .control.gradient import ControlOptions, solve_control
-from .equilibrium import EquilibriumOptions, solve_equilibrium
-from .mesh import build_mesh, mesh_for_nodes
-from .model import build_model
-from .objective import Targets
-from .results import write_json_atomic, write_text_atomic
-from .scene import load_scene
-from .sensitivity import state_sensitivity
+from ..control import BilevelOptions, BilevelSolver, ControlOptions, run_control
+from ..equilibrium import EquilibriumOptions, solve_equilibrium
+from ..mesh import build_mesh, mesh_for_nodes
+from ..model import build_model
+from ..objective import Targets
+from ..results import write_json_atomic, write_text_atomic
+from ..scene import load_scene
+from ..sensitivity import state_sensitivity
 
 NO_EIG = EquilibriumOptions(eigenvalue=False)
 
@@ -55,7 +55,7 @@ def machine() -> dict:
         pass
     import casadi
     import scipy
-    from . import __version__
+    from .. import __version__
     try:
         from importlib.metadata import version
         sksparse = version("scikit-sparse")
@@ -137,15 +137,15 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
     row["resolve_without_predictor_iterations"] = cold.iterations
 
     if targets.n_targets:
-        for method, opts in (("reparam", ControlOptions()), ("clip", ControlOptions(bounds="clip"))):
+        for method in ("reparam", "clip"):
             progress(f"{name} @ {mesh.n_nodes} nodes: inverse solve ({method})")
-            t_run, res = _median_time(lambda: solve_control(model, targets, options=opts), max(1, repeats // 2))
+            t_run, res = _median_time(lambda: run_control(model, targets, method), max(1, repeats // 2))
             steps = np.diff([h.t_wall for h in res.history])
             row[f"inverse_{method}_s"] = t_run
-            row[f"inverse_{method}_iterates"] = len(res.history) - 1
+            row[f"inverse_{method}_iterates"] = res.stats.iterations
             row[f"inverse_{method}_objective"] = res.objective
             row[f"inverse_{method}_status"] = res.status
-            row[f"inverse_{method}_newton_iterations"] = res.final.newton_iterations
+            row[f"inverse_{method}_newton_iterations"] = res.stats.newton_iterations
             row[f"inverse_{method}_certified"] = all(_certified(h.equilibrium) for h in res.history)
             if method == "reparam":
                 row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
@@ -155,29 +155,26 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
 
 
 def _bench_bilevel(model, targets, repeats, progress, label) -> dict:
-    try:
-        from .control.bilevel import BilevelOptions, solve_bilevel
-    except ImportError:
-        return {"inverse_bilevel_status": "not available"}
     progress(f"{label}: inverse solve (bilevel)")
+    solver = BilevelSolver(model)
     c0 = model.scene.contraction
     frozen = model.scene.frozen
-    run = lambda: solve_bilevel(model, targets, c0, frozen, options=BilevelOptions())  # noqa: E731
+    run = lambda: solver.solve(targets, c0, frozen, options=BilevelOptions())  # noqa: E731
     t_first = time.perf_counter()
-    first = run()                      # builds (and caches) IPOPT's solver
+    first = run()                      # builds (and keeps) IPOPT's solver
     t_first = time.perf_counter() - t_first
     t_run, res = _median_time(run, max(1, repeats // 2))
-    info = res.info or {}
-    return {"inverse_bilevel_s": t_run, "inverse_bilevel_setup_s": float(first.info.get("t_build", 0.0)),
+    info = res.stats.details
+    return {"inverse_bilevel_s": t_run, "inverse_bilevel_setup_s": float(first.stats.t_setup),
             "inverse_bilevel_first_s": t_first,
-            "inverse_bilevel_objective": float(targets.value(res.equilibrium.x)),
-            "inverse_bilevel_status": res.status, "inverse_bilevel_iterations": res.iterations,
+            "inverse_bilevel_objective": float(res.objective),
+            "inverse_bilevel_status": res.status, "inverse_bilevel_iterations": res.stats.iterations,
             "inverse_bilevel_certified": bool(res.converged),
-            "inverse_bilevel_ipopt_s": info.get("t_ipopt_total"),
-            "inverse_bilevel_inside_ipopt_s": info.get("t_inside_ipopt"),
-            "inverse_bilevel_evaluations_s": info.get("t_function_evaluations"),
-            "inverse_bilevel_certification_s": info.get("t_certification"),
-            "inverse_bilevel_calls": info.get("calls")}
+            "inverse_bilevel_ipopt_s": info.t_ipopt_total,
+            "inverse_bilevel_inside_ipopt_s": info.t_inside_ipopt,
+            "inverse_bilevel_evaluations_s": info.t_function_evaluations,
+            "inverse_bilevel_certification_s": info.t_certification,
+            "inverse_bilevel_calls": info.calls}
 
 
 def _ms(v):
@@ -279,7 +276,7 @@ def add_bench_parser(sub) -> None:
 
 
 def cmd_bench(args) -> int:
-    from .errors import SceneError
+    from ..errors import SceneError
     try:
         sizes = [0 if s.strip() == "file" else int(s) for s in args.sizes.split(",") if s.strip()]
     except ValueError:

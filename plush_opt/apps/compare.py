@@ -44,16 +44,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .accuracy import base_area, equilibrium_at, transfer_pose
-from .control.bilevel import BilevelOptions, solve_bilevel
-from .control.gradient import ControlOptions, solve_control
-from .equilibrium import EquilibriumOptions, solve_equilibrium
-from .errors import PlushError, SceneError
-from .mesh import build_mesh
-from .model import build_model
-from .objective import Targets
-from .results import write_text_atomic
-from .scene import load_scene
+from ..accuracy import base_area, equilibrium_at, transfer_pose
+from ..control import BilevelOptions, ControlOptions, run_control
+from ..equilibrium import EquilibriumOptions, solve_equilibrium
+from ..errors import PlushError, SceneError
+from ..problem import from_scene
+from ..results import write_text_atomic
+from ..scene import load_scene
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +155,7 @@ class Run:
 class _Problem:
     path: Path
     scene: object
-    levels: dict                # factor -> (mesh, model, targets, t_build)
+    levels: dict                # factor -> (Problem, t_build)
     start: np.ndarray
     frozen: np.ndarray
 
@@ -169,15 +166,10 @@ class _Problem:
 
 def _level(scene, factor):
     t0 = time.perf_counter()
-    if scene.outline is None:
-        mesh = build_mesh(scene)
-    else:
-        mesh = build_mesh(scene, max_area=base_area(scene) * factor)
-    model = build_model(scene, mesh)
-    targets = Targets.from_mesh(mesh, scene)
+    p = from_scene(scene, max_area=None if scene.outline is None else base_area(scene) * factor)
     # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
-    solve_equilibrium(model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
-    return mesh, model, targets, time.perf_counter() - t0
+    solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
+    return p, time.perf_counter() - t0
 
 
 def _bound_violation(model, c) -> float:
@@ -191,14 +183,15 @@ def _run(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
     best = min(runs, key=lambda r: r.t_solve if math.isfinite(r.t_solve) else math.inf)
     best.t_setup = runs[0].t_setup
     if best.ipopt_history is not None and settings.resolve_bilevel_iterates and sweep == "main":
-        _, model, targets, _ = problem.levels[factor]
-        best.resolved = _resolve_iterates(model, targets, *best.ipopt_history)
+        p, _ = problem.levels[factor]
+        best.resolved = _resolve_iterates(p.model, p.targets, *best.ipopt_history)
     return best
 
 
 def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
               settings: CompareSettings) -> Run:
-    mesh, model, targets, _ = problem.levels[factor]
+    p, _ = problem.levels[factor]
+    mesh, model, targets = p.mesh, p.model, p.targets
     scene = problem.scene
     run = Run(scene.name, method, sweep, tol, factor,
               None if scene.outline is None else base_area(scene) * factor,
@@ -206,12 +199,12 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
     try:
         if method in ("reparam", "clip"):
             opts = ControlOptions(bounds=method, max_time=settings.max_time, **GRADIENT_TOL[tol])
-            res = solve_control(model, targets, problem.start, problem.frozen, options=opts)
+            res = run_control(model, targets, method, problem.start, problem.frozen, options=opts)
             eq = res.equilibrium
             run.converged, run.status = res.converged, res.status
             run.t_solve = res.history[-1].t_wall
-            run.iterations = len(res.history) - 1
-            run.equilibrium_solves = res.final.equilibrium_solves
+            run.iterations = res.stats.iterations
+            run.equilibrium_solves = res.stats.equilibrium_solves
             run.curve = [(h.t_wall, h.objective, True) for h in res.history]
         else:
             kw = dict(BILEVEL_TOL[tol])
@@ -219,19 +212,20 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
             if rel is not None:
                 kw["pose_tol"] = rel * mesh.diameter
             opts = BilevelOptions(max_time=settings.max_time, **kw)
-            res = solve_bilevel(model, targets, problem.start, problem.frozen, options=opts)
+            res = run_control(model, targets, "bilevel", problem.start, problem.frozen,
+                              options=opts, bilevel=p.bilevel_solver)
             eq = res.equilibrium
-            info = res.info
+            info = res.stats.details
             run.converged, run.status = res.converged, res.status
-            run.t_setup = info.get("t_build", 0.0)
-            run.t_solve = res.t_wall - run.t_setup
-            run.iterations = res.iterations
-            run.equilibrium_solves = info.get("equilibrium_solves", 1)
-            pose = info.get("ipopt_pose")
+            run.t_setup = res.stats.t_setup
+            run.t_solve = res.stats.t_wall - run.t_setup
+            run.iterations = res.stats.iterations
+            run.equilibrium_solves = res.stats.equilibrium_solves
+            pose = info.ipopt_pose
             run.saddle_flagged = bool(pose is not None and pose["admissible"]
                                       and not pose["positive_definite"])
-            t_start = info["start"]["t_wall"]
-            run.curve = ([(t_start, info["start"]["objective"], True)]
+            t_start = info.start["t_wall"]
+            run.curve = ([(t_start, info.start["objective"], True)]
                          + [(t_start + h.t_wall, h.objective, False) for h in res.history]
                          + [(run.t_solve, targets.value(eq.x), True)])
             run.ipopt_history = (t_start, res.history)
@@ -262,7 +256,8 @@ def _resolve_iterates(model, targets, t_start, history) -> list:
 def _reference(problem: _Problem, runs: list, cache: dict) -> None:
     """Model error and fine-mesh target error of each run (finest level)."""
     finest = min(problem.levels)
-    fmesh, fmodel, ftargets, _ = problem.levels[finest]
+    fine, _ = problem.levels[finest]
+    fmesh, fmodel, ftargets = fine.mesh, fine.model, fine.targets
     for run in runs:
         if run.contraction is None:
             continue
@@ -279,7 +274,7 @@ def _reference(problem: _Problem, runs: list, cache: dict) -> None:
         xf = cache[key]
         if xf is None:
             continue
-        _, model, targets, _ = problem.levels[run.mesh_factor]
+        targets = problem.levels[run.mesh_factor][0].targets
         d = targets.y(run.x) - ftargets.y(xf)
         run.model_error = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
         run.fine_target_error = float(ftargets.rms_error(xf))

@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from .errors import HardwareError, PlushError, SceneError, SolverError
+from ..errors import HardwareError, PlushError, SceneError, SolverError
 
 log = logging.getLogger("plush_opt")
 
@@ -60,10 +60,14 @@ def _add_solve(sub):
                    "control starts); repeatable")
     p.add_argument("--freeze", action="append", default=[], metavar="NAME",
                    help="freeze a winch during control (keeps its contraction); repeatable")
-    p.add_argument("--method", choices=("forward", "reparam", "bilevel"), default=None,
+    p.add_argument("--method", choices=("forward", "reparam", "clip", "bilevel"), default=None,
                    help="forward: equilibrium only (targets ignored); reparam (default with "
-                   "targets): the gradient loop with reparametrised bounds; bilevel: IPOPT on "
+                   "targets): the gradient loop with reparametrised bounds; clip: the same loop "
+                   "clipping the contractions to their bounds (the baseline); bilevel: IPOPT on "
                    "the KKT formulation")
+    p.add_argument("--direction", choices=("gauss-newton", "gradient"), default="gauss-newton",
+                   help="search direction of the gradient loop (reparam, clip): Gauss-Newton on "
+                   "the target residuals (default) or steepest descent with Barzilai-Borwein steps")
     p.add_argument("--equilibrium", choices=("newton", "ipopt"), default="newton",
                    help="equilibrium backend (default newton; ipopt for cross-checks)")
     p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
@@ -77,35 +81,19 @@ def _add_solve(sub):
     p.set_defaults(func=cmd_solve)
 
 
-def _contractions(scene, pairs) -> "list[float]":
-    import numpy as np
-    c = scene.contraction.copy()
-    names = scene.winch_names
+def _pairs(pairs, what: str = "--contraction") -> dict[str, float]:
+    """NAME=VALUE pairs as a dict; a winch named twice is an error, not the last one winning."""
+    out: dict[str, float] = {}
     for name, value in pairs:
-        if name not in names:
-            raise SceneError(f"--contraction {name}={value:g}: no winch named {name!r} "
-                             f"(winches: {', '.join(names)})")
-        i = names.index(name)
-        lo, hi = scene.winches[i].bounds
-        if not lo <= value <= hi:
-            raise SceneError(f"--contraction {name}={value:g}: outside the winch's bounds [{lo:g}, {hi:g}]")
-        c[i] = value
-    return np.asarray(c)
-
-
-def _frozen(scene, names):
-    frozen = scene.frozen.copy()
-    for name in names:
-        if name not in scene.winch_names:
-            raise SceneError(f"--freeze {name}: no winch named {name!r} "
-                             f"(winches: {', '.join(scene.winch_names)})")
-        frozen[scene.winch_names.index(name)] = True
-    return frozen
+        if name in out:
+            raise SceneError(f"{what} {name}: given twice ({out[name]:g} and {value:g})")
+        out[name] = value
+    return out
 
 
 def write_trace(path, model, targets, history) -> None:
     """Iterate history as CSV, written atomically."""
-    from .results import write_text_atomic
+    from ..results import write_text_atomic
     buf = io.StringIO()
     w = csv.writer(buf)
     names = list(model.winch_names)
@@ -121,101 +109,72 @@ def write_trace(path, model, targets, history) -> None:
 
 
 def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, equilibrium="newton",
-                  max_iterations=None, max_time=None, accuracy=None):
-    """Load, mesh, model and solve one problem; returns (model, targets, doc, history).
+                  max_iterations=None, max_time=None, accuracy=None, direction="gauss-newton"):
+    """Load and solve one problem; returns (problem, equilibrium, result document, history).
 
     The shared path of ``solve`` and ``demo``.
     """
-    from .control.gradient import ControlOptions, Controller
-    from .equilibrium import EquilibriumOptions, solve_equilibrium
-    from .mesh import build_mesh
-    from .model import build_model
-    from .objective import Targets
-    from .results import result_dict
-    from .scene import load_scene
+    from ..control import BilevelOptions, ControlOptions
+    from ..equilibrium import EquilibriumOptions
+    from ..problem import load
+    from ..results import control_result_dict, result_dict
 
     t0 = time.perf_counter()
-    scene = load_scene(problem)
-    mesh_report = None
-    if accuracy is not None:
-        from .accuracy import choose_mesh
-        mesh, mesh_report = choose_mesh(scene, accuracy)
-    else:
-        mesh = build_mesh(scene)
-    model = build_model(scene, mesh)
-    targets = Targets.from_mesh(mesh, scene)
-    c = _contractions(scene, contraction_pairs)
-    frozen = _frozen(scene, freeze)
-    if method is None:
-        method = "reparam" if targets.n_targets else "forward"
-    if method != "forward" and not targets.n_targets:
-        raise SceneError(f"{scene.source}: targets: --method {method} needs targets; the file has none")
     if max_iterations is not None and max_iterations < 0:
         raise SceneError(f"--max-iterations: expected >= 0, got {max_iterations}")
     if max_time is not None and not max_time > 0:
         raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
-    eq_opts = EquilibriumOptions(backend=equilibrium)
-    history = ()
-    t_solve = time.perf_counter()
+    p = load(problem, accuracy=accuracy)
+    contraction = _pairs(contraction_pairs)
+    c = p.contraction_vector(contraction, what="--contraction")
+    p.frozen_vector(freeze, what="--freeze")           # names checked before any solve
+    if method is None:
+        method = "reparam" if p.targets.n_targets else "forward"
+    if method != "forward" and not p.targets.n_targets:
+        raise SceneError(f"{p.source}: targets: --method {method} needs targets; the file has none")
+    extra = {} if p.mesh_report is None else {"mesh_accuracy": p.mesh_report}
     if method == "forward":
-        eq = solve_equilibrium(model, c, options=eq_opts)
-        converged, status, iterations = eq.converged, eq.status, eq.iterations
-        extra = {}
-    elif method == "reparam":
-        opts = ControlOptions(equilibrium=EquilibriumOptions(backend=equilibrium,
-                                                                            eigenvalue=False))
-        if max_iterations is not None:
-            opts = dataclasses.replace(opts, max_iterations=max_iterations)
-        if max_time is not None:
-            opts = dataclasses.replace(opts, max_time=max_time)
-        ctl = Controller(model, targets, c, frozen, options=opts)
-        for it in ctl.iterates():
-            log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
-                     ", ".join(f"{n}={v:.4f}" for n, v in zip(model.winch_names, it.contraction)))
-        res = ctl.result()
-        # the final pose again with the eigenvalue, for the result file
-        eq = solve_equilibrium(model, res.contraction, res.equilibrium.x, eq_opts)
-        converged = res.converged and eq.converged
-        status = res.status if eq.converged else f"{res.status}; final pose: {eq.status}"
-        iterations = len(res.history) - 1
-        history = res.history
-        extra = {"control": {"equilibrium_solves": res.final.equilibrium_solves,
-                             "newton_iterations": res.final.newton_iterations,
-                             "active_bounds": list(res.final.active_bounds),
-                             "frozen": [n for n, f in zip(model.winch_names, frozen) if f]}}
+        t_solve = time.perf_counter()
+        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
+        t_end = time.perf_counter()
+        doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
+                          status=eq.status, total_s=t_end - t0, solve_s=t_end - t_solve,
+                          iterations=eq.iterations, extra=extra)
+        return p, eq, doc, ()
+    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False)
+    if method == "bilevel":
+        options = BilevelOptions()
     else:
-        from .control.bilevel import BilevelOptions, solve_bilevel
-        res = solve_bilevel(model, targets, c, frozen, options=BilevelOptions())
-        eq = res.equilibrium
-        converged, status, iterations = res.converged, res.status, res.iterations
-        extra = {"bilevel": res.info}
-    if mesh_report is not None:
-        extra = {**extra, "mesh_accuracy": mesh_report}
-    t_end = time.perf_counter()
-    doc = result_dict(model, targets, eq, method=method, converged=converged, status=status,
-                      total_s=t_end - t0, solve_s=t_end - t_solve, iterations=iterations,
-                      extra=extra)
-    return model, targets, eq, doc, history
+        options = ControlOptions(equilibrium=quiet, direction=direction)
+        if max_iterations is not None:
+            options = dataclasses.replace(options, max_iterations=max_iterations)
+        if max_time is not None:
+            options = dataclasses.replace(options, max_time=max_time)
+    res = p.control(method, contraction, freeze, options=options)
+    for it in res.history if method != "bilevel" else ():
+        log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
+                 ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
+    doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
+    return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
 
 
 def cmd_solve(args) -> int:
-    from .results import write_json_atomic
-    model, targets, eq, doc, history = solve_problem(
+    from ..results import write_json_atomic
+    p, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
-        args.max_iterations, args.max_time, args.accuracy)
+        args.max_iterations, args.max_time, args.accuracy, args.direction)
     if "mesh_accuracy" in doc:
         print(f"plush-opt: {doc['mesh_accuracy']['summary']}", file=sys.stderr)
+    if args.trace and not history:
+        raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
         from .plot import plot_pose
         _use_agg()
-        plot_pose(args.plot, model, eq.x, eq.contraction, targets if targets.n_targets else None)
+        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
     if args.trace:
-        if history:
-            write_trace(args.trace, model, targets, history)
-        else:
-            raise SceneError("--trace: only a control run has an iterate history")
+        write_trace(args.trace, p.model, p.targets, history)
     cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
     summary = (f"{doc['problem']}: {doc['method']}: {doc['status']}; {cs}; "
                f"objective {doc['objective']:.6g}; residual {doc['residual_norm']:.3g}; "
@@ -249,7 +208,7 @@ def _add_demo(sub):
 
 
 def _repo_file(*parts) -> Path:
-    return Path(__file__).resolve().parent.parent.joinpath(*parts)
+    return Path(__file__).resolve().parents[2].joinpath(*parts)
 
 
 def default_problem() -> Path:
@@ -258,18 +217,18 @@ def default_problem() -> Path:
 
 def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
-    from .results import write_json_atomic
+    from ..results import write_json_atomic
     _use_agg()
     problem = args.problem or default_problem()
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     print(f"demo: solving {problem.name} (control to its targets)")
-    model, targets, eq, doc, history = solve_problem(problem, method="reparam")
+    p, eq, doc, history = solve_problem(problem, method="reparam")
     write_json_atomic(out / "result.json", doc)
-    plot_pose(out / "pose.png", model, eq.x, eq.contraction, targets)
-    plot_trace(out / "trace.png", history, title=f"{model.scene.name}: control iterates")
-    write_trace(out / "trace.csv", model, targets, history)
-    err = targets.errors(eq.x)
+    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets)
+    plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates")
+    write_trace(out / "trace.csv", p.model, p.targets, history)
+    err = p.targets.errors(eq.x)
     print(f"demo: {doc['status']}; {len(history) - 1} iterates, "
           f"{doc['control']['equilibrium_solves']} equilibrium solves, {doc['timing']['total_s']:.2f} s")
     print("demo: contractions " + ", ".join(f"{n} = {v:.3f} mm" for n, v in doc["contractions"].items()))
@@ -305,7 +264,7 @@ def _demo_run(script: Path, out: Path) -> None:
 # --------------------------------------------------------------------------
 
 def _add_run(sub):
-    from .runs import add_run_arguments
+    from ..runs import add_run_arguments
     p = sub.add_parser("run", help="play a run script on the winch board (or its emulator)",
                        description="Solve each step of a run script and stream the contractions "
                        "to the winch board. See docs/hardware.md.")
@@ -314,15 +273,15 @@ def _add_run(sub):
 
 
 def cmd_run(args) -> int:
-    from .planner import ControlPlanner
-    from .runs import cli_run
+    from ..planner import ControlPlanner
+    from ..runs import cli_run
     return cli_run(args, ControlPlanner)
 
 
 # --------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
+    from .. import __version__
     parser = _Parser(prog="plush-opt", description="Optimisation-centric control of plush robots.")
     parser.add_argument("--version", action="version", version=f"plush-opt {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
@@ -334,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(sub)
     from .bench import add_bench_parser
     add_bench_parser(sub)
-    from .gui import add_gui_parser
+    from ..gui import add_gui_parser
     add_gui_parser(sub)
     from .compare import add_compare_parser
     add_compare_parser(sub)

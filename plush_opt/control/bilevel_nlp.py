@@ -1,0 +1,179 @@
+"""The bilevel method's NLP in CasADi: variables, constraints, objective,
+IPOPT and its iteration recorder.
+
+Built once per (model, frozen set, target triangles, options) by
+:class:`~plush_opt.control.bilevel.BilevelSolver`, which owns the cache.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..model import Model
+from .result import ControlIterate
+
+class Recorder(ca.Callback):
+    """IPOPT iteration callback: records (t, O, violation, c) and stops
+    IPOPT (by returning 1) once the time limit has passed."""
+
+    def __init__(self, name: str, n_z: int, n_g: int, n_p: int):
+        ca.Callback.__init__(self)
+        self._n = {"x": n_z, "lam_x": n_z, "g": n_g, "lam_g": n_g, "p": n_p, "lam_p": n_p, "f": 1}
+        self.reset(None)
+        self.construct(name, {})
+
+    def reset(self, run: dict | None):
+        self.run = run
+        self.points: list[ControlIterate] = []
+        self.stopped = False
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        n = self._n.get(ca.nlpsol_out(i), 0)
+        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        run = self.run
+        if run is None:
+            return [0]
+        t = time.perf_counter() - run["t0"]
+        z = np.asarray(arg[0], dtype=np.float64).reshape(-1)
+        f = float(arg[1])
+        g = np.asarray(arg[2], dtype=np.float64).reshape(-1)
+        n_dofs, delta = run["n_dofs"], run["delta"]
+        viol = float(np.max(np.abs(g[:n_dofs]), initial=0.0))
+        if delta is not None and g.size > n_dofs:
+            viol = max(viol, float(np.max(delta - g[n_dofs:], initial=0.0)))
+        c = run["c_fixed"].copy()
+        c[run["free"]] = z[n_dofs:]
+        self.points.append(ControlIterate(iteration=len(self.points), t_wall=t, contraction=c,
+                                          objective=f, constraint_violation=viol))
+        if run["max_time"] is not None and t >= run["max_time"]:
+            self.stopped = True
+            return [1]
+        return [0]
+
+
+@dataclass
+class NlpEntry:
+    """One built NLP: the IPOPT solver and what solving with it needs."""
+
+    solver: ca.Function
+    recorder: Recorder
+    grad_lag: ca.Function
+    free: np.ndarray
+    frozen: np.ndarray
+    n_g: int
+    lbg: np.ndarray
+    ubg: np.ndarray
+    t_build: float
+    ipopt_options: dict
+
+
+
+def force_reference(model: Model) -> float:
+    """F_ref: the elastic force of a unit strain across the body,
+    mu * thickness * sqrt(body area) (force units). The equilibrium
+    constraint is divided by it, so IPOPT's tolerances are relative."""
+    return float(model.mu * model.thickness * math.sqrt(model.rest_area.sum()))
+
+
+def gradient_expression(model: Model, store: dict) -> ca.MX:
+    if "grad" not in store:
+        store["grad"] = ca.gradient(model.E_sym, model.x_sym)
+    return store["grad"]
+
+
+def _objective_expression(x: ca.MX, nodes: np.ndarray, beta: ca.MX, q: ca.MX, sqrt_w: ca.MX) -> ca.MX:
+    """O(x) = 1/2 sum_k w_k |sum_j beta_kj x_{n_kj} - q_k|^2 with beta, q,
+    w symbolic (the same value as Targets.value)."""
+    k = nodes.shape[0]
+    if k == 0:
+        return ca.MX(0)
+    yx = ca.MX.zeros(k, 1)
+    yy = ca.MX.zeros(k, 1)
+    for j in range(3):
+        yx += beta[:, j] * x[(2 * nodes[:, j]).tolist()]
+        yy += beta[:, j] * x[(2 * nodes[:, j] + 1).tolist()]
+    rx = sqrt_w * (yx - q[:, 0])
+    ry = sqrt_w * (yy - q[:, 1])
+    return 0.5 * (ca.sumsqr(rx) + ca.sumsqr(ry))
+
+
+def _jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
+    """J = det F of every element, (n_elems,), as a CasADi expression."""
+    e = model._elem_dofs
+    xe = [x[e[:, i].tolist()] for i in range(6)]
+    det = (xe[2] - xe[0]) * (xe[5] - xe[1]) - (xe[3] - xe[1]) * (xe[4] - xe[0])
+    return det / ca.DM(2 * model.rest_area)
+
+
+def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, store: dict) -> "NlpEntry":
+    """IPOPT on the KKT formulation for these free winches and target
+    nodes, with its recorder and the gradient of the Lagrangian (for the KKT
+    check). ``store`` keeps grad_x E, shared by every entry of a model."""
+    t0 = time.perf_counter()
+    free = np.flatnonzero(~frozen)
+    fixed = np.flatnonzero(frozen)
+    n_free, n_fixed, k = len(free), len(fixed), nodes.shape[0]
+    c_free = ca.MX.sym("c", n_free)
+    c_fixed = ca.MX.sym("c_frozen", n_fixed)
+    q = ca.MX.sym("q", k, 2)
+    sqrt_w = ca.MX.sym("sqrt_w", k)
+    beta = ca.MX.sym("beta", k, 3)
+    # c_full = P_free c_free + P_fixed c_fixed
+    P_free = ca.DM.zeros(model.n_winches, n_free)
+    for j, w in enumerate(free):
+        P_free[int(w), j] = 1
+    P_fixed = ca.DM.zeros(model.n_winches, n_fixed)
+    for j, w in enumerate(fixed):
+        P_fixed[int(w), j] = 1
+    c_full = P_free @ c_free + (P_fixed @ c_fixed if n_fixed else 0)
+    x = model.x_sym
+    grad = ca.substitute(gradient_expression(model, store), model.c_sym, c_full)
+    F_ref = force_reference(model)
+    g = [grad / F_ref]
+    lbg = [np.zeros(model.n_dofs)]
+    ubg = [np.zeros(model.n_dofs)]
+    if options.min_jacobian is not None:
+        g.append(_jacobian_expression(model, x))
+        lbg.append(np.full(model.n_elems, options.min_jacobian))
+        ubg.append(np.full(model.n_elems, np.inf))
+    z = ca.vertcat(x, c_free)
+    p = ca.vertcat(c_fixed, ca.vec(q), sqrt_w, ca.vec(beta))
+    f = _objective_expression(x, nodes, beta, q, sqrt_w)
+    gz = ca.vertcat(*g)
+    nlp = {"x": z, "p": p, "f": f, "g": gz}
+    recorder = Recorder("bilevel_iterations", z.shape[0], gz.shape[0], p.shape[0])
+    ipopt = options.ipopt_options()
+    opts = {"ipopt." + key: v for key, v in ipopt.items()}
+    opts.update({"print_time": False, "show_eval_warnings": False, "expand": options.expand,
+                 "iteration_callback": recorder, "iteration_callback_step": 1,
+                 "iteration_callback_ignore_errors": False})
+    solver = ca.nlpsol("bilevel", "ipopt", nlp, opts)
+    lam_g = ca.MX.sym("lam_g", gz.shape[0])
+    lam_x = ca.MX.sym("lam_x", z.shape[0])
+    grad_lag = ca.Function("grad_lag", [z, p, lam_g, lam_x],
+                           [ca.gradient(f, z) + ca.jtimes(gz, z, lam_g, True) + lam_x, gz],
+                           ["z", "p", "lam_g", "lam_x"], ["grad_lag", "g"])
+    if options.expand:
+        grad_lag = grad_lag.expand()
+    return NlpEntry(solver, recorder, grad_lag, free, fixed, gz.shape[0],
+                  np.concatenate(lbg), np.concatenate(ubg), time.perf_counter() - t0, ipopt)
+
