@@ -13,7 +13,6 @@ import os
 import tempfile
 from pathlib import Path
 
-import numpy as np
 
 from .equilibrium import Equilibrium
 from .model import Model

@@ -5,10 +5,7 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
-from plush_opt.scene import load_scene
+from plush_opt.problem import load
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEMS = ("gripper", "hexapod", "hexapod_leg")
@@ -17,10 +14,14 @@ PROBLEMS = ("gripper", "hexapod", "hexapod_leg")
 @functools.lru_cache(maxsize=None)
 def built(name: str):
     """(scene, mesh, model, targets) of problems/<name>.yaml."""
-    scene = load_scene(ROOT / "problems" / f"{name}.yaml")
-    mesh = build_mesh(scene)
-    model = build_model(scene, mesh)
-    return scene, mesh, model, Targets.from_mesh(mesh, scene)
+    p = problem(name)
+    return p.scene, p.mesh, p.model, p.targets
+
+
+@functools.lru_cache(maxsize=None)
+def problem(name: str):
+    """The :class:`~plush_opt.problem.Problem` of problems/<name>.yaml."""
+    return load(ROOT / "problems" / f"{name}.yaml")
 
 
 def body_size(model) -> float:

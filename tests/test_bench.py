@@ -9,7 +9,7 @@ from shipped import ROOT
 
 
 def test_bench_writes_markdown_and_json(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "plush_opt.cli", "bench",
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench",
                         str(ROOT / "problems" / "hexapod_leg.yaml"), "--sizes", "150",
                         "--repeats", "1", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=600)
@@ -25,6 +25,6 @@ def test_bench_writes_markdown_and_json(tmp_path):
 
 
 def test_bench_rejects_bad_sizes(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "plush_opt.cli", "bench", "--sizes", "a,b",
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", "--sizes", "a,b",
                         "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "--sizes" in p.stderr and "Traceback" not in p.stderr

@@ -7,7 +7,7 @@ import csv
 
 import pytest
 
-from plush_opt.compare import (CompareSettings, add_compare_parser, cmd_compare, pareto_front,
+from plush_opt.apps.compare import (CompareSettings, add_compare_parser, cmd_compare, pareto_front,
                                run_compare)
 from plush_opt.errors import SceneError
 from shipped import ROOT

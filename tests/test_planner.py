@@ -27,7 +27,7 @@ def test_planner_forward_then_pose_streams_certified_iterates_within_bounds():
 
 def test_cli_run_dry_run_writes_a_parseable_log(tmp_path):
     log = tmp_path / "run.jsonl"
-    p = subprocess.run([sys.executable, "-m", "plush_opt.cli", "run",
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "run",
                         str(ROOT / "examples" / "gripper_run.yaml"), "--dry-run", "--log", str(log)],
                        capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr
@@ -37,7 +37,7 @@ def test_cli_run_dry_run_writes_a_parseable_log(tmp_path):
 
 
 def test_demo_solves_and_plays_on_the_emulator(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "plush_opt.cli", "demo", "--out", str(tmp_path)],
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "demo", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     for name in ("result.json", "pose.png", "trace.png", "trace.csv", "run.jsonl", "run.png"):

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..control import BilevelOptions, BilevelSolver, ControlOptions, run_control
+from ..control import BilevelOptions, BilevelSolver, run_control
 from ..equilibrium import EquilibriumOptions, solve_equilibrium
 from ..mesh import build_mesh, mesh_for_nodes
 from ..model import build_model

@@ -126,7 +126,7 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
     p = load(problem, accuracy=accuracy)
     contraction = _pairs(contraction_pairs)
-    c = p.contraction_vector(contraction, what="--contraction")
+    p.contraction_vector(contraction, what="--contraction")   # names and bounds checked first
     p.frozen_vector(freeze, what="--freeze")           # names checked before any solve
     if method is None:
         method = "reparam" if p.targets.n_targets else "forward"

@@ -39,13 +39,13 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
+from ..equilibrium import EquilibriumOptions, certify, solve_equilibrium
 from ..errors import SolverError
 from ..linalg import NotPositiveDefinite, smallest_eigenpair
 from ..model import Model
 from ..objective import Targets
 from .bilevel_nlp import NlpEntry, build_nlp, force_reference
-from .result import ControlIterate, ControlResult, ControlStats
+from .result import ControlResult, ControlStats
 from .slack import slack_winches, take_up
 
 log = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """Bad meshes and bad files through the command line, as a user meets them:
-``python -m plush_opt.cli solve FILE --out OUT``.
+``python -m plush_opt solve FILE --out OUT``.
 
 Every invalid input must end in exit status 2, exactly one line on stderr
 that names the file, the key and the list index, no traceback, and no

@@ -1,0 +1,83 @@
+"""Side-by-side comparison of the control methods: speed against error.
+
+For every problem file, three methods start from the same certified
+equilibrium (the file's contractions):
+
+* ``reparam`` - method 1, the sensitivity-driven gradient loop with
+  reparametrised bounds (the paper's method);
+* ``clip``    - the same loop with plain clipping of c to the bounds;
+* ``bilevel`` - IPOPT on the KKT formulation, certified by Newton.
+
+Runs: each method at its default tolerances on the problem's mesh (the
+main table and the anytime curves), a sweep over solver tolerances on that
+mesh, and a sweep over mesh resolutions at the default tolerances. Errors:
+
+* ``rms_target_error`` - RMS distance of the targets on the run's own mesh;
+* ``model_error``      - RMS distance between the run's target points and
+  the finest mesh's at the same contractions (the discretisation error);
+* ``fine_target_error``- RMS target error of the finest mesh's pose at the
+  run's contractions: the best available prediction of what the robot
+  would do. The speed-against-error Pareto front uses this one.
+
+Times are wall-clock seconds of the solve (from the starting equilibrium to
+the returned pose). Building the model and IPOPT's solver (CasADi
+derivative generation, once per model, frozen set and IPOPT options) is
+setup, reported separately. The gradient loop's iterates are all certified
+equilibria within bounds (dispatchable to the robot); IPOPT's iterates are
+not (the equilibrium constraint holds only at convergence), and the curves
+mark them differently.
+
+Writes ``report.md``, ``results.csv``, ``curves.csv``, ``anytime.png`` and
+``speed_error.png`` to the output folder. :func:`add_compare_parser` adds
+``plush-opt compare`` to the command line.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .runner import pareto_front, run_compare
+from .settings import METHODS, TOLERANCES, CompareSettings, Run
+
+__all__ = ["CompareSettings", "METHODS", "Run", "TOLERANCES", "add_compare_parser", "cmd_compare",
+           "pareto_front", "run_compare"]
+
+# --------------------------------------------------------------------------
+# Command line
+# --------------------------------------------------------------------------
+
+def add_compare_parser(subparsers):
+    """Add ``compare`` to the ``plush-opt`` subcommands."""
+    p = subparsers.add_parser(
+        "compare", help="compare the control methods (speed against error) on problem files",
+        description="Run the gradient loop (reparametrised and clipped bounds) and the bilevel "
+        "IPOPT method on each problem, sweep solver tolerances and mesh resolutions, and write "
+        "report.md, results.csv, curves.csv and plots to --out.")
+    p.add_argument("problem", type=Path, nargs="+", help="problem files with targets")
+    p.add_argument("--out", "-o", type=Path, default=Path("out/compare"),
+                   help="output folder (default out/compare)")
+    p.add_argument("--coarse", action="store_true",
+                   help="a quick run: coarser meshes, two tolerance presets")
+    p.set_defaults(func=cmd_compare)
+    return p
+
+
+def cmd_compare(args) -> int:
+    """``plush-opt compare``: progress on stderr, the files written on stdout.
+    Exit status 0, or 3 if a method returned a pose outside the bounds or not
+    stable (which would be a bug)."""
+    import sys
+
+    def progress(line):
+        print(line, file=sys.stderr, flush=True)
+
+    res = run_compare(args.problem, args.out, coarse=args.coarse, progress=progress)
+    for f in res["files"]:
+        print(f)
+    bad = [r for r in res["runs"] if r.contraction is not None
+           and (r.bound_violation > 0 or not r.stable)]
+    if bad:
+        print("plush-opt: compare: " + ", ".join(f"{r.problem}/{r.method}" for r in bad)
+              + " returned poses outside the bounds or not stable", file=sys.stderr)
+        return 3
+    return 0

@@ -1,0 +1,301 @@
+"""The comparison's files: results.csv, curves.csv, report.md and the plots."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ...results import write_text_atomic
+from .settings import METHODS, TOLERANCES, CompareSettings
+
+CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "mesh_factor", "max_area", "n_nodes",
+              "n_elems", "converged", "stable", "saddle_flagged", "objective", "rms_target_error",
+              "model_error", "fine_target_error", "t_solve_s", "t_setup_s", "iterations",
+              "equilibrium_solves", "bound_violation", "pareto", "contractions", "status")
+
+
+def _fmt(v, spec=".6g"):
+    if v is None:
+        return ""
+    if isinstance(v, float) and not math.isfinite(v):
+        return "nan"
+    return format(v, spec)
+
+
+def _contraction_text(problem, run) -> str:
+    if run.contraction is None:
+        return ""
+    return " ".join(f"{n}={v:.4f}" for n, v in zip(problem.scene.winch_names, run.contraction))
+
+
+def write_outputs(out: Path, problems, runs, settings, t_total) -> list[Path]:
+    by_name = {p.scene.name: p for p in problems}
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(CSV_FIELDS)
+    for r in runs:
+        w.writerow([r.problem, r.method, r.sweep, r.tolerance, r.mesh_factor, _fmt(r.max_area),
+                    r.n_nodes, r.n_elems, int(r.converged), int(r.stable), int(r.saddle_flagged),
+                    repr(r.objective), repr(r.rms_target_error), repr(r.model_error),
+                    repr(r.fine_target_error), f"{r.t_solve:.6f}", f"{r.t_setup:.6f}", r.iterations,
+                    r.equilibrium_solves, repr(r.bound_violation), int(r.pareto),
+                    _contraction_text(by_name[r.problem], r), r.status])
+    files = [write_text_atomic(out / "results.csv", buf.getvalue())]
+
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(("problem", "method", "kind", "t_wall_s", "objective", "dispatchable"))
+    for r in runs:
+        if r.sweep != "main":
+            continue
+        for t, o, d in r.curve:
+            kind = "iterate" if r.method != "bilevel" else ("ipopt_iterate" if not d else "certified")
+            w.writerow((r.problem, r.method, kind, f"{t:.6f}", repr(o), int(d)))
+        for t, o in r.resolved:
+            w.writerow((r.problem, r.method, "ipopt_iterate_resolved_post_hoc", f"{t:.6f}", repr(o), 1))
+    files.append(write_text_atomic(out / "curves.csv", buf.getvalue()))
+
+    files.append(plot_anytime(out / "anytime.png", problems, runs))
+    files.append(plot_speed_error(out / "speed_error.png", problems, runs))
+    files.append(write_text_atomic(out / "report.md", report_text(problems, runs, settings, t_total)))
+    return files
+
+
+# -- plots (matplotlib's object API: no pyplot, no global backend) ----------
+
+COLORS = {"reparam": "#1f77b4", "clip": "#2ca02c", "bilevel": "#d62728"}
+MARKERS = {"main": "o", "tolerance": "s", "mesh": "^"}
+
+
+def _grid(n):
+    from matplotlib.figure import Figure
+    cols = min(n, 3)
+    rows = int(math.ceil(n / cols))
+    fig = Figure(figsize=(5.0 * cols, 3.8 * rows), dpi=110)
+    axes = [fig.add_subplot(rows, cols, i + 1) for i in range(n)]
+    return fig, axes
+
+
+def plot_anytime(path: Path, problems, runs) -> Path:
+    """Objective against wall time, one panel per problem."""
+    fig, axes = _grid(len(problems))
+    for ax, p in zip(axes, problems):
+        name = p.scene.name
+        for r in runs:
+            if r.problem != name or r.sweep != "main" or not r.curve:
+                continue
+            c = COLORS[r.method]
+            t = np.array([q[0] for q in r.curve])
+            o = np.maximum(np.array([q[1] for q in r.curve]), 1e-12)
+            d = np.array([q[2] for q in r.curve], dtype=bool)
+            if r.method == "bilevel":
+                ax.plot(t, o, "--", color=c, lw=1, label="bilevel: IPOPT iterates (not equilibria)")
+                ax.plot(t[~d], o[~d], "x", color=c, ms=4)
+                ax.plot(t[d], o[d], "D", color=c, ms=6, label="bilevel: certified start / result")
+                if r.resolved:
+                    tr = [q[0] for q in r.resolved]
+                    orr = np.maximum([q[1] for q in r.resolved], 1e-12)
+                    ax.plot(tr, orr, ":", color="#777777", lw=1,
+                            label="bilevel: equilibria at IPOPT's c (post hoc)")
+            else:
+                ax.plot(t, o, "-", color=c, lw=1.2, marker="o" if r.method == "reparam" else "s",
+                        ms=3.5, label=f"{r.method}: iterates (all dispatchable)")
+        ax.set_yscale("log")
+        ax.set_xlabel("wall time [s]")
+        ax.set_ylabel("objective O [length$^2$]")
+        nodes = [r.n_nodes for r in runs if r.problem == name and r.sweep == "main"]
+        ax.set_title(f"{name} ({nodes[0]} nodes)" if nodes else name, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    handles, labels = [], []
+    for ax in axes:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.savefig(path)
+    return path
+
+
+def plot_speed_error(path: Path, problems, runs) -> Path:
+    """Solve time against fine-mesh target error, with the Pareto front."""
+    fig, axes = _grid(len(problems))
+    for ax, p in zip(axes, problems):
+        mine = [r for r in runs if r.problem == p.scene.name
+                and math.isfinite(r.t_solve) and math.isfinite(r.fine_target_error)]
+        for r in mine:
+            ax.plot(r.t_solve, r.fine_target_error, MARKERS[r.sweep], color=COLORS[r.method],
+                    ms=6, mfc=COLORS[r.method] if r.stable and r.converged else "none",
+                    label=f"{r.method}")
+        front = sorted((r for r in mine if r.pareto), key=lambda r: r.t_solve)
+        if front:
+            ax.step([r.t_solve for r in front], [r.fine_target_error for r in front], where="post",
+                    color="black", lw=1, label="Pareto front")
+        ax.set_xscale("log")
+        errs = [r.fine_target_error for r in mine if r.fine_target_error > 0]
+        if errs and max(errs) > 20 * min(errs):
+            ax.set_yscale("log")
+        from matplotlib.ticker import NullFormatter
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xlabel("solve time [s]")
+        ax.set_ylabel("RMS target error, finest mesh [length]")
+        ax.set_title(p.scene.name, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    from matplotlib.lines import Line2D
+    handles = [Line2D([], [], ls="", marker="o", color=c, label=m) for m, c in COLORS.items()]
+    handles += [Line2D([], [], ls="", marker=mk, color="grey", label=f"{s} sweep") for s, mk in MARKERS.items()]
+    handles += [Line2D([], [], ls="", marker="o", mfc="none", color="grey", label="not converged / unstable"),
+                Line2D([], [], color="black", label="Pareto front")]
+    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.savefig(path)
+    return path
+
+
+# -- report ---------------------------------------------------------------
+
+def _ratio_text(value: float, best: float) -> str:
+    if best > 0 and value > 2 * best:
+        return f"{value / best:.3g} times"
+    return f"{100 * (value - best) / max(best, 1e-300):.3g} % above"
+
+
+def _differences(problem, runs) -> list[str]:
+    """Why the main runs' objectives differ by more than 1 %."""
+    main = [r for r in runs if r.sweep == "main" and math.isfinite(r.objective)]
+    if len(main) < 2:
+        return []
+    best = min(main, key=lambda r: r.objective)
+    start = max((r.curve[0][1] for r in main if r.curve), default=0.0)
+    floor = 1e-9 * start
+    span = problem.scene.upper - problem.scene.lower
+    names = problem.scene.winch_names
+    notes = []
+    for r in main:
+        if r is best:
+            continue
+        if (r.objective - best.objective) <= 0.01 * max(best.objective, floor):
+            continue
+        dc = np.max(np.abs(r.contraction - best.contraction) / span)
+        why = []
+        if r.saddle_flagged:
+            why.append("IPOPT's KKT point was a saddle of E (flagged); the returned pose is "
+                       "Newton's stable equilibrium from it")
+        if not r.converged:
+            why.append(f"it stopped without converging ({r.status})")
+        if "all tendons slack" in r.status:
+            slack = r.status.split("winch ")[-1].split(":")[0]
+            why.append(f"it stopped with every tendon of winch {slack} slack: a zero gradient, "
+                       "so a flat stationary point rather than a minimum")
+        on_bound = [names[w] for w in range(len(names))
+                    if min(r.contraction[w] - problem.scene.lower[w],
+                           problem.scene.upper[w] - r.contraction[w]) <= 1e-6 * span[w]
+                    and abs(r.contraction[w] - best.contraction[w]) > 0.01 * span[w]]
+        if on_bound:
+            why.append(f"it stopped with {', '.join(on_bound)} on a bound where "
+                       f"{best.method} is not: a local minimum on the bound (the first "
+                       "millimetres of pull make O worse)")
+        if dc > 0.01 and not why:
+            why.append("it ended at other contractions: another local minimum")
+        elif dc <= 0.01:
+            why.append("the contractions agree within 1 % of the range: a stop short of the "
+                       "same minimum")
+        notes.append(f"- **{r.method}** ends {_ratio_text(r.objective, best.objective)} "
+                     f"**{best.method}**'s objective (O = {r.objective:.6g} against "
+                     f"{best.objective:.6g}; contractions {_contraction_text(problem, r)} against "
+                     f"{_contraction_text(problem, best)}): " + "; ".join(why) + ".")
+    return notes
+
+
+def report_text(problems, runs, settings, t_total) -> str:
+    L = ["# Control methods compared: speed against error", ""]
+    L.append("Reproduce with `plush-opt compare PROBLEM.yaml [...] --out DIR"
+             + (" --coarse`" if settings.mesh_factors == CompareSettings.coarse().mesh_factors else "`")
+             + ".")
+    L += ["", f"Settings: mesh factors {list(settings.mesh_factors)} x each problem's max_area "
+          f"(main runs on {settings.main_factor:g} x), tolerance presets {list(settings.tolerances)}, "
+          f"at most {settings.max_time} s per run. Total wall time {t_total:.1f} s.", "",
+          "Methods: **reparam** = gradient loop with reparametrised bounds (method 1), **clip** = "
+          "the same loop clipping c, **bilevel** = IPOPT on the KKT formulation, certified by Newton. "
+          "Times are solve times in seconds from the starting equilibrium; *setup* is building "
+          "IPOPT's solver (once per model, frozen set and options). *Eq. solves*: certified "
+          "equilibrium solves (bilevel: the start and the certification; IPOPT's own function "
+          "evaluations are not equilibrium solves). Objective O in length^2, errors in length units.",
+          "", "![objective against wall time](anytime.png)", "",
+          "![speed against error](speed_error.png)", ""]
+    L += ["## Summary", "", "| problem | nodes | best O | fastest within 1 % of best O | "
+          "lowest fine-mesh error on the Pareto front |", "|---|---|---|---|---|"]
+    for p in problems:
+        rs = [r for r in runs if r.problem == p.scene.name]
+        main = [r for r in rs if r.sweep == "main" and r.stable and math.isfinite(r.objective)]
+        if not main:
+            L.append(f"| {p.scene.name} | | no stable result | | |")
+            continue
+        best = min(r.objective for r in main)
+        ok = [r for r in main if r.objective <= best * 1.01 + 1e-12]
+        fast = min(ok, key=lambda r: r.t_solve)
+        front = [r for r in rs if r.pareto]
+        low = min(front, key=lambda r: r.fine_target_error) if front else None
+        L.append(f"| {p.scene.name} | {main[0].n_nodes} | {best:.6g} | {fast.method} "
+                 f"({fast.t_solve:.3f} s) | "
+                 + (f"{low.method} on {low.n_nodes} nodes ({low.sweep} sweep, {low.tolerance} "
+                    f"tolerances): {low.fine_target_error:.4g} in {low.t_solve:.3f} s |"
+                    if low else " |"))
+    L.append("")
+    for p in problems:
+        name = p.scene.name
+        rs = [r for r in runs if r.problem == name]
+        main = [r for r in rs if r.sweep == "main"]
+        L += [f"## {name}", "", f"File `{p.path.name}`; winches "
+              + ", ".join(f"{n} [{lo:g}, {hi:g}]" for n, lo, hi in
+                          zip(p.scene.winch_names, p.scene.lower, p.scene.upper))
+              + f"; start contractions {p.start.tolist()}"
+              + (f"; frozen {[n for n, f in zip(p.scene.winch_names, p.frozen) if f]}" if p.frozen.any() else "")
+              + ".", ""]
+        L += ["| method | converged | final O | RMS target error | time s | setup s | iterations "
+              "| eq. solves | bound violation | stable | contractions | status |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for r in main:
+            L.append(f"| {r.method} | {'yes' if r.converged else 'no'} | {_fmt(r.objective)} | "
+                     f"{_fmt(r.rms_target_error, '.4g')} | {r.t_solve:.3f} | {r.t_setup:.2f} | "
+                     f"{r.iterations} | {r.equilibrium_solves} | {_fmt(r.bound_violation, '.3g')} | "
+                     f"{'yes' if r.stable else 'no'}{' (saddle flagged)' if r.saddle_flagged else ''} | "
+                     f"{_contraction_text(p, r)} | {r.status} |")
+        notes = _differences(p, rs)
+        L += [""] + (["Objectives differing by more than 1 %:", ""] + notes if notes
+                     else ["The final objectives agree within 1 %."]) + [""]
+        tol_runs = [r for r in rs if r.sweep in ("main", "tolerance")]
+        if len(tol_runs) > len(main):
+            L += ["Tolerance sweep (main mesh):", "",
+                  "| method | tolerance | converged | final O | time s | iterations |",
+                  "|---|---|---|---|---|---|"]
+            for r in sorted(tol_runs, key=lambda r: (METHODS.index(r.method), TOLERANCES.index(r.tolerance))):
+                L.append(f"| {r.method} | {r.tolerance} | {'yes' if r.converged else 'no'} | "
+                         f"{_fmt(r.objective)} | {r.t_solve:.3f} | {r.iterations} |")
+            L.append("")
+        mesh_runs = [r for r in rs if r.sweep in ("main", "mesh")]
+        if len(mesh_runs) > len(main):
+            L += ["Mesh sweep (default tolerances; model error = RMS distance of the target points "
+                  "from the finest mesh's at the same contractions):", "",
+                  "| method | max_area | nodes | final O (own mesh) | model error | fine-mesh target "
+                  "error | time s | setup s |", "|---|---|---|---|---|---|---|---|"]
+            for r in sorted(mesh_runs, key=lambda r: (METHODS.index(r.method), -r.mesh_factor)):
+                L.append(f"| {r.method} | {_fmt(r.max_area, '.4g')} | {r.n_nodes} | {_fmt(r.objective)} | "
+                         f"{_fmt(r.model_error, '.3g')} | {_fmt(r.fine_target_error, '.4g')} | "
+                         f"{r.t_solve:.3f} | {r.t_setup:.2f} |")
+            L.append("")
+        front = sorted((r for r in rs if r.pareto), key=lambda r: r.t_solve)
+        if front:
+            L += ["Pareto front (solve time, fine-mesh target error): "
+                  + "; ".join(f"{r.method} {r.sweep}/{r.tolerance}/{r.n_nodes} nodes "
+                              f"({r.t_solve:.3f} s, {r.fine_target_error:.4g})" for r in front) + ".", ""]
+        bad = [r for r in rs if r.contraction is not None and (r.bound_violation > 0 or not r.stable)]
+        if bad:
+            L += ["**Warning**: returned poses outside the bounds or not stable: "
+                  + ", ".join(f"{r.method} ({r.sweep}/{r.tolerance})" for r in bad), ""]
+    return "\n".join(L) + "\n"

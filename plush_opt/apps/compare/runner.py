@@ -1,0 +1,234 @@
+"""Running the comparison: every method on every problem, mesh and
+tolerance, errors against the finest mesh, and the Pareto front."""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ...accuracy import base_area, equilibrium_at, transfer_pose
+from ...control import BilevelOptions, ControlOptions, run_control
+from ...equilibrium import EquilibriumOptions, solve_equilibrium
+from ...errors import PlushError, SceneError
+from ...problem import from_scene
+from ...scene import load_scene
+from .report import write_outputs
+from .settings import BILEVEL_TOL, GRADIENT_TOL, METHODS, CompareSettings, Run
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Problem:
+    path: Path
+    scene: object
+    levels: dict                # factor -> (Problem, t_build)
+    start: np.ndarray
+    frozen: np.ndarray
+
+
+# --------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------
+
+def _level(scene, factor):
+    t0 = time.perf_counter()
+    p = from_scene(scene, max_area=None if scene.outline is None else base_area(scene) * factor)
+    # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
+    solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
+    return p, time.perf_counter() - t0
+
+
+def _bound_violation(model, c) -> float:
+    c = np.asarray(c, dtype=np.float64)
+    return float(max(0.0, np.max(model.lower - c), np.max(c - model.upper)))
+
+
+def _run(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
+         settings: CompareSettings) -> Run:
+    runs = [_run_once(problem, method, tol, factor, sweep, settings) for _ in range(settings.repeat)]
+    best = min(runs, key=lambda r: r.t_solve if math.isfinite(r.t_solve) else math.inf)
+    best.t_setup = runs[0].t_setup
+    if best.ipopt_history is not None and settings.resolve_bilevel_iterates and sweep == "main":
+        p, _ = problem.levels[factor]
+        best.resolved = _resolve_iterates(p.model, p.targets, *best.ipopt_history)
+    return best
+
+
+def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
+              settings: CompareSettings) -> Run:
+    p, _ = problem.levels[factor]
+    mesh, model, targets = p.mesh, p.model, p.targets
+    scene = problem.scene
+    run = Run(scene.name, method, sweep, tol, factor,
+              None if scene.outline is None else base_area(scene) * factor,
+              mesh.n_nodes, mesh.n_elems, mesh=mesh)
+    try:
+        if method in ("reparam", "clip"):
+            opts = ControlOptions(bounds=method, max_time=settings.max_time, **GRADIENT_TOL[tol])
+            res = run_control(model, targets, method, problem.start, problem.frozen, options=opts)
+            eq = res.equilibrium
+            run.converged, run.status = res.converged, res.status
+            run.t_solve = res.history[-1].t_wall
+            run.iterations = res.stats.iterations
+            run.equilibrium_solves = res.stats.equilibrium_solves
+            run.curve = [(h.t_wall, h.objective, True) for h in res.history]
+        else:
+            kw = dict(BILEVEL_TOL[tol])
+            rel = kw.pop("pose_tol_rel", None)
+            if rel is not None:
+                kw["pose_tol"] = rel * mesh.diameter
+            opts = BilevelOptions(max_time=settings.max_time, **kw)
+            res = run_control(model, targets, "bilevel", problem.start, problem.frozen,
+                              options=opts, bilevel=p.bilevel_solver)
+            eq = res.equilibrium
+            info = res.stats.details
+            run.converged, run.status = res.converged, res.status
+            run.t_setup = res.stats.t_setup
+            run.t_solve = res.stats.t_wall - run.t_setup
+            run.iterations = res.stats.iterations
+            run.equilibrium_solves = res.stats.equilibrium_solves
+            pose = info.ipopt_pose
+            run.saddle_flagged = bool(pose is not None and pose["admissible"]
+                                      and not pose["positive_definite"])
+            t_start = info.start["t_wall"]
+            run.curve = ([(t_start, info.start["objective"], True)]
+                         + [(t_start + h.t_wall, h.objective, False) for h in res.history]
+                         + [(run.t_solve, targets.value(eq.x), True)])
+            run.ipopt_history = (t_start, res.history)
+        run.x = eq.x
+        run.contraction = eq.contraction.copy()
+        run.objective = float(targets.value(eq.x))
+        run.rms_target_error = float(targets.rms_error(eq.x))
+        run.bound_violation = _bound_violation(model, eq.contraction)
+        run.stable = bool(eq.converged and eq.positive_definite)
+    except PlushError as exc:
+        run.status = f"error: {exc}"
+    return run
+
+
+def _resolve_iterates(model, targets, t_start, history) -> list:
+    """Certified equilibria at IPOPT's iterate contractions (post hoc)."""
+    out = []
+    x = None
+    for h in history:
+        c = np.clip(h.contraction, model.lower, model.upper)
+        eq = equilibrium_at(model, c, x)
+        if eq.converged:
+            x = eq.x
+            out.append((t_start + h.t_wall, float(targets.value(eq.x))))
+    return out
+
+
+def _reference(problem: _Problem, runs: list, cache: dict) -> None:
+    """Model error and fine-mesh target error of each run (finest level)."""
+    finest = min(problem.levels)
+    fine, _ = problem.levels[finest]
+    fmesh, fmodel, ftargets = fine.mesh, fine.model, fine.targets
+    for run in runs:
+        if run.contraction is None:
+            continue
+        key = tuple(np.round(run.contraction, 12))
+        if run.mesh_factor == finest:
+            run.model_error = 0.0
+            run.fine_target_error = run.rms_target_error
+            cache.setdefault(key, run.x)
+            continue
+        if key not in cache:
+            x0 = transfer_pose(run.mesh, run.x, fmesh)
+            eq = equilibrium_at(fmodel, run.contraction, x0)
+            cache[key] = eq.x if eq.converged else None
+        xf = cache[key]
+        if xf is None:
+            continue
+        targets = problem.levels[run.mesh_factor][0].targets
+        d = targets.y(run.x) - ftargets.y(xf)
+        run.model_error = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
+        run.fine_target_error = float(ftargets.rms_error(xf))
+
+
+def pareto_front(points, rel: float = 1e-3) -> list[int]:
+    """Indices of the non-dominated (time, error) pairs (both minimised),
+    sorted by time. A slower point joins the front only if it lowers the
+    error by more than ``rel`` (relative): errors that differ in the last
+    digits are the same answer."""
+    pts = [(t, e, i) for i, (t, e) in enumerate(points) if math.isfinite(t) and math.isfinite(e)]
+    pts.sort()
+    front, best = [], math.inf
+    for t, e, i in pts:
+        if e < best * (1 - rel) or (best == math.inf):
+            front.append(i)
+            best = e
+    return front
+
+
+def run_compare(problem_paths, out_dir, coarse: bool = False, progress=None,
+                settings: CompareSettings | None = None) -> dict:
+    """Run the comparison on every problem and write the report.
+
+    Parameters
+    ----------
+    problem_paths : problem files (YAML) with targets.
+    out_dir : output folder (created).
+    coarse : use :meth:`CompareSettings.coarse` (a quick run).
+    progress : callable(str) called with one line per run (default: log).
+    settings : overrides ``coarse``.
+
+    Returns
+    -------
+    dict with ``runs`` (list of :class:`Run`), ``problems`` (names) and
+    ``files`` (paths written).
+    """
+    settings = settings or (CompareSettings.coarse() if coarse else CompareSettings.full())
+    say = progress or log.info
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [Path(p) for p in problem_paths]
+    if not paths:
+        raise SceneError("compare: no problem files given")
+    t_all = time.perf_counter()
+    all_runs, problems = [], []
+    for k, path in enumerate(paths):
+        scene = load_scene(path)
+        if not scene.targets:
+            raise SceneError(f"{scene.source}: targets: compare needs a control problem; the file has none")
+        names = [p.scene.name for p in problems]
+        if scene.name in names:
+            raise SceneError(f"{scene.source}: name: {scene.name!r} is used by another problem file")
+        factors = settings.mesh_factors if scene.outline is not None else (settings.main_factor,)
+        say(f"compare: [{k + 1}/{len(paths)}] {scene.name}: meshing {len(factors)} resolution(s)")
+        levels = {f: _level(scene, f) for f in factors}
+        problem = _Problem(path, scene, levels, scene.contraction.copy(), scene.frozen.copy())
+        problems.append(problem)
+        plan = [(m, "default", settings.main_factor, "main") for m in METHODS]
+        plan += [(m, t, settings.main_factor, "tolerance") for m in METHODS
+                 for t in settings.tolerances if t != "default"]
+        plan += [(m, "default", f, "mesh") for m in METHODS for f in factors
+                 if f != settings.main_factor]
+        runs = []
+        for j, (method, tol, factor, sweep) in enumerate(plan):
+            run = _run(problem, method, tol, factor, sweep, settings)
+            runs.append(run)
+            say(f"compare: {scene.name} [{j + 1}/{len(plan)}] {method:8s} {sweep:9s} tol={tol:7s} "
+                f"nodes={run.n_nodes:5d}  O={run.objective:.6g}  t={run.t_solve:.3f} s"
+                f"{'' if run.converged else '  (not converged)'}")
+        _reference(problem, runs, {})
+        # only poses a robot may be sent to belong on the front
+        front = pareto_front([(r.t_solve, r.fine_target_error) if r.stable and r.bound_violation == 0
+                              else (float("nan"), float("nan")) for r in runs])
+        for i in front:
+            runs[i].pareto = True
+        all_runs += runs
+    files = write_outputs(out, problems, all_runs, settings, time.perf_counter() - t_all)
+    say(f"compare: wrote {', '.join(str(f) for f in files)}")
+    return {"runs": all_runs, "problems": [p.scene.name for p in problems], "files": files}
+
+
+# --------------------------------------------------------------------------
+# Output
+# --------------------------------------------------------------------------

@@ -1,0 +1,105 @@
+"""What the comparison runs: methods, tolerance presets, mesh factors, and
+the record of one run."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+METHODS = ("reparam", "clip", "bilevel")
+TOLERANCES = ("loose", "default", "tight")
+
+#: Tolerance presets per method family (options fields).
+GRADIENT_TOL = {"loose": {"ftol": 1e-3, "gtol": 1e-3}, "default": {},
+                "tight": {"ftol": 1e-12, "gtol": 1e-10}}
+BILEVEL_TOL = {"loose": {"tol": 1e-4, "acceptable_tol": 1e-3, "constr_viol_tol": 1e-6,
+                         "residual_tol": 1e-4, "pose_tol_rel": 1e-3},
+               "default": {}, "tight": {"tol": 1e-10, "constr_viol_tol": 1e-12}}
+
+
+@dataclass(frozen=True)
+class CompareSettings:
+    """What :func:`run_compare` runs.
+
+    Attributes
+    ----------
+    mesh_factors : max_area multipliers of the problem's own mesh, coarse to
+        fine; must contain ``main_factor``.
+    main_factor : the mesh of the main table and the tolerance sweep.
+    tolerances : tolerance presets swept on the main mesh (names of
+        GRADIENT_TOL / BILEVEL_TOL).
+    max_time : seconds per run at most (None: no limit).
+    resolve_bilevel_iterates : after the main bilevel run, solve the
+        equilibrium at each IPOPT iterate's contractions (not timed) to show
+        what sending IPOPT's iterates to the robot would do.
+    repeat : run each case this many times and keep the fastest (wall
+        times of runs this short are noisy on a shared machine); setup is
+        taken from the first run, which pays it.
+    """
+
+    mesh_factors: tuple = (4.0, 1.0, 0.25)
+    main_factor: float = 1.0
+    tolerances: tuple = TOLERANCES
+    max_time: float | None = 120.0
+    resolve_bilevel_iterates: bool = True
+    repeat: int = 3
+
+    def __post_init__(self):
+        if not (isinstance(self.repeat, int) and self.repeat >= 1):
+            raise ValueError(f"repeat: expected an integer >= 1, got {self.repeat!r}")
+        f = tuple(float(v) for v in self.mesh_factors)
+        if not f or any(b >= a for a, b in zip(f, f[1:])) or any(v <= 0 for v in f):
+            raise ValueError(f"mesh_factors: expected decreasing numbers > 0, got {self.mesh_factors!r}")
+        if float(self.main_factor) not in f:
+            raise ValueError(f"main_factor: {self.main_factor!r} is not one of mesh_factors {f}")
+        bad = [t for t in self.tolerances if t not in TOLERANCES]
+        if bad or "default" not in self.tolerances:
+            raise ValueError(f"tolerances: expected a subset of {TOLERANCES} with 'default', "
+                             f"got {self.tolerances!r}")
+        object.__setattr__(self, "mesh_factors", f)
+
+    @classmethod
+    def full(cls) -> "CompareSettings":
+        return cls()
+
+    @classmethod
+    def coarse(cls) -> "CompareSettings":
+        """A quick smoke run: coarser meshes, two tolerance presets."""
+        return cls(mesh_factors=(8.0, 4.0, 2.0), main_factor=4.0, tolerances=("loose", "default"),
+                   max_time=30.0, resolve_bilevel_iterates=False, repeat=1)
+
+
+@dataclass
+class Run:
+    """One method on one problem, mesh and tolerance."""
+
+    problem: str
+    method: str
+    sweep: str                 # 'main', 'tolerance' or 'mesh'
+    tolerance: str
+    mesh_factor: float
+    max_area: float | None
+    n_nodes: int
+    n_elems: int
+    converged: bool = False
+    status: str = ""
+    objective: float = math.nan
+    rms_target_error: float = math.nan
+    contraction: np.ndarray | None = None
+    t_solve: float = math.nan
+    t_setup: float = 0.0
+    iterations: int = 0
+    equilibrium_solves: int = 0
+    bound_violation: float = math.nan
+    stable: bool = False
+    saddle_flagged: bool = False
+    model_error: float = math.nan
+    fine_target_error: float = math.nan
+    pareto: bool = False
+    curve: list = field(default_factory=list)      # (t, O, dispatchable)
+    resolved: list = field(default_factory=list)   # bilevel iterates re-solved: (t, O)
+    ipopt_history: tuple | None = None              # (t_start, IPOPT iterations)
+    x: np.ndarray | None = None
+    mesh: object = None
