@@ -34,7 +34,8 @@ from ..objective import Targets
 from ..sensitivity import objective_gradient, state_sensitivity
 from .bounds import bounds_strategy
 from .result import ControlIterate, ControlResult, ControlStats
-from .slack import slack_winches, take_up
+from .restart import restart_move
+from .slack import slack_winches
 
 log = logging.getLogger(__name__)
 
@@ -282,7 +283,7 @@ class Controller:
                 yield self._iterate(self._eq, self._grad)
                 self._objective_at_start = self.history[-1].objective
             last = self.history[-1]
-            reason = self._stop_reason(last, stall, steps)
+            reason = _stop_reason(self, last, stall, steps)
             step = self._step(last) if reason is None else None
             if step is None:
                 if reason is not None:
@@ -320,65 +321,9 @@ class Controller:
         return f"; winch {names}: all tendons slack (zero gradient)"
 
     def _restart(self, last: Iterate) -> Iterate | None:
-        """Where the loop would stop, look a little further before giving up.
-
-        Two situations fool a local method here:
-
-        * a winch whose tendons are all slack has a zero gradient: nothing
-          tells the loop whether pulling would help;
-        * a winch held at a bound by its gradient may only see the first
-          millimetres of pull, which engage the "wrong" tendon first (one
-          slack at rest, say), although pulling further helps a lot.
-
-        For those winches, the slack is reeled in (up to the point where the
-        tightest tendon just enters the smoothing zone, which leaves the pose
-        unchanged); and, when the loop has not even halved O since the
-        targets were set (the trap shows as a loop stuck near its start), a
-        few probes go inwards by 5, 15 and 40 % of the range, each a
-        certified equilibrium taken only if it lowers O by 0.1 %. Each winch
-        gets this once per set of targets.
-        """
-        names = self.model.winch_names
-        slack = self._slack_winches(last)
-        # the bound trap shows as a loop stuck near where it started; a loop
-        # that has already made most of its progress is at a real optimum
-        stuck = last.objective > self.options.stuck_fraction * self._objective_at_start
-        held = [names.index(n) for n in last.active_bounds] if stuck else []
-        cand = [w for w in dict.fromkeys(slack + held) if w not in self._restarted]
-        if not cand:
-            return None
-        lower, upper = self.model.lower, self.model.upper
-        span = upper - lower
-        for w in cand:
-            # a winch counts as tried once its moves are spent or one is
-            # taken; the others keep their turn for the next stop
-            self._restarted.add(w)
-            for frac in (0.0, *self.options.probe_fractions):
-                c = last.contraction.copy()
-                if w in slack:
-                    c[w] = take_up(self.model, last.x, last.contraction, w)
-                    inward = 1.0
-                elif frac == 0.0:
-                    continue
-                else:
-                    inward = 1.0 if c[w] <= lower[w] + 0.5 * span[w] else -1.0
-                c[w] = float(np.clip(c[w] + inward * frac * span[w], lower[w], upper[w]))
-                if c[w] == last.contraction[w]:
-                    continue
-                eq = self._solve(c, last.x)
-                if not eq.converged:
-                    continue
-                value = self.targets.value(eq.x)
-                if frac == 0.0:
-                    # slack reeled in: keep it if pulling now helps
-                    grad, _, _ = self._gradient(eq, False)
-                    if grad[w] < 0 and value <= last.objective * (1 + 1e-9):
-                        log.info("took up the slack of %s", names[w])
-                        return self._jump(c, eq)
-                elif value < last.objective * (1 - self.options.probe_gain):
-                    log.info("probe: moving %s to %.4g lowered O", names[w], c[w])
-                    return self._jump(c, eq)
-        return None
+        """Where the loop would stop, look a little further (see :mod:`.restart`)."""
+        found = restart_move(self, last)
+        return None if found is None else self._jump(*found)
 
     def _jump(self, c, eq) -> Iterate:
         """Continue the loop from a certified equilibrium found off the line search."""
@@ -391,77 +336,11 @@ class Controller:
         self.converged = False
         return self._iterate(eq, self._grad)
 
-    def _stop_reason(self, last: Iterate, stall: int, steps: int):
-        opts = self.options
-        names = self.model.winch_names
-        free = ~self.frozen
-        bound_note = (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else "")
-        if self.targets.n_targets == 0:
-            return True, "targets_reached", "no targets"
-        if not free.any():
-            return True, "stationary", "every winch is frozen"
-        if last.objective <= opts.objective_floor:
-            return True, "targets_reached", "targets reached" + bound_note
-        proj = last.gradient.copy()
-        proj[[names.index(n) for n in last.active_bounds]] = 0.0
-        span = float(np.mean(self.model.upper - self.model.lower))
-        if np.all(last.gradient[free] == 0.0):
-            slack = [names[i] for i in np.flatnonzero(free)]
-            return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
-                           f"{', '.join(slack)} slack)")
-        if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, opts.objective_floor):
-            return True, "stationary", "stationary: projected gradient below tolerance" + bound_note
-        if stall >= opts.patience:
-            return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + bound_note
-        if steps >= opts.max_iterations:
-            return False, "max_iterations", f"iteration limit ({opts.max_iterations}) reached" + bound_note
-        if opts.max_time is not None and last.t_wall >= opts.max_time:
-            return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
-        return None
-
-    def _direction(self, last: Iterate, mu: float) -> np.ndarray:
-        """A step on xi (or on c for clipping) for the free winches.
-
-        Winches sitting on a bound whose step would push them further out
-        are held (projected Gauss-Newton): otherwise a winch that cannot
-        move would still take the length of the step from the others.
-        """
-        slope = self.bounds.slope(self.xi, self.options.slope_floor)
-        g = last.gradient * slope
-        lo_edge, hi_edge = self.bounds.edges()
-        span = self.model.upper - self.model.lower
-        at_lower = self.xi <= lo_edge + 1e-12 * span
-        at_upper = self.xi >= hi_edge - 1e-12 * span
-        held = self.frozen.copy()
-        for _ in range(self.model.n_winches + 1):
-            step = np.zeros_like(self.xi)
-            move = ~held
-            if not move.any():
-                break
-            if self.options.direction == "gauss-newton":
-                J = self._J[:, move] * slope[move][None, :]
-                A = J.T @ J
-                # Levenberg damping on the scale of the largest curvature, so a
-                # winch with a tiny column cannot take a huge step
-                damp = mu * max(float(np.max(np.diag(A))), 1e-300)
-                step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
-            else:
-                if self._bb_step is None:
-                    self._bb_step = self.options.initial_gradient_step * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
-                step[move] = -self._bb_step * g[move]
-            outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
-            if not outward.any():
-                break
-            held |= outward
-        limit = self.options.max_step * span
-        ratio = np.max(np.abs(step) / limit)
-        return step / ratio if ratio > 1 else step
-
     def _step(self, last: Iterate) -> Iterate | None:
         opts = self.options
         gn = opts.direction == "gauss-newton"
         for attempt in range(opts.max_backtracks):
-            step = self._direction(last, self._mu)
+            step = _direction(self, last, self._mu)
             if not gn:
                 step = step * 0.5 ** attempt
             xi_t = self.xi + step
@@ -544,3 +423,72 @@ def solve_control(model: Model, targets: Targets, contraction=None, frozen=None,
                   options: ControlOptions | None = None) -> ControlResult:
     """Run the gradient loop to the end (see :class:`Controller`)."""
     return Controller(model, targets, contraction, frozen, x0, options).result()
+
+
+def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
+    """(converged, reason, status) when the loop should stop at ``last``, else None."""
+    opts = ctl.options
+    names = ctl.model.winch_names
+    free = ~ctl.frozen
+    bound_note = (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else "")
+    if ctl.targets.n_targets == 0:
+        return True, "targets_reached", "no targets"
+    if not free.any():
+        return True, "stationary", "every winch is frozen"
+    if last.objective <= opts.objective_floor:
+        return True, "targets_reached", "targets reached" + bound_note
+    proj = last.gradient.copy()
+    proj[[names.index(n) for n in last.active_bounds]] = 0.0
+    span = float(np.mean(ctl.model.upper - ctl.model.lower))
+    if np.all(last.gradient[free] == 0.0):
+        slack = [names[i] for i in np.flatnonzero(free)]
+        return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
+                       f"{', '.join(slack)} slack)")
+    if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, opts.objective_floor):
+        return True, "stationary", "stationary: projected gradient below tolerance" + bound_note
+    if stall >= opts.patience:
+        return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + bound_note
+    if steps >= opts.max_iterations:
+        return False, "max_iterations", f"iteration limit ({opts.max_iterations}) reached" + bound_note
+    if opts.max_time is not None and last.t_wall >= opts.max_time:
+        return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
+    return None
+
+
+def _direction(ctl: "Controller", last: Iterate, mu: float) -> np.ndarray:
+    """A step on xi (or on c for clipping) for the free winches.
+
+    Winches sitting on a bound whose step would push them further out
+    are held (projected Gauss-Newton): otherwise a winch that cannot
+    move would still take the length of the step from the others.
+    """
+    slope = ctl.bounds.slope(ctl.xi, ctl.options.slope_floor)
+    g = last.gradient * slope
+    lo_edge, hi_edge = ctl.bounds.edges()
+    span = ctl.model.upper - ctl.model.lower
+    at_lower = ctl.xi <= lo_edge + 1e-12 * span
+    at_upper = ctl.xi >= hi_edge - 1e-12 * span
+    held = ctl.frozen.copy()
+    for _ in range(ctl.model.n_winches + 1):
+        step = np.zeros_like(ctl.xi)
+        move = ~held
+        if not move.any():
+            break
+        if ctl.options.direction == "gauss-newton":
+            J = ctl._J[:, move] * slope[move][None, :]
+            A = J.T @ J
+            # Levenberg damping on the scale of the largest curvature, so a
+            # winch with a tiny column cannot take a huge step
+            damp = mu * max(float(np.max(np.diag(A))), 1e-300)
+            step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
+        else:
+            if ctl._bb_step is None:
+                ctl._bb_step = ctl.options.initial_gradient_step * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
+            step[move] = -ctl._bb_step * g[move]
+        outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
+        if not outward.any():
+            break
+        held |= outward
+    limit = ctl.options.max_step * span
+    ratio = np.max(np.abs(step) / limit)
+    return step / ratio if ratio > 1 else step

@@ -1,0 +1,56 @@
+"""The shape of the package: one-way imports down the layers of
+docs/architecture.md, and pieces small enough to read."""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+
+from shipped import ROOT
+
+spec = importlib.util.spec_from_file_location("import_graph", ROOT / "tools" / "import_graph.py")
+import_graph = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(import_graph)
+
+MAX_MODULE_LINES = 600
+MAX_CLASS_LINES = 300
+MAX_FUNCTION_LINES = 80
+# Larger pieces, each with the reason it stays whole.
+EXCEPTIONS = {
+    # the index maps and both evaluation paths (CasADi expression, compiled
+    # kernels) of one energy; split, each half would reach into the other
+    "plush_opt/model.py:Model",
+    # one Newton iteration with its line search, regularisation and saddle
+    # escape reads best as one loop
+    "plush_opt/equilibrium.py:_solve_newton",
+    # Triangle's switches, forced points and holes, then the checks of what
+    # it returned, in the order they happen
+    "plush_opt/mesh.py:build_mesh",
+    # the accuracy estimate is being replaced (P2 elements, an estimate with
+    # a convergence rate); not worth splitting the one it replaces
+    "plush_opt/accuracy.py:choose_mesh",
+    # the report's sections, one after the other, as they appear in report.md
+    "plush_opt/apps/compare/report.py:report_text",
+}
+
+
+def test_imports_point_down_the_layers_only():
+    assert import_graph.violations() == []
+
+
+def _pieces():
+    for path in sorted((ROOT / "plush_opt").rglob("*.py")):
+        rel = path.relative_to(ROOT).as_posix()
+        text = path.read_text()
+        yield rel, "module", text.count("\n"), MAX_MODULE_LINES
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ClassDef):
+                yield f"{rel}:{node.name}", "class", node.end_lineno - node.lineno + 1, MAX_CLASS_LINES
+            elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                yield f"{rel}:{node.name}", "function", node.end_lineno - node.lineno + 1, MAX_FUNCTION_LINES
+
+
+def test_modules_classes_and_functions_stay_small():
+    big = [f"{name} ({kind}, {n} lines > {limit})" for name, kind, n, limit in _pieces()
+           if n > limit and name not in EXCEPTIONS]
+    assert big == [], "\n".join(big)
