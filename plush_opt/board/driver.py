@@ -28,6 +28,7 @@ import serial
 
 from plush_opt.board import protocol as P
 from plush_opt.board.calibration import BoardCalibration
+from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.errors import HardwareError
 
 log = logging.getLogger(__name__)
@@ -105,7 +106,7 @@ class Driver:
         if not P.MIN_WATCHDOG_MS <= self.watchdog_ms <= P.MAX_WATCHDOG_MS:
             raise ValueError(f"watchdog_ms must be in {P.MIN_WATCHDOG_MS}..{P.MAX_WATCHDOG_MS}, "
                              f"got {self.watchdog_ms}")
-        self._bounds = self._merge_bounds(bounds)
+        self._allowed = allowed_ranges(calibration, bounds)
         self._serial_factory = serial_factory
         self._ser = None
         self._rx = bytearray()
@@ -113,47 +114,10 @@ class Driver:
         self._recent = collections.deque(maxlen=64)  # sequence numbers given up on
         self.info: P.BoardInfo | None = None
 
-    # ------------------------------------------------------------ bounds --
-    def _merge_bounds(self, bounds) -> dict[str, tuple[float, float]]:
-        """Per calibrated winch: the intersection of calibration limits and scene bounds."""
-        merged = {w.name: w.limits for w in self.calibration.winches}
-        for name, (lo, hi) in (bounds or {}).items():
-            if name not in merged:
-                raise HardwareError(f"{self.calibration.source}: scene winch {name!r} is not calibrated; "
-                                    f"calibrated winches: {', '.join(merged)}")
-            c_lo, c_hi = merged[name]
-            merged[name] = (max(c_lo, float(lo)), min(c_hi, float(hi)))
-        return merged
-
     @property
-    def bounds(self) -> dict[str, tuple[float, float]]:
-        """Allowed contraction per winch (mm): calibration limits within scene bounds."""
-        return dict(self._bounds)
-
-    def set_scene_bounds(self, bounds: Mapping[str, tuple[float, float]]) -> None:
-        """Also refuse contractions outside these scene winch bounds (mm)."""
-        self._bounds = self._merge_bounds(bounds)
-
-    def check_contractions(self, contraction: Mapping[str, float]) -> dict[str, int]:
-        """Validate ``{winch: mm}`` and convert to ``{winch: ticks}``; sends nothing.
-
-        Raises :class:`HardwareError` naming the winch, the value and the
-        allowed range if a winch is unknown or a value is outside it.
-        """
-        ticks = {}
-        for name, value in contraction.items():
-            if name not in self._bounds:
-                raise HardwareError(f"refused: no winch {name!r} in calibration {self.calibration.source}; "
-                                    f"calibrated winches: {', '.join(self._bounds)}")
-            lo, hi = self._bounds[name]
-            c = float(value)
-            # Tolerate float noise from a solver at an active bound, nothing more.
-            tol = 1e-9 * max(1.0, abs(lo), abs(hi))
-            if not (math.isfinite(c) and lo - tol <= c <= hi + tol):
-                raise HardwareError(f"refused: contraction {c!r} for winch {name!r} outside its allowed range "
-                                    f"[{lo}, {hi}] (calibration limits within scene bounds); nothing sent")
-            ticks[name] = self.calibration.winch(name).to_ticks(min(max(c, lo), hi))
-        return ticks
+    def allowed(self) -> dict[str, tuple[float, float]]:
+        """Allowed contraction per calibrated winch (mm): calibration limits within scene bounds."""
+        return dict(self._allowed)
 
     # ---------------------------------------------------------- open/close --
     @property
@@ -233,9 +197,7 @@ class Driver:
         if not self.is_open:
             return
         try:
-            with _sigint_deferred(reraise=True):
-                self._end_partial_line()
-                self.stop()
+            self.halt()
         except HardwareError as e:
             log.error("%s: could not stop the board before closing: %s", self.port, e)
         finally:
@@ -296,6 +258,13 @@ class Driver:
         """Stop all motors: hold where they are, drives braked."""
         self._transact("STOP")
 
+    def halt(self) -> None:
+        """Stop all motors like :meth:`stop`, but end a partial line first
+        and hold back Ctrl-C until the board has answered (re-raised then)."""
+        with _sigint_deferred(reraise=True):
+            self._end_partial_line()
+            self.stop()
+
     def zero(self, name: str | None = None) -> None:
         """Declare the current position of one winch (or all) contraction 0."""
         if name is None:
@@ -322,11 +291,15 @@ class Driver:
     def set_contractions(self, contraction: Mapping[str, float]) -> dict[str, int]:
         """Command contractions ``{winch: mm}``; other winches keep their targets.
 
-        Validates every value first (see :meth:`check_contractions`), then
-        sends one ``SET`` or ``SETALL``, so the winches start together.
-        Returns the commanded ``{winch: ticks}``.
+        Validates every value first (see
+        :func:`~plush_opt.board.limits.check_contractions`), then sends one
+        ``SET`` or ``SETALL``, so the winches start together. Returns the
+        commanded ``{winch: ticks}``.
         """
-        ticks = self.check_contractions(contraction)
+        try:
+            ticks = check_contractions(contraction, self._allowed, self.calibration)
+        except HardwareError as e:
+            raise HardwareError(f"{self.port}: refused, nothing sent: {e}") from None
         if not ticks:
             return ticks
         if len(ticks) == 1:
