@@ -41,7 +41,8 @@ def test_set_and_read_back_in_mm(emulator, calibration):
 def test_refuses_out_of_bounds_before_sending(emulator, calibration):
     with Driver(emulator.port, calibration, bounds={"grip": (0.0, 20.0)}) as board:
         lines = emulator.read_state()["lines"]
-        with pytest.raises(HardwareError, match=r"refused, nothing sent: contraction 20\.5 for winch 'grip' is outside .*\[0, 20\]"):
+        refused = r"refused, nothing sent: contraction 20\.5 for winch 'grip' is outside .*\[0, 20\]"
+        with pytest.raises(HardwareError, match=refused):
             board.set_contractions({"left": 1.0, "grip": 20.5})      # scene bound
         with pytest.raises(HardwareError, match=r"winch 'left' is outside .*\[0, 25\]"):
             board.set_contractions({"left": 25.5})                   # calibration limit
