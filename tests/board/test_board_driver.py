@@ -52,6 +52,9 @@ def test_refuses_out_of_bounds_before_sending(emulator, calibration):
             board.set_contractions({"left": float("nan")})
         with pytest.raises(HardwareError, match=r"no winch 'thumb'"):
             board.set_contractions({"thumb": 1.0})
+        for value in ("10", True, None):
+            with pytest.raises(HardwareError, match=rf"contraction {value!r} for winch 'left' is not a finite number"):
+                board.set_contractions({"left": value})
         assert emulator.read_state()["lines"] == lines  # nothing reached the board
         board.set_contractions({"grip": 20.0 + 1e-12})   # float noise at a bound is not a violation
 

@@ -300,3 +300,29 @@ def test_cli_run_on_the_emulator_and_dry(tmp_path, emu_binary, capsys):
     assert seen == [tmp_path / "problem.yaml"] * 3
     err = capsys.readouterr().err
     assert "completed on emulator" in err and "completed on dry run" in err
+
+
+# ------------------------------------------------ a board that goes silent --
+
+def _answers_all_but_moves(line):
+    """A fake three-axis board that answers everything except SET/SETALL."""
+    seq, command = line.split()[:2]
+    if command in ("SET", "SETALL"):
+        return None
+    if command == "ID":
+        return [f"{seq} OK board=fake fw=0 proto=1 winches=3\n".encode()]
+    if command == "GET":
+        return [f"{seq} OK pos=0,0,0 tgt=0,0,0 mov=0,0,0 en=0,0,0 wd=0\n".encode()]
+    return [f"{seq} OK\n".encode()]
+
+
+def test_the_command_line_is_logged_before_the_board_answers(tmp_path, fake_board):
+    board = fake_board(_answers_all_but_moves)
+    with pytest.raises(HardwareError, match=r"no reply from the board to SETALL after 2 attempt\(s\)"):
+        run_script(write_script(tmp_path, [{"set": {"left": 2.0}}]), port=board.port, planner=FakePlanner(),
+                   log_path=tmp_path / "log.jsonl")
+    log = read_log(tmp_path / "log.jsonl")
+    assert [r["event"] for r in log] == ["start", "command", "end"]
+    assert log[1]["commanded"]["left"] == 2.0 and log[1]["acknowledged"] is None
+    assert log[-1]["status"].startswith("error: ") and log[-1]["commands"] == 0
+    assert any(line.split()[1] == "STOP" for line in board.received[-2:])   # stopped after all
