@@ -35,6 +35,7 @@ log = logging.getLogger(__name__)
 
 _READ_SLICE = 0.02   # s: pyserial read timeout; deadlines are kept by us
 _MAX_PENDING = 4096  # bytes without a newline: noise, dropped
+_RECENT = 64         # abandoned sequence numbers remembered: far more than retries within one wait
 
 
 @contextlib.contextmanager
@@ -108,10 +109,7 @@ class Driver:
                              f"got {self.watchdog_ms}")
         self._allowed = allowed_ranges(calibration, bounds)
         self._serial_factory = serial_factory
-        self._ser = None
-        self._rx = bytearray()
-        self._seq = 0
-        self._recent = collections.deque(maxlen=64)  # sequence numbers given up on
+        self._io = _Transport(self.port, self.baudrate, self.timeout, self.retries)
         self.info: P.BoardInfo | None = None
 
     @property
@@ -122,7 +120,7 @@ class Driver:
     # ---------------------------------------------------------- open/close --
     @property
     def is_open(self) -> bool:
-        return self._ser is not None
+        return self._io.ser is not None
 
     @property
     def n_axes(self) -> int:
@@ -142,14 +140,12 @@ class Driver:
             return self
         factory = self._serial_factory or serial.Serial
         try:
-            self._ser = factory(port=self.port, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
-                                timeout=_READ_SLICE, write_timeout=self.timeout, exclusive=True)
+            ser = factory(port=self.port, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
+                          timeout=_READ_SLICE, write_timeout=self.timeout, exclusive=True)
         except Exception as e:  # serial.SerialException, OSError, ValueError
-            self._ser = None
             raise HardwareError(f"cannot open serial port {self.port}: {e}") from None
         try:
-            self._ser.reset_input_buffer()  # replies a previous session never read
-            self._rx.clear()
+            self._io.attach(ser)
             self._handshake()
         except BaseException:
             self._close_port()
@@ -184,7 +180,7 @@ class Driver:
                  info.winches, cal.name)
 
     def _close_port(self):
-        ser, self._ser = self._ser, None
+        ser, self._io.ser = self._io.ser, None
         self.info = None
         if ser is not None:
             try:
@@ -241,7 +237,7 @@ class Driver:
         otherwise glue STOP onto the fragment and refuse the whole line. The
         board ignores blank lines."""
         try:
-            self._write(b"\n")
+            self._io.write(b"\n")
         except HardwareError as e:
             log.warning("%s: could not end a partial line: %s", self.port, e)
 
@@ -312,14 +308,38 @@ class Driver:
             self._transact("SETALL", *args)
         return ticks
 
-    # ------------------------------------------------------------ transport --
+    def _transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
+        return self._io.transact(command, *args, patience=patience)
+
+
+class _Transport:
+    """Command/reply exchanges on one serial line (hw/PROTOCOL.md).
+
+    Keeps the sequence numbers and the receive buffer across reopenings of
+    the port, so that a late reply to a command given up on is recognised.
+    ``ser`` is the open pyserial port, or None while closed.
+    """
+
+    def __init__(self, port: str, baudrate: int, timeout: float, retries: int):
+        self.port, self.baudrate, self.timeout, self.retries = port, baudrate, timeout, retries
+        self.ser = None
+        self._rx = bytearray()
+        self._seq = 0
+        self._recent = collections.deque(maxlen=_RECENT)  # sequence numbers given up on
+
+    def attach(self, ser) -> None:
+        """Use this freshly opened port; replies a previous session never read are dropped."""
+        self.ser = ser
+        ser.reset_input_buffer()
+        self._rx.clear()
+
     def _next_seq(self) -> int:
         self._seq = (self._seq + 1) % (P.MAX_SEQ + 1)
         return self._seq
 
-    def _write(self, data: bytes):
+    def write(self, data: bytes):
         try:
-            self._ser.write(data)
+            self.ser.write(data)
         except Exception as e:  # SerialTimeoutException, SerialException, OSError
             raise HardwareError(f"{self.port}: cannot write to the board: {e}") from None
 
@@ -337,12 +357,12 @@ class Driver:
             if time.monotonic() >= deadline:
                 return None
             try:
-                chunk = self._ser.read(max(1, self._ser.in_waiting))
+                chunk = self.ser.read(max(1, self.ser.in_waiting))
             except Exception as e:  # SerialException, OSError: unplugged, port gone
                 raise HardwareError(f"{self.port}: cannot read from the board: {e}") from None
             self._rx += chunk
 
-    def _transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
+    def transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
         """Send a command, return its OK reply.
 
         Retries after a timeout with a new sequence number, ``retries``
@@ -350,7 +370,7 @@ class Driver:
         number of an abandoned attempt are dropped. An ERR reply raises at
         once (a refusal is not a transport problem).
         """
-        if self._ser is None:
+        if self.ser is None:
             raise HardwareError(f"{self.port}: board not open")
         attempts = self.retries + 1
         if patience > 0:
@@ -360,7 +380,7 @@ class Driver:
             seq = self._next_seq()
             line = P.format_command(seq, command, *args)
             log.debug("%s > %s", self.port, line.decode().rstrip())
-            self._write(line)
+            self.write(line)
             # remembered at once: if this wait is interrupted (Ctrl-C), the
             # late reply must not look like a stranger's to the next command
             self._recent.append(seq)
