@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from plush_opt.planner import ControlPlanner
+from plush_opt.apps.planner import ControlPlanner
 from shipped import ROOT
 
 

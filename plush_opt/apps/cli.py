@@ -264,7 +264,7 @@ def _demo_run(script: Path, out: Path) -> None:
 # --------------------------------------------------------------------------
 
 def _add_run(sub):
-    from ..runs import add_run_arguments
+    from .runs import add_run_arguments
     p = sub.add_parser("run", help="play a run script on the winch board (or its emulator)",
                        description="Solve each step of a run script and stream the contractions "
                        "to the winch board. See docs/hardware.md.")
@@ -273,8 +273,8 @@ def _add_run(sub):
 
 
 def cmd_run(args) -> int:
-    from ..planner import ControlPlanner
-    from ..runs import cli_run
+    from .planner import ControlPlanner
+    from .runs import cli_run
     return cli_run(args, ControlPlanner)
 
 

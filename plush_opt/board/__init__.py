@@ -1,17 +1,24 @@
-"""The winch board: protocol, calibration, serial driver and emulator.
+"""The winch board: protocol, calibration, limits, serial driver, simulators
+and the links the apps hold.
 
-Only this package (and :mod:`plush_opt.runs`, which uses it) talks to
-hardware; nothing upstream imports it. See hw/PROTOCOL.md and
-docs/hardware.md.
+Only this package talks to hardware (serial ports, simulator processes);
+nothing upstream imports it. Apps reach a board only through a
+:class:`BoardLink` made by :func:`open_board` (a serial board, a simulator,
+or a dry run), never through a :class:`Driver` or a simulator of their own.
+See hw/PROTOCOL.md and docs/hardware.md.
 """
 
 from plush_opt.board.calibration import (BoardCalibration, PortSettings, WinchCalibration,
                                          calibration_from_dict, load_calibration)
 from plush_opt.board.driver import Driver
 from plush_opt.board.emulator import Emulator, emulator_binary
+from plush_opt.board.limits import allowed_ranges, check_contractions
+from plush_opt.board.link import BoardLink
+from plush_opt.board.links import DryRunLink, SerialLink, SimulatorLink, open_board
 from plush_opt.board.protocol import BoardInfo, BoardState
 
 __all__ = [
-    "BoardCalibration", "BoardInfo", "BoardState", "Driver", "Emulator", "PortSettings", "WinchCalibration",
-    "calibration_from_dict", "emulator_binary", "load_calibration",
+    "BoardCalibration", "BoardInfo", "BoardLink", "BoardState", "Driver", "DryRunLink", "Emulator", "PortSettings",
+    "SerialLink", "SimulatorLink", "WinchCalibration", "allowed_ranges", "calibration_from_dict",
+    "check_contractions", "emulator_binary", "load_calibration", "open_board",
 ]

@@ -28,12 +28,14 @@ import serial
 
 from plush_opt.board import protocol as P
 from plush_opt.board.calibration import BoardCalibration
+from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.errors import HardwareError
 
 log = logging.getLogger(__name__)
 
 _READ_SLICE = 0.02   # s: pyserial read timeout; deadlines are kept by us
 _MAX_PENDING = 4096  # bytes without a newline: noise, dropped
+_RECENT = 64         # abandoned sequence numbers remembered: far more than retries within one wait
 
 
 @contextlib.contextmanager
@@ -105,60 +107,20 @@ class Driver:
         if not P.MIN_WATCHDOG_MS <= self.watchdog_ms <= P.MAX_WATCHDOG_MS:
             raise ValueError(f"watchdog_ms must be in {P.MIN_WATCHDOG_MS}..{P.MAX_WATCHDOG_MS}, "
                              f"got {self.watchdog_ms}")
-        self._bounds = self._merge_bounds(bounds)
+        self._allowed = allowed_ranges(calibration, bounds)
         self._serial_factory = serial_factory
-        self._ser = None
-        self._rx = bytearray()
-        self._seq = 0
-        self._recent = collections.deque(maxlen=64)  # sequence numbers given up on
+        self._io = _Transport(self.port, self.baudrate, self.timeout, self.retries)
         self.info: P.BoardInfo | None = None
 
-    # ------------------------------------------------------------ bounds --
-    def _merge_bounds(self, bounds) -> dict[str, tuple[float, float]]:
-        """Per calibrated winch: the intersection of calibration limits and scene bounds."""
-        merged = {w.name: w.limits for w in self.calibration.winches}
-        for name, (lo, hi) in (bounds or {}).items():
-            if name not in merged:
-                raise HardwareError(f"{self.calibration.source}: scene winch {name!r} is not calibrated; "
-                                    f"calibrated winches: {', '.join(merged)}")
-            c_lo, c_hi = merged[name]
-            merged[name] = (max(c_lo, float(lo)), min(c_hi, float(hi)))
-        return merged
-
     @property
-    def bounds(self) -> dict[str, tuple[float, float]]:
-        """Allowed contraction per winch (mm): calibration limits within scene bounds."""
-        return dict(self._bounds)
-
-    def set_scene_bounds(self, bounds: Mapping[str, tuple[float, float]]) -> None:
-        """Also refuse contractions outside these scene winch bounds (mm)."""
-        self._bounds = self._merge_bounds(bounds)
-
-    def check_contractions(self, contraction: Mapping[str, float]) -> dict[str, int]:
-        """Validate ``{winch: mm}`` and convert to ``{winch: ticks}``; sends nothing.
-
-        Raises :class:`HardwareError` naming the winch, the value and the
-        allowed range if a winch is unknown or a value is outside it.
-        """
-        ticks = {}
-        for name, value in contraction.items():
-            if name not in self._bounds:
-                raise HardwareError(f"refused: no winch {name!r} in calibration {self.calibration.source}; "
-                                    f"calibrated winches: {', '.join(self._bounds)}")
-            lo, hi = self._bounds[name]
-            c = float(value)
-            # Tolerate float noise from a solver at an active bound, nothing more.
-            tol = 1e-9 * max(1.0, abs(lo), abs(hi))
-            if not (math.isfinite(c) and lo - tol <= c <= hi + tol):
-                raise HardwareError(f"refused: contraction {c!r} for winch {name!r} outside its allowed range "
-                                    f"[{lo}, {hi}] (calibration limits within scene bounds); nothing sent")
-            ticks[name] = self.calibration.winch(name).to_ticks(min(max(c, lo), hi))
-        return ticks
+    def allowed(self) -> dict[str, tuple[float, float]]:
+        """Allowed contraction per calibrated winch (mm): calibration limits within scene bounds."""
+        return dict(self._allowed)
 
     # ---------------------------------------------------------- open/close --
     @property
     def is_open(self) -> bool:
-        return self._ser is not None
+        return self._io.ser is not None
 
     @property
     def n_axes(self) -> int:
@@ -178,14 +140,12 @@ class Driver:
             return self
         factory = self._serial_factory or serial.Serial
         try:
-            self._ser = factory(port=self.port, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
-                                timeout=_READ_SLICE, write_timeout=self.timeout, exclusive=True)
+            ser = factory(port=self.port, baudrate=self.baudrate, bytesize=8, parity="N", stopbits=1,
+                          timeout=_READ_SLICE, write_timeout=self.timeout, exclusive=True)
         except Exception as e:  # serial.SerialException, OSError, ValueError
-            self._ser = None
             raise HardwareError(f"cannot open serial port {self.port}: {e}") from None
         try:
-            self._ser.reset_input_buffer()  # replies a previous session never read
-            self._rx.clear()
+            self._io.attach(ser)
             self._handshake()
         except BaseException:
             self._close_port()
@@ -220,7 +180,7 @@ class Driver:
                  info.winches, cal.name)
 
     def _close_port(self):
-        ser, self._ser = self._ser, None
+        ser, self._io.ser = self._io.ser, None
         self.info = None
         if ser is not None:
             try:
@@ -233,9 +193,7 @@ class Driver:
         if not self.is_open:
             return
         try:
-            with _sigint_deferred(reraise=True):
-                self._end_partial_line()
-                self.stop()
+            self.halt()
         except HardwareError as e:
             log.error("%s: could not stop the board before closing: %s", self.port, e)
         finally:
@@ -279,7 +237,7 @@ class Driver:
         otherwise glue STOP onto the fragment and refuse the whole line. The
         board ignores blank lines."""
         try:
-            self._write(b"\n")
+            self._io.write(b"\n")
         except HardwareError as e:
             log.warning("%s: could not end a partial line: %s", self.port, e)
 
@@ -295,6 +253,13 @@ class Driver:
     def stop(self) -> None:
         """Stop all motors: hold where they are, drives braked."""
         self._transact("STOP")
+
+    def halt(self) -> None:
+        """Stop all motors like :meth:`stop`, but end a partial line first
+        and hold back Ctrl-C until the board has answered (re-raised then)."""
+        with _sigint_deferred(reraise=True):
+            self._end_partial_line()
+            self.stop()
 
     def zero(self, name: str | None = None) -> None:
         """Declare the current position of one winch (or all) contraction 0."""
@@ -322,11 +287,15 @@ class Driver:
     def set_contractions(self, contraction: Mapping[str, float]) -> dict[str, int]:
         """Command contractions ``{winch: mm}``; other winches keep their targets.
 
-        Validates every value first (see :meth:`check_contractions`), then
-        sends one ``SET`` or ``SETALL``, so the winches start together.
-        Returns the commanded ``{winch: ticks}``.
+        Validates every value first (see
+        :func:`~plush_opt.board.limits.check_contractions`), then sends one
+        ``SET`` or ``SETALL``, so the winches start together. Returns the
+        commanded ``{winch: ticks}``.
         """
-        ticks = self.check_contractions(contraction)
+        try:
+            ticks = check_contractions(contraction, self._allowed, self.calibration)
+        except HardwareError as e:
+            raise HardwareError(f"{self.port}: refused, nothing sent: {e}") from None
         if not ticks:
             return ticks
         if len(ticks) == 1:
@@ -339,14 +308,38 @@ class Driver:
             self._transact("SETALL", *args)
         return ticks
 
-    # ------------------------------------------------------------ transport --
+    def _transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
+        return self._io.transact(command, *args, patience=patience)
+
+
+class _Transport:
+    """Command/reply exchanges on one serial line (hw/PROTOCOL.md).
+
+    Keeps the sequence numbers and the receive buffer across reopenings of
+    the port, so that a late reply to a command given up on is recognised.
+    ``ser`` is the open pyserial port, or None while closed.
+    """
+
+    def __init__(self, port: str, baudrate: int, timeout: float, retries: int):
+        self.port, self.baudrate, self.timeout, self.retries = port, baudrate, timeout, retries
+        self.ser = None
+        self._rx = bytearray()
+        self._seq = 0
+        self._recent = collections.deque(maxlen=_RECENT)  # sequence numbers given up on
+
+    def attach(self, ser) -> None:
+        """Use this freshly opened port; replies a previous session never read are dropped."""
+        self.ser = ser
+        ser.reset_input_buffer()
+        self._rx.clear()
+
     def _next_seq(self) -> int:
         self._seq = (self._seq + 1) % (P.MAX_SEQ + 1)
         return self._seq
 
-    def _write(self, data: bytes):
+    def write(self, data: bytes):
         try:
-            self._ser.write(data)
+            self.ser.write(data)
         except Exception as e:  # SerialTimeoutException, SerialException, OSError
             raise HardwareError(f"{self.port}: cannot write to the board: {e}") from None
 
@@ -364,12 +357,12 @@ class Driver:
             if time.monotonic() >= deadline:
                 return None
             try:
-                chunk = self._ser.read(max(1, self._ser.in_waiting))
+                chunk = self.ser.read(max(1, self.ser.in_waiting))
             except Exception as e:  # SerialException, OSError: unplugged, port gone
                 raise HardwareError(f"{self.port}: cannot read from the board: {e}") from None
             self._rx += chunk
 
-    def _transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
+    def transact(self, command: str, *args, patience: float = 0.0) -> P.Reply:
         """Send a command, return its OK reply.
 
         Retries after a timeout with a new sequence number, ``retries``
@@ -377,7 +370,7 @@ class Driver:
         number of an abandoned attempt are dropped. An ERR reply raises at
         once (a refusal is not a transport problem).
         """
-        if self._ser is None:
+        if self.ser is None:
             raise HardwareError(f"{self.port}: board not open")
         attempts = self.retries + 1
         if patience > 0:
@@ -387,7 +380,7 @@ class Driver:
             seq = self._next_seq()
             line = P.format_command(seq, command, *args)
             log.debug("%s > %s", self.port, line.decode().rstrip())
-            self._write(line)
+            self.write(line)
             # remembered at once: if this wait is interrupted (Ctrl-C), the
             # late reply must not look like a stranger's to the next command
             self._recent.append(seq)

@@ -8,12 +8,14 @@ emulator's state file, which holds the true motor positions.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import os
 import selectors
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -26,6 +28,43 @@ BINARY_ENV = "PLUSH_BOARD_EMU"
 """Environment variable that overrides the emulator binary's path."""
 
 _REPO_BINARY = Path(__file__).resolve().parents[2] / "hw" / "emulator" / "build" / "plush-board-emu"
+
+
+_PR_SET_PDEATHSIG = 1   # <sys/prctl.h>: the signal a process gets when its parent dies
+
+
+def _die_with_parent():
+    """A ``preexec_fn`` (Linux) that has the child killed when this process
+    dies, or None where that is not available. The signal follows the
+    thread that started the child, so start it from one that lives as long
+    as the child should (the main thread)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    parent, kill = os.getpid(), int(signal.SIGKILL)
+
+    def preexec():
+        prctl(_PR_SET_PDEATHSIG, kill, 0, 0, 0)
+        if os.getppid() != parent:   # the parent died before prctl took effect
+            os._exit(1)
+    return preexec
+
+
+def simulator_popen_options() -> dict:
+    """``subprocess.Popen`` keyword arguments for a board simulator process.
+
+    Its own session, so that a Ctrl-C at the terminal reaches only the host,
+    which then stops the board before the "board" goes away; and, on Linux,
+    killed when the host dies, so that no simulator outlives a crashed host.
+    """
+    options = {"start_new_session": True}
+    preexec = _die_with_parent()
+    if preexec is not None:
+        options["preexec_fn"] = preexec
+    return options
 
 
 def emulator_binary(path: str | os.PathLike | None = None) -> Path:
@@ -106,10 +145,8 @@ class Emulator:
         if self.running:
             return self.port
         self._stderr = tempfile.TemporaryFile()
-        # Own session: a Ctrl-C meant for the host must not kill the "board"
-        # before the host has stopped it.
         self._proc = subprocess.Popen(self.args, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                                      stderr=self._stderr, start_new_session=True)
+                                      stderr=self._stderr, **simulator_popen_options())
         line = b""
         deadline = time.monotonic() + self.start_timeout
         with selectors.DefaultSelector() as sel:

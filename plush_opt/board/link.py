@@ -1,10 +1,12 @@
 """The one way apps talk to a winch board.
 
 Contractions are ``{winch name: length}`` in the problem's length unit
-everywhere above this module; only the driver converts them to ticks.
-Every app (scripted runs, the posing window) holds a :class:`BoardLink`
-and never a :class:`~plush_opt.board.driver.Driver` or an emulator
-process of its own.
+everywhere above this module; only the board package converts them to
+ticks (:mod:`plush_opt.board.limits`). Every app (scripted runs, the
+posing window) holds a :class:`BoardLink` made by
+:func:`plush_opt.board.open_board`, and never a
+:class:`~plush_opt.board.driver.Driver` or a simulator process of its own.
+The implementations are in :mod:`plush_opt.board.links`.
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ from typing import Protocol
 class BoardLink(Protocol):
     """A winch board as the apps see it.
 
-    Implementations: a serial board, the host emulator behind a serial
-    line, and a dry run that checks and records but moves nothing.
+    Implementations: a serial board, a simulated board (the host emulator
+    or simavr) behind a pseudo-terminal, and a dry run that checks and
+    records but moves nothing (:mod:`plush_opt.board.links`).
     """
 
     @property

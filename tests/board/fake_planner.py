@@ -1,6 +1,6 @@
 """A stand-in for the control side in board and run tests.
 
-FakePlanner follows the ``plush_opt.runs.Planner`` protocol: ``forward``
+FakePlanner follows the ``plush_opt.apps.runs.Planner`` protocol: ``forward``
 echoes its input, ``pose`` walks linearly from the current contraction to
 a goal in ``steps`` iterates (optionally sleeping between them). The goal
 is given, or derived from the targets' displacement, always within bounds.

@@ -9,7 +9,7 @@ import logging
 import sys
 
 from fake_planner import FakePlanner  # sibling file: this script's folder is on sys.path
-from plush_opt.runs import run_script
+from plush_opt.apps.runs import run_script
 
 
 def main():
@@ -17,7 +17,7 @@ def main():
     logging.basicConfig(level=logging.WARNING)
     planner = FakePlanner(upper=[20.0, 20.0, 20.0], steps=400, delay=0.01, goal={"left": 20.0, "right": 20.0})
     try:
-        run_script(script, board=port, log_path=log_path, planner=planner, progress=False)
+        run_script(script, port=port, log_path=log_path, planner=planner, progress=False)
     except KeyboardInterrupt:
         return 130
     return 0

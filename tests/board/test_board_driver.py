@@ -41,9 +41,10 @@ def test_set_and_read_back_in_mm(emulator, calibration):
 def test_refuses_out_of_bounds_before_sending(emulator, calibration):
     with Driver(emulator.port, calibration, bounds={"grip": (0.0, 20.0)}) as board:
         lines = emulator.read_state()["lines"]
-        with pytest.raises(HardwareError, match=r"contraction 20\.5 for winch 'grip' outside .*\[0\.0, 20\.0\]"):
+        refused = r"refused, nothing sent: contraction 20\.5 for winch 'grip' is outside .*\[0, 20\]"
+        with pytest.raises(HardwareError, match=refused):
             board.set_contractions({"left": 1.0, "grip": 20.5})      # scene bound
-        with pytest.raises(HardwareError, match=r"winch 'left' outside .*\[0\.0, 25\.0\]"):
+        with pytest.raises(HardwareError, match=r"winch 'left' is outside .*\[0, 25\]"):
             board.set_contractions({"left": 25.5})                   # calibration limit
         with pytest.raises(HardwareError, match=r"winch 'left'"):
             board.set_contractions({"left": -0.01})
@@ -51,6 +52,9 @@ def test_refuses_out_of_bounds_before_sending(emulator, calibration):
             board.set_contractions({"left": float("nan")})
         with pytest.raises(HardwareError, match=r"no winch 'thumb'"):
             board.set_contractions({"thumb": 1.0})
+        for value in ("10", True, None):
+            with pytest.raises(HardwareError, match=rf"contraction {value!r} for winch 'left' is not a finite number"):
+                board.set_contractions({"left": value})
         assert emulator.read_state()["lines"] == lines  # nothing reached the board
         board.set_contractions({"grip": 20.0 + 1e-12})   # float noise at a bound is not a violation
 

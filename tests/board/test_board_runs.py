@@ -1,4 +1,4 @@
-"""Scripted runs (plush_opt.runs) with FakePlanner: dry, on the emulator, interrupted."""
+"""Scripted runs (plush_opt.apps.runs) with FakePlanner: dry, on the emulator, interrupted."""
 
 import argparse
 import json
@@ -14,10 +14,10 @@ import yaml
 
 from board_helpers import fast_calibration_dict, wait_until
 from fake_planner import FakePlanner
-from plush_opt.board import Driver, calibration_from_dict
+from plush_opt.apps.runs import (FORMAT, RunScript, add_run_arguments, check_run_script, cli_run, load_run_script,
+                                 run_script)
+from plush_opt.board import SerialLink, calibration_from_dict
 from plush_opt.errors import HardwareError, SceneError, SolverError
-from plush_opt.runs import (FORMAT, RunScript, add_run_arguments, check_run_script, cli_run, load_run_script,
-                            run_script)
 
 ROOT = Path(__file__).resolve().parents[2]
 LOG_KEYS = {"t", "step", "kind", "event", "commanded", "ticks", "acknowledged", "measured", "objective", "status"}
@@ -95,15 +95,15 @@ def test_bad_run_scripts(tmp_path, change, match):
 
 @pytest.mark.parametrize("steps, match", [
     ([{"set": {"thumb": 1.0}}], r"steps\[0\]\.set: unknown winch 'thumb'"),
-    ([{"set": {"grip": 21.0}}], r"steps\[0\]\.set\.grip: 21 is outside \[0, 20\]"),
-    ([{"set": {"left": 26.0}}], r"steps\[0\]\.set\.left: 26 is outside \[0, 25\]"),   # scene allows 30
+    ([{"set": {"grip": 21.0}}], r"steps\[0\]\.set\.grip: contraction 21 for winch 'grip' is outside .*\[0, 20\]"),
+    ([{"set": {"left": 26.0}}], r"steps\[0\]\.set\.left: contraction 26 .* is outside .*\[0, 25\]"),  # scene: 30
     (["release", {"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "freeze": ["x"]}}],
      r"steps\[1\]\.pose: unknown winch 'x'"),
 ])
 def test_names_and_bounds_checked_before_any_port_is_opened(tmp_path, steps, match):
     planner = FakePlanner(upper=[30.0, 20.0, 20.0])
     with pytest.raises(SceneError, match=match):
-        run_script(write_script(tmp_path, steps), board="/nonexistent/tty", planner=planner,
+        run_script(write_script(tmp_path, steps), port="/nonexistent/tty", planner=planner,
                    log_path=tmp_path / "log.jsonl")
     assert not (tmp_path / "log.jsonl").exists()
 
@@ -127,7 +127,7 @@ def test_needs_a_planner_and_a_board(tmp_path):
 
 def test_dry_run_plans_logs_and_opens_nothing(tmp_path):
     planner = FakePlanner(steps=20)
-    result = run_script(write_script(tmp_path, STEPS), board="/nonexistent/tty", dry_run=True, planner=planner,
+    result = run_script(write_script(tmp_path, STEPS), port="/nonexistent/tty", dry_run=True, planner=planner,
                         log_path=tmp_path / "log.jsonl")
     assert result.dry_run and result.steps == 4 and result.contraction == {"left": 0.0, "right": 0.0, "grip": 0.0}
     log = read_log(tmp_path / "log.jsonl")
@@ -175,12 +175,17 @@ def test_examples_dry_run():
 
 def test_run_on_the_emulator(tmp_path, emulator):
     planner = FakePlanner(steps=15, delay=0.005, goal={"left": 8.0, "right": 4.0})
-    result = run_script(write_script(tmp_path, STEPS), board=emulator.port, planner=planner,
+    result = run_script(write_script(tmp_path, STEPS), port=emulator.port, planner=planner,
                         log_path=tmp_path / "log.jsonl")
     assert not result.dry_run and result.steps == 4
     log = read_log(tmp_path / "log.jsonl")
-    commands = [r for r in log if r["event"] == "command"]
-    assert all(r["acknowledged"] is True for r in commands)
+    # Each command's line is written before it is sent; the board's OK follows.
+    replies = [(a, b) for a, b in zip(log, log[1:]) if a["event"] == "command"]
+    assert len(replies) == result.commands >= 3
+    for command, reply in replies:
+        assert command["acknowledged"] is None
+        assert reply["event"] == "acknowledged" and reply["acknowledged"] is True
+        assert reply["commanded"] == command["commanded"] and reply["ticks"] == command["ticks"]
     arrived = {r["kind"]: r for r in log if r["event"] == "arrived"}
     assert arrived.keys() == {"set", "pose", "release"}
     assert arrived["pose"]["measured"]["left"] == pytest.approx(8.0, abs=0.05)
@@ -192,12 +197,12 @@ def test_run_on_the_emulator(tmp_path, emulator):
     assert state["enabled"] == [False] * 3 and not any(state["moving"])
 
 
-def test_run_with_an_open_driver_keeps_it_open(tmp_path, emulator, calibration):
-    with Driver(emulator.port, calibration) as board:
+def test_run_with_an_open_link_keeps_it_open(tmp_path, emulator, calibration):
+    with SerialLink(emulator.port, calibration) as board:
         run_script(write_script(tmp_path, [{"set": {"left": 3.0}}]), board=board, planner=FakePlanner(),
                    log_path=tmp_path / "log.jsonl")
-        assert board.is_open and emulator.read_state()["enabled"] == [False] * 3
-        assert board.read_positions()["left"] == pytest.approx(3.0, abs=0.05)
+        assert board.driver.is_open and emulator.read_state()["enabled"] == [False] * 3   # stopped, not closed
+        assert board.positions()["left"] == pytest.approx(3.0, abs=0.05)
 
 
 class ExplodingPlanner(FakePlanner):
@@ -212,7 +217,7 @@ def test_planner_failure_stops_the_board_and_ends_the_log(tmp_path, make_emulato
     emu = make_emulator(3, speed=300.0)
     planner = ExplodingPlanner(steps=4, goal={"left": 20.0})
     with pytest.raises(RuntimeError, match="solver blew up"):
-        run_script(write_script(tmp_path, STEPS[1:2]), board=emu.port, planner=planner,
+        run_script(write_script(tmp_path, STEPS[1:2]), port=emu.port, planner=planner,
                    log_path=tmp_path / "log.jsonl")
     log = read_log(tmp_path / "log.jsonl")
     assert log[-1]["kind"] == "end" and log[-1]["status"] == "error: solver blew up"
@@ -226,7 +231,7 @@ class SilentPlanner(FakePlanner):
 
 
 def test_a_planner_that_never_finishes_is_an_error(tmp_path, monkeypatch):
-    monkeypatch.setattr("plush_opt.runs.PLANNER_GRACE", 0.1)
+    monkeypatch.setattr("plush_opt.apps.runs.PLANNER_GRACE", 0.1)
     steps = [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 0.1}}]
     with pytest.raises(SolverError, match=r"steps\[0\]\.pose: the planner did not finish within 0\.3 s"):
         run_script(write_script(tmp_path, steps), dry_run=True, planner=SilentPlanner(), log_path=os.devnull)
@@ -272,8 +277,10 @@ def test_cli_arguments():
     parser = add_run_arguments(argparse.ArgumentParser(prog="plush-opt run"))
     args = parser.parse_args(["x.yaml", "--emulator", "--log", "l.jsonl"])
     assert args.script == Path("x.yaml") and args.emulator and not args.dry_run and args.port is None
-    with pytest.raises(SystemExit):
-        parser.parse_args(["x.yaml", "--emulator", "--port", "/dev/ttyACM0"])
+    for clash in (["--emulator", "--port", "/dev/ttyACM0"], ["--simavr", "--emulator"], ["--simavr", "--port", "p"]):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["x.yaml", *clash])
+    assert parser.parse_args(["x.yaml", "--simavr"]).simavr
     assert parser.parse_args(["x.yaml", "--port", "/dev/ttyACM0", "--dry-run"]).dry_run
 
 
@@ -293,3 +300,29 @@ def test_cli_run_on_the_emulator_and_dry(tmp_path, emu_binary, capsys):
     assert seen == [tmp_path / "problem.yaml"] * 3
     err = capsys.readouterr().err
     assert "completed on emulator" in err and "completed on dry run" in err
+
+
+# ------------------------------------------------ a board that goes silent --
+
+def _answers_all_but_moves(line):
+    """A fake three-axis board that answers everything except SET/SETALL."""
+    seq, command = line.split()[:2]
+    if command in ("SET", "SETALL"):
+        return None
+    if command == "ID":
+        return [f"{seq} OK board=fake fw=0 proto=1 winches=3\n".encode()]
+    if command == "GET":
+        return [f"{seq} OK pos=0,0,0 tgt=0,0,0 mov=0,0,0 en=0,0,0 wd=0\n".encode()]
+    return [f"{seq} OK\n".encode()]
+
+
+def test_the_command_line_is_logged_before_the_board_answers(tmp_path, fake_board):
+    board = fake_board(_answers_all_but_moves)
+    with pytest.raises(HardwareError, match=r"no reply from the board to SETALL after 2 attempt\(s\)"):
+        run_script(write_script(tmp_path, [{"set": {"left": 2.0}}]), port=board.port, planner=FakePlanner(),
+                   log_path=tmp_path / "log.jsonl")
+    log = read_log(tmp_path / "log.jsonl")
+    assert [r["event"] for r in log] == ["start", "command", "end"]
+    assert log[1]["commanded"]["left"] == 2.0 and log[1]["acknowledged"] is None
+    assert log[-1]["status"].startswith("error: ") and log[-1]["commands"] == 0
+    assert any(line.split()[1] == "STOP" for line in board.received[-2:])   # stopped after all

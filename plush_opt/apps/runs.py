@@ -16,21 +16,20 @@ names a problem file, a board calibration, a streaming rate and steps::
 The control problems are solved by a :class:`Planner` passed in (the
 runner never imports a solver); its iterates are streamed to the board at
 most at ``rate`` (the latest iterate wins, the final one is always sent).
+The board is a :class:`~plush_opt.board.BoardLink` (a serial board, a
+simulator or a dry run, made by :func:`~plush_opt.board.open_board`).
 Every run writes a JSON-lines log, one object per line, flushed and
-fsync'ed line by line, and stops the board however it ends.
+fsync'ed line by line; a command's line is written before the command is
+sent, so a board that never answers still leaves it in the log. The
+board is stopped however the run ends.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 import logging
 import math
-import os
 import queue
-import shutil
-import stat
 import sys
 import threading
 import time
@@ -42,9 +41,9 @@ from typing import Protocol
 import numpy as np
 import yaml
 
-from plush_opt.board.calibration import BoardCalibration, load_calibration
-from plush_opt.board.driver import Driver
-from plush_opt.board.emulator import Emulator
+from plush_opt.apps.run_log import ProgressLine, RunLog
+from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
+from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.errors import HardwareError, SceneError, SolverError
 
 log = logging.getLogger(__name__)
@@ -234,160 +233,89 @@ def load_run_script(path) -> RunScript:
                      steps=tuple(_parse_step(path, s, i) for i, s in enumerate(steps)), description=description)
 
 
-def _allowed(planner: Planner, calibration: BoardCalibration) -> dict[str, tuple[float, float]]:
-    """Per scene winch: scene bounds within calibration limits."""
-    out = {}
-    for name, lo, hi in zip(planner.winch_names, planner.lower, planner.upper):
-        w = calibration.winch(name)
-        out[name] = (max(float(lo), w.limits[0]), min(float(hi), w.limits[1]))
-    return out
+SETTLE_FACTOR = 2.0        # a move may take this many times its time at top speed (ramps, the last ticks)
+PLANNER_TIME_FACTOR = 2.0  # a pose step's planner may run this many times its max_time (plus the grace)
+WATCHDOG_POLLS = 3         # polls per board watchdog period: one late poll does not trip it
 
 
-def check_run_script(script: RunScript, planner: Planner, calibration: BoardCalibration) -> None:
+def _script_error(script: RunScript, key: str, message: str):
+    raise SceneError(f"{script.path}: {key}: {message}")
+
+
+def scene_bounds(planner: Planner) -> dict[str, tuple[float, float]]:
+    """The scene's winch bounds ``{name: (lower, upper)}`` as the planner reports them."""
+    return {n: (float(lo), float(hi)) for n, lo, hi in zip(planner.winch_names, planner.lower, planner.upper)}
+
+
+def check_run_script(script: RunScript, planner: Planner,
+                     calibration: BoardCalibration) -> dict[str, tuple[float, float]]:
     """Check every name and value of the script against the scene (planner)
-    and the calibration, before any port is opened. Raises :class:`SceneError`."""
+    and the calibration, before any port is opened. Raises :class:`SceneError`.
+
+    Returns the allowed contraction of every calibrated winch: calibration
+    limits within the scene's bounds (see :func:`~plush_opt.board.limits.allowed_ranges`).
+    """
     names = tuple(planner.winch_names)
     missing = [n for n in names if n not in calibration.winch_names]
     if missing:
-        _fail(script.path, "board", f"calibration {calibration.source} has no winch {', '.join(map(repr, missing))} "
-                                    f"of problem {script.problem} (calibrated: {', '.join(calibration.winch_names)})")
-    allowed = _allowed(planner, calibration)
-    for name, (lo, hi) in allowed.items():
-        if lo > hi:
-            _fail(script.path, "board", f"winch {name!r}: scene bounds and calibration limits "
-                                        f"{calibration.winch(name).limits} do not overlap")
+        _script_error(script, "board", f"calibration {calibration.source} has no winch "
+                                       f"{', '.join(map(repr, missing))} of problem {script.problem} "
+                                       f"(calibrated: {', '.join(calibration.winch_names)})")
+    try:
+        allowed = allowed_ranges(calibration, scene_bounds(planner))
+    except HardwareError as e:
+        _script_error(script, "board", str(e))
     for i, step in enumerate(script.steps):
         key = f"steps[{i}].{step.kind}"
         unknown = [n for n in (*step.contraction, *step.freeze) if n not in names]
         if unknown:
-            _fail(script.path, key, f"unknown winch {unknown[0]!r}; winches of {script.problem.name}: "
-                                    f"{', '.join(names)}")
+            _script_error(script, key, f"unknown winch {unknown[0]!r}; winches of {script.problem.name}: "
+                                       f"{', '.join(names)}")
         for name, value in step.contraction.items():
-            lo, hi = allowed[name]
-            if not lo <= value <= hi:
-                _fail(script.path, f"{key}.{name}", f"{value:g} is outside [{lo:g}, {hi:g}] (scene bounds "
-                                                    f"within calibration limits)")
-
-
-# -------------------------------------------------------------------- log --
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple, np.ndarray)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None  # strict JSON has no NaN
-    if x is None or isinstance(x, str):
-        return x
-    return str(x)
-
-
-class RunLog:
-    """JSON-lines file; every line is written whole, flushed and fsync'ed,
-    so a crash or Ctrl-C leaves only complete lines."""
-
-    def __init__(self, path):
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb", buffering=0)
-        # A pipe or /dev/null cannot be fsync'ed, and needs not be.
-        self._sync = stat.S_ISREG(os.fstat(self._f.fileno()).st_mode)
-        self.lines = 0
-
-    def write(self, obj: dict) -> None:
-        data = memoryview((json.dumps(_jsonable(obj), allow_nan=False, separators=(",", ":"))
-                           + "\n").encode())
-        while data:   # an unbuffered write may take only part of the line
-            written = self._f.write(data)
-            if not written:
-                raise OSError(f"{self.path}: could not write the run log")
-            data = data[written:]
-        if self._sync:
-            os.fsync(self._f.fileno())
-        self.lines += 1
-
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False
-
-
-class _Progress:
-    """One updating status line on a terminal (the CLI's progress display)."""
-
-    def __init__(self, stream, enabled: bool):
-        self.stream = stream
-        self.enabled = enabled
-        self._shown = False
-        self._last = 0.0
-
-    def update(self, text: str) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if now - self._last < 0.1:
-            return
-        self._last = now
-        width = max(20, shutil.get_terminal_size((100, 20)).columns - 1)
-        self.stream.write("\r" + text[:width] + "\x1b[K")
-        self.stream.flush()
-        self._shown = True
-
-    def finish(self) -> None:
-        if self._shown:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._shown = False
+            try:
+                check_contractions({name: value}, allowed, calibration)
+            except HardwareError as e:
+                _script_error(script, f"{key}.{name}", str(e))
+    return allowed
 
 
 # ----------------------------------------------------------------- runner --
 
 class _Runner:
-    """Executes the steps of one script. The driver is None in a dry run."""
+    """Executes the steps of one script on an open board link."""
 
     def __init__(self, script: RunScript, planner: Planner, calibration: BoardCalibration,
-                 driver: Driver | None, checker: Driver, runlog: RunLog, progress: _Progress):
+                 allowed: dict[str, tuple[float, float]], link: BoardLink, runlog: RunLog,
+                 progress: ProgressLine, t0: float):
         self.script = script
         self.planner = planner
         self.calibration = calibration
-        self.driver = driver
-        self.checker = checker          # validates contractions in a dry run
+        self.allowed = allowed
+        self.link = link
+        self.dry = isinstance(link, DryRunLink)   # nothing moves: no polls, no waiting
         self.log = runlog
         self.progress = progress
         self.names = tuple(planner.winch_names)
         self.lower = {n: float(v) for n, v in zip(self.names, planner.lower)}
         self.upper = {n: float(v) for n, v in zip(self.names, planner.upper)}
         self.period = 1.0 / script.rate
-        # Polls also feed the board's watchdog: several per watchdog period.
-        self.poll_period = self.period if driver is None else min(self.period, driver.watchdog_ms / 3000.0)
-        self.t0 = time.monotonic()
+        # Polls also feed the board's watchdog.
+        self.poll_period = min(self.period, calibration.port.watchdog_ms / 1000.0 / WATCHDOG_POLLS)
+        self.t0 = t0
         self.commanded: dict[str, float] = {}
         self.planner_at: dict[str, float] | None = None   # contraction the planner last solved for
         self.commands = 0
         self.steps_done = 0
         self.measured: dict[str, float] | None = None
-        self._wd0 = None    # board watchdog trips when the run started
         self._step = None   # (index, kind) for the progress line
 
     # -- log lines ---------------------------------------------------------
-    def _line(self, step, kind, event, *, commanded=None, acknowledged=None, info=None, **extra):
+    def _line(self, step, kind, event, *, commanded=None, ticks=None, acknowledged=None, info=None, **extra):
         commanded = dict(commanded if commanded is not None else self.commanded)
         info = info or {}
         self.log.write({
             "t": round(time.monotonic() - self.t0, 4), "step": step, "kind": kind, "event": event,
-            "commanded": commanded,
-            "ticks": {n: self.calibration.winch(n).to_ticks(c) for n, c in commanded.items()},
+            "commanded": commanded, "ticks": ticks if ticks is not None else self.calibration.to_ticks(commanded),
             "acknowledged": acknowledged, "measured": self.measured,
             "objective": info.get("objective"), "status": info.get("status"), **extra})
         self._show(event, info)
@@ -407,59 +335,48 @@ class _Runner:
 
     # -- board I/O ---------------------------------------------------------
     def _read(self):
-        state = self.driver.read_state()
-        positions = self.driver.positions_mm(state)
-        self.measured = {n: positions[n] for n in self.names}
-        if self._wd0 is None:
-            self._wd0 = state.watchdog_trips
-        elif state.watchdog_trips > self._wd0:
-            raise HardwareError(f"{self.driver.port}: the board's watchdog stopped the motors (no command for "
-                                f"{self.driver.watchdog_ms} ms while moving); the host stalled")
-        return state
+        positions = self.link.positions()
+        self.measured = None if positions is None else {n: positions[n] for n in self.names}
 
     def _send(self, i, kind, contraction, info, **extra):
-        full = {**self.commanded, **{n: float(v) for n, v in contraction.items()}}
-        acknowledged = None
-        if self.driver is not None:
-            self.driver.set_contractions(full)  # validates everything before sending
-            acknowledged = True
-        else:
-            self.checker.check_contractions(full)
+        full = {**self.commanded, **contraction}
+        ticks = check_contractions(full, self.allowed, self.calibration)   # refused before it is logged or sent
+        full = {n: float(v) for n, v in full.items()}
+        # The line goes out before the command: if the board never answers,
+        # the log still shows what was sent.
+        self._line(i, kind, "command", commanded=full, ticks=ticks, info=info, **extra)
+        self.link.send(full)
         self.commanded = full
         self.commands += 1
-        if self.driver is not None:
-            self._read()
-        self._line(i, kind, "command", acknowledged=acknowledged, info=info, **extra)
+        if not self.dry:
+            self._line(i, kind, "acknowledged", acknowledged=True, info=info)
 
     def _poll(self, i, kind, info=None):
-        state = self._read()
+        self._read()
         self._line(i, kind, "measure", info=info)
-        return state
 
     def _settle(self, i, kind, info):
-        """Wait, polling, until every scene winch has arrived."""
-        if self.driver is None:
+        """Wait, polling, until every winch has arrived."""
+        if self.dry:
             return
-        axes = {n: self.calibration.winch(n).axis for n in self.names}
         measured = self.measured or {}
         slowest = max((abs(self.commanded[n] - measured.get(n, self.commanded[n])) / self.calibration.winch(n).max_speed
                        for n in self.names), default=0.0)
-        timeout = 2.0 * slowest + SETTLE_MARGIN
+        timeout = SETTLE_FACTOR * slowest + SETTLE_MARGIN
         deadline = time.monotonic() + timeout
         while True:
-            state = self._poll(i, kind, info)
-            stopped = [n for n, a in axes.items() if not state.enabled[a]]
-            if stopped:
-                raise HardwareError(f"{self.driver.port}: the board stopped winch {stopped[0]!r} before it "
-                                    f"reached {self.commanded[stopped[0]]:.2f} mm")
-            if not any(state.moving[a] for a in axes.values()):
+            moving = self.link.moving()
+            self._poll(i, kind, info)
+            if not moving:
                 self._line(i, kind, "arrived", info=info)
                 return
             if time.monotonic() >= deadline:
-                late = [n for n, a in axes.items() if state.moving[a]]
+                at = self.measured or {}
+                late = max(self.names, key=lambda n: abs(self.commanded[n] - at.get(n, self.commanded[n])))
+                where = f" (at {at[late]:.2f} mm)" if late in at else ""
                 raise HardwareError(
-                    f"{self.driver.port}: winch {late[0]!r} did not reach {self.commanded[late[0]]:.2f} mm within "
-                    f"{timeout:.1f} s (at {self.measured[late[0]]:.2f} mm): tendon jammed or motor stalled?")
+                    f"{self.script.path}: steps[{i}].{kind}: winch {late!r} did not reach "
+                    f"{self.commanded[late]:.2f} mm within {timeout:.1f} s{where}: tendon jammed or motor stalled?")
             time.sleep(self.poll_period)
 
     def _forward(self, contraction):
@@ -469,16 +386,15 @@ class _Runner:
 
     # -- steps -------------------------------------------------------------
     def start(self):
-        if self.driver is not None:
+        if not self.dry:
             self._read()
-            # Start from where the winches are, as far as the scene allows.
-            start = {n: min(max(self.measured[n], self.lower[n]), self.upper[n]) for n in self.names}
-        else:
-            start = {n: min(max(0.0, self.lower[n]), self.upper[n]) for n in self.names}
+        # Start from where the winches are (0 when unknown), as far as the scene allows.
+        at = self.measured or {}
+        start = {n: min(max(at.get(n, 0.0), self.lower[n]), self.upper[n]) for n in self.names}
         self.commanded = start
         info = self._forward(start)
         self._line(None, "start", "start", info=info, script=str(self.script.path), problem=str(self.script.problem),
-                   board=str(self.script.board), dry_run=self.driver is None, rate=self.script.rate,
+                   board=str(self.script.board), dry_run=self.dry, rate=self.script.rate,
                    winches=list(self.names))
 
     def run_step(self, i: int, step: Step):
@@ -499,7 +415,7 @@ class _Runner:
         self._settle(i, "release", info)
 
     def _step_hold(self, i, step):
-        if self.driver is None:
+        if self.dry:
             self._line(i, "hold", "hold", seconds=step.seconds)
             return
         end = time.monotonic() + step.seconds
@@ -538,7 +454,8 @@ class _Runner:
 
     def _stream(self, i, step, iterates):
         period, poll = self.period, self.poll_period
-        deadline = time.monotonic() + 2.0 * step.max_time + PLANNER_GRACE
+        budget = PLANNER_TIME_FACTOR * step.max_time + PLANNER_GRACE
+        deadline = time.monotonic() + budget
         pending = latest = None
         n_iterates = 0
         last_send = -math.inf
@@ -551,15 +468,15 @@ class _Runner:
                            converged=pending.get("converged"))
                 pending = None
                 last_send = last_io = time.monotonic()
-            elif self.driver is not None and now - last_io >= poll:
+            elif not self.dry and now - last_io >= poll:
                 self._poll(i, "pose", latest)
                 last_io = time.monotonic()
             if done and pending is None:
                 break
             if not done and time.monotonic() > deadline:
                 raise SolverError(f"{self.script.path}: steps[{i}].pose: the planner did not finish within "
-                                  f"{2.0 * step.max_time + PLANNER_GRACE:g} s (max_time {step.max_time:g} s)")
-            due = last_send + period if pending is not None else (last_io + poll if self.driver else deadline)
+                                  f"{budget:g} s (max_time {step.max_time:g} s)")
+            due = last_send + period if pending is not None else (deadline if self.dry else last_io + poll)
             wait = max(0.0, min(due, deadline) - time.monotonic())
             if done:
                 time.sleep(wait)
@@ -586,7 +503,57 @@ def _default_log_path(script: RunScript) -> Path:
     return Path("out") / "runs" / f"{script.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
 
 
-def run_script(script_path, board=None, dry_run: bool = False, log_path=None, planner: Planner | None = None,
+def _board_choice(script: RunScript, calibration: BoardCalibration, port, simulator, dry_run: bool) -> dict:
+    """``open_board`` keywords for the board asked for; a serial port
+    defaults to the calibration's ``port.device``."""
+    if dry_run:
+        return {}
+    if simulator is not None:
+        return {"simulator": simulator, "port": port}
+    port = port if port is not None else calibration.port.device
+    if port is None:
+        raise HardwareError(f"{script.path}: no board to run on: give a serial port (--port), a simulator "
+                            f"(--emulator, --simavr) or --dry-run, or set port.device in {calibration.source}")
+    return {"port": port}
+
+
+def _release(link: BoardLink, own: bool, failing: bool) -> None:
+    """Stop the board (and close it if the run opened it). A failure to stop
+    does not hide the error that ended the run; it is logged instead."""
+    try:
+        if own:
+            link.close()
+        else:
+            link.stop()
+    except HardwareError as e:
+        if not failing:
+            raise
+        log.error("could not stop the board after the run failed: %s", e)
+
+
+def _play(runner: _Runner, own: bool) -> None:
+    """Every step of the script; the board is stopped on every exit."""
+    try:
+        runner.start()
+        for i, step in enumerate(runner.script.steps):
+            runner.run_step(i, step)
+    except BaseException:
+        _release(runner.link, own, failing=True)
+        raise
+    _release(runner.link, own, failing=False)
+
+
+def _end_line(runner: _Runner | None, calibration: BoardCalibration, t0: float, status: str) -> dict:
+    commanded = runner.commanded if runner is not None else {}
+    return {"t": round(time.monotonic() - t0, 4), "step": None, "kind": "end", "event": "end",
+            "commanded": commanded, "ticks": calibration.to_ticks(commanded), "acknowledged": None,
+            "measured": runner.measured if runner is not None else None, "objective": None, "status": status,
+            "steps_done": runner.steps_done if runner is not None else 0,
+            "commands": runner.commands if runner is not None else 0}
+
+
+def run_script(script_path, board: BoardLink | None = None, *, port: str | None = None,
+               simulator: str | None = None, dry_run: bool = False, log_path=None, planner: Planner | None = None,
                progress: bool | None = None) -> RunResult:
     """Run a run script on a board.
 
@@ -594,12 +561,17 @@ def run_script(script_path, board=None, dry_run: bool = False, log_path=None, pl
     ----------
     script_path : path or RunScript
         The run script (``plush-opt-run/1``).
-    board : Driver or str, optional
-        An open or unopened :class:`~plush_opt.board.driver.Driver`, or a
-        serial port path (a driver is made from the script's calibration).
-        Default: the calibration's ``port.device``. Ignored with ``dry_run``.
+    board : BoardLink, optional
+        An open link (see :func:`~plush_opt.board.open_board`); it is
+        stopped, not closed, at the end. Made from the script's calibration
+        with ``port`` or ``simulator`` when not given.
+    port : str, optional
+        Serial port of the board; default the calibration's ``port.device``.
+    simulator : {None, "emulator", "simavr"}
+        Run on a simulated board started for this run (and stopped after it).
     dry_run : bool
-        Compute and log everything, open no port.
+        Compute and log everything, move nothing (``board``, ``port`` and
+        ``simulator`` are ignored).
     log_path : path, optional
         JSON-lines log; default ``out/runs/<script>-<time>.jsonl``.
     planner : Planner
@@ -614,51 +586,30 @@ def run_script(script_path, board=None, dry_run: bool = False, log_path=None, pl
     Log lines are JSON objects with keys ``t`` (s since start), ``step``
     (index or null), ``kind`` (step kind, ``start`` or ``end``), ``event``,
     ``commanded`` ({winch: mm}), ``ticks`` ({winch: ticks}),
-    ``acknowledged`` (board said OK; null when nothing was sent),
-    ``measured`` ({winch: mm}, null in a dry run), ``objective``, ``status``.
+    ``acknowledged`` (true on the line that follows a command the board
+    said OK to; null elsewhere), ``measured`` ({winch: mm}, null in a dry
+    run), ``objective``, ``status``.
     """
     if planner is None:
-        raise TypeError("run_script needs a planner (see plush_opt.runs.Planner)")
+        raise TypeError("run_script needs a planner (see plush_opt.apps.runs.Planner)")
     script = script_path if isinstance(script_path, RunScript) else load_run_script(script_path)
-    calibration = load_calibration(script.board)
-    if isinstance(board, Driver) and not dry_run:
-        calibration = board.calibration  # conversions must match what that driver sends
-    check_run_script(script, planner, calibration)
-    bounds = {n: (float(lo), float(hi)) for n, lo, hi in zip(planner.winch_names, planner.lower, planner.upper)}
-
-    driver, own = None, False
-    if not dry_run:
-        if board is None:
-            board = calibration.port.device
-            if board is None:
-                raise HardwareError(f"{script.path}: no board to run on: give a serial port (--port), the "
-                                    f"emulator (--emulator) or --dry-run, or set port.device in {calibration.source}")
-        if isinstance(board, Driver):
-            driver = board
-            driver.set_scene_bounds(bounds)
-        else:
-            driver, own = Driver(os.fspath(board), calibration, bounds=bounds), True
-    checker = driver or Driver("(dry run)", calibration, bounds=bounds)
+    own = board is None or dry_run
+    # A given link converts with its own calibration; otherwise the script's is read, once.
+    calibration = None if own else getattr(board, "calibration", None)
+    calibration = calibration or load_calibration(script.board)
+    allowed = check_run_script(script, planner, calibration)
+    choice = _board_choice(script, calibration, port, simulator, dry_run) if own else None
 
     if progress is None:
         progress = sys.stderr.isatty()
     path = Path(log_path) if log_path is not None else _default_log_path(script)
-    status = "error"
+    status, runner, t0 = "error", None, time.monotonic()
     with RunLog(path) as runlog:
-        runner = _Runner(script, planner, calibration, driver, checker, runlog, _Progress(sys.stderr, progress))
         try:
-            if driver is None:
-                session = contextlib.nullcontext()
-            elif own:
-                session = driver            # opens; stops and closes on exit
-            else:
-                if not driver.is_open:
-                    driver.open()
-                session = driver.stop_on_exit()
-            with session:
-                runner.start()
-                for i, step in enumerate(script.steps):
-                    runner.run_step(i, step)
+            link = open_board(calibration, bounds=allowed, **choice) if own else board
+            runner = _Runner(script, planner, calibration, allowed, link, runlog,
+                             ProgressLine(sys.stderr, progress), t0)
+            _play(runner, own)
             status = "completed"
         except KeyboardInterrupt:
             status = "interrupted"
@@ -667,14 +618,11 @@ def run_script(script_path, board=None, dry_run: bool = False, log_path=None, pl
             status = f"error: {e}"
             raise
         finally:
-            # The board is stopped by now (the session exited first).
-            runner.progress.finish()
-            runner._step = None
-            runlog.write({"t": round(time.monotonic() - runner.t0, 4), "step": None, "kind": "end", "event": "end",
-                          "commanded": runner.commanded, "ticks": calibration.to_ticks(runner.commanded),
-                          "acknowledged": None, "measured": runner.measured, "objective": None, "status": status,
-                          "steps_done": runner.steps_done, "commands": runner.commands})
-    return RunResult(script=str(script.path), log_path=str(path), dry_run=driver is None, steps=runner.steps_done,
+            # The board is stopped by now.
+            if runner is not None:
+                runner.progress.finish()
+            runlog.write(_end_line(runner, calibration, t0, status))
+    return RunResult(script=str(script.path), log_path=str(path), dry_run=runner.dry, steps=runner.steps_done,
                      commands=runner.commands, contraction=dict(runner.commanded))
 
 
@@ -687,7 +635,10 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     where.add_argument("--port", help="serial port of the winch board (default: port.device of the board file)")
     where.add_argument("--emulator", action="store_true",
                        help="run against the board emulator (build it with `make -C hw`)")
-    parser.add_argument("--dry-run", action="store_true", help="plan and log every step, open no port")
+    where.add_argument("--simavr", action="store_true",
+                       help="run against the firmware on a simulated AVR (simavr; see docs/hardware.md)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="plan and log every step, open no port (overrides the board options)")
     parser.add_argument("--log", type=Path, metavar="FILE",
                         help="JSON-lines log of the run (default: out/runs/SCRIPT-TIME.jsonl)")
     return parser
@@ -701,26 +652,16 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
     :class:`~plush_opt.errors.PlushError`.
     """
     script = load_run_script(args.script)
-    calibration = load_calibration(script.board)
     planner = planner_factory(script.problem)
     log_path = args.log if args.log is not None else _default_log_path(script)
-    emulator = None
+    simulator = "emulator" if args.emulator else ("simavr" if getattr(args, "simavr", False) else None)
     try:
-        if args.emulator and not args.dry_run:
-            # The physical top speed must not be what limits: the board's SPEED does.
-            top = 2 * max(w.speed_ticks for w in calibration.winches)
-            emulator = Emulator(winches=calibration.n_axes_required, speed=top)
-            board = emulator.start()
-        else:
-            board = args.port
-        result = run_script(script, board=board, dry_run=args.dry_run, log_path=log_path, planner=planner)
+        result = run_script(script, port=args.port, simulator=simulator, dry_run=args.dry_run, log_path=log_path,
+                            planner=planner)
     except KeyboardInterrupt:
         sys.stderr.write(f"\ninterrupted: board stopped; log {log_path}\n")
         return 130
-    finally:
-        if emulator is not None:
-            emulator.close()
-    where = "dry run" if result.dry_run else ("emulator" if emulator is not None else "board")
+    where = "dry run" if result.dry_run else (simulator or "board")
     sys.stderr.write(f"run {script.path.name} completed on {where}: {result.steps} steps, "
                      f"{result.commands} commands, log {result.log_path}\n")
     return 0
