@@ -1,0 +1,1 @@
+"""Applications at the edge: command line, posing window, scripted runs, comparison, benchmarks, plots."""
