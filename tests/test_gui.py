@@ -154,6 +154,154 @@ TIP = (-72.0, 128.0)        # a point in the gripper's left bar, rest coordinate
 TOP = (0.0, 146.0)          # near the top of the bar
 
 
+# -- the session alone, without matplotlib ---------------------------------------
+
+SESSION_SCRIPT = textwrap.dedent("""
+    import json, sys
+    import numpy as np
+    from plush_opt.apps.gui import GuiOptions
+    from plush_opt.apps.gui.session import PosingSession
+    from plush_opt.problem import load
+
+    class Clock:
+        t = 100.0
+        def __call__(self):
+            return self.t
+
+    class Board:
+        winch_names = ("left", "right", "grip")
+        def __init__(self):
+            self.sent, self.stops = [], 0
+        def send(self, c):
+            self.sent.append(dict(c))
+        def positions(self):
+            return dict(self.sent[-1]) if self.sent else None
+        def moving(self):
+            return False
+        def stop(self):
+            self.stops += 1
+        def close(self):
+            pass
+
+    problem = load(sys.argv[1])
+    clock, board = Clock(), Board()
+    s = PosingSession(problem.with_targets(problem.targets.empty()), board,
+                      GuiOptions(send_rate=20.0, save_path=sys.argv[2]), clock=clock)
+    out = {"start_sends": len(board.sent), "held_at_start": s.held}
+    s.set_contraction("grip", 4.0)
+    s.set_frozen("grip", True)
+    grip = s.contraction[2]
+    rt, rb = problem.mesh.locate(np.array([[-72.0, 128.0]]))     # a point of the left bar
+    here = rb[0] @ s.x.reshape(-1, 2)[problem.mesh.triangles[rt[0]]]
+    tri, beta = s.locate(here)
+    out["located"] = bool(tri == rt[0] and np.allclose(beta, rb[0]))
+    k = s.add_target(tri, beta, here + (-8.0, -5.0))
+    clock.t += 1.0
+    sizes, objectives, shown = [], [], 0
+    for _ in range(60):
+        clock.t += 0.01
+        it = s.tick()
+        if it is not None:
+            shown += 1
+            objectives.append(it.objective)
+            out.setdefault("grip_kept", True)
+            out["grip_kept"] &= it.contraction[2].tobytes() == grip.tobytes()
+        sizes.append(len(s.controller.history))
+        if not s.running:
+            break
+    clock.t += 1.0
+    s.tick()
+    out.update(target=k, shown=shown, state=s.state, steps=[b - a for a, b in zip(sizes, sizes[1:])],
+               first=objectives[0], last=objectives[-1],
+               last_sent=board.sent[-1] == s.contraction_by_name, sends=len(board.sent))
+    s.move_target(0, here + (-6.0, -5.0))
+    out["running_after_move"] = s.running
+    out["saved"] = str(s.save())
+    s.remove_target(0)
+    s.reset()
+    out["after_reset"] = [s.targets.n_targets, s.contraction.tolist(), bool(s.frozen[2])]
+    s.shutdown()
+    s.shutdown()
+    out["stops"] = board.stops
+    out["matplotlib"] = sorted(m for m in sys.modules if m.split(".")[0] == "matplotlib")
+    print(json.dumps(out))
+""")
+
+
+def test_session_runs_without_matplotlib(tmp_path):
+    out = subprocess.run([sys.executable, "-c", SESSION_SCRIPT, str(ROOT / "problems" / "gripper.yaml"),
+                          str(tmp_path / "pose.json")], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    r = json.loads(out.stdout)
+    assert r["matplotlib"] == []
+    assert r["start_sends"] == 1 and not r["held_at_start"] and r["located"]
+    assert r["target"] == 0 and r["shown"] >= 3 and r["state"] == "stopped"
+    assert all(step <= 1 for step in r["steps"])          # one iterate per tick at most
+    assert r["grip_kept"] and r["last"] < r["first"]
+    assert r["last_sent"] and r["sends"] <= 1 + 1 + (0.6 + 2.0) * 20 + 1
+    assert r["running_after_move"]
+    doc = check_result(r["saved"])
+    assert doc["method"] == "reparam" and doc["gui"]["frozen"] == ["grip"]
+    assert doc["min_hessian_eigenvalue"] is not None and doc["min_hessian_eigenvalue"] > 0
+    assert r["after_reset"] == [0, [0.0, 0.0, 0.0], True]
+    assert r["stops"] == 1
+
+
+def test_board_pacer_sends_the_latest_pose_at_a_bounded_rate():
+    from plush_opt.apps.gui.pacing import BoardPacer
+    clock, board = Clock(), FakeBoard()
+    pacer = BoardPacer(board, clock, send_rate=10.0, poll_rate=2.0)
+    pacer.queue({"left": 1.0})
+    assert pacer.service() is None and board.sent == [{"left": 1.0}]
+    for v in (2.0, 3.0, 4.0):                  # too soon: the latest is kept
+        clock.t += 0.02
+        pacer.queue({"left": v})
+        pacer.service()
+    assert board.sent == [{"left": 1.0}] and pacer.pending == {"left": 4.0}
+    clock.t += 0.05
+    pacer.service()
+    assert board.sent[-1] == {"left": 4.0} and pacer.pending is None and pacer.sends == 2
+    assert pacer.measured == {"left": 1.0}     # read at the first service only (2 Hz)
+    clock.t += 0.5
+    pacer.service()
+    assert pacer.measured == {"left": 4.0} and pacer.lag({"left": 4.5}) == pytest.approx(0.5)
+    pacer.stop()
+    pacer.stop()
+    pacer.queue({"left": 5.0})
+    clock.t += 1.0
+    pacer.service()
+    assert board.stops == 1 and board.sent[-1] == {"left": 4.0}
+
+
+def test_board_pacer_stops_the_board_on_an_error():
+    from plush_opt.apps.gui.pacing import BoardPacer
+    clock, board = Clock(), FakeBoard(fail_send=True)
+    pacer = BoardPacer(board, clock, send_rate=10.0, poll_rate=2.0)
+    pacer.queue({"left": 1.0})
+    assert "unplugged" in pacer.service()
+    assert board.stops == 1 and pacer.state()["error"] == "board unplugged"
+    clock.t += 1.0
+    assert pacer.service() is None and pacer.sends == 0
+
+
+def test_saving_computes_the_eigenvalue_once_and_only_when_missing():
+    s = PosingSession(problem())
+    assert s.equilibrium.min_eigenvalue is None        # forward solves skip it
+    checked = s.certified()
+    assert checked.min_eigenvalue is not None and checked is s.certified()
+    assert np.array_equal(checked.x, s.x)
+    s.set_contraction("grip", 3.0)
+    assert s.certified() is not checked                 # a new pose: computed again
+    with_eig = PosingSession(problem(), options=GuiOptions(equilibrium=EquilibriumOptions()))
+    assert with_eig.certified() is with_eig.equilibrium  # already there: no second solve
+
+
+def test_unknown_winch_names_are_refused():
+    s = PosingSession(problem())
+    with pytest.raises(KeyError, match="no winch 'thumb'; winches: left, right, grip"):
+        s.set_contraction("thumb", 1.0)
+
+
 # -- mode 2: drag to pose ------------------------------------------------------
 
 def test_drag_creates_target_at_the_body_point_under_the_cursor(make_window):

@@ -34,6 +34,85 @@ TIMES_KEPT = 100_000
 RATE_TIMES_KEPT = 128
 
 
+class AnytimeLoop:
+    """The anytime gradient loop of a session, stepped one iterate at a time.
+
+    A :class:`~plush_opt.control.gradient.Controller` is made on the first
+    step from the pose on screen; a target or frozen-set change is passed
+    on to it (the loop continues from the current pose), or, once its
+    history holds ``max_history`` iterates, the next step starts a fresh one.
+
+    Attributes
+    ----------
+    controller : the running Controller, or None.
+    finished : the loop stopped and nothing changed since.
+    last_iterate : the last iterate taken, or None.
+    iterate_seconds : wall time of each iterate taken (for timing tables).
+    """
+
+    def __init__(self, model, options, max_history: int):
+        self.model = model
+        self.options = options
+        self.max_history = max_history
+        self.controller = None
+        self.finished = False
+        self.last_iterate = None
+        self.iterate_seconds = deque(maxlen=TIMES_KEPT)
+        self._iterates = None          # the running generator of controller iterates
+
+    def drop(self) -> None:
+        """Forget the controller: the next step starts from the pose on screen."""
+        self.close()
+        self.controller = None
+        self.last_iterate = None
+        self.finished = False
+
+    def close(self) -> None:
+        if self._iterates is not None:
+            self._iterates.close()
+        self._iterates = None
+
+    def set_targets(self, targets: Targets) -> None:
+        self.finished = False
+        if self.controller is not None:
+            if len(self.controller.history) >= self.max_history:
+                self.drop()
+            else:
+                self.controller.set_targets(targets)
+
+    def set_frozen(self, i: int, frozen: bool) -> None:
+        self.finished = False
+        if self.controller is not None:
+            self.controller.set_frozen(i, frozen)
+
+    def step(self, targets: Targets, contraction, frozen, x):
+        """Take one iterate (starting a controller at the given state if
+        there is none). Returns it, or None when the loop has stopped
+        (``finished``). Raises SolverError (after dropping the controller)
+        when the loop cannot start."""
+        from ...control.gradient import Controller
+        try:
+            if self.controller is None:
+                self.controller = Controller(self.model, targets, contraction, frozen, x0=x,
+                                             options=self.options)
+            if self._iterates is None:
+                self._iterates = self.controller.iterates()
+            t0 = time.perf_counter()
+            try:
+                it = next(self._iterates)
+            finally:
+                self.iterate_seconds.append(time.perf_counter() - t0)
+        except StopIteration:
+            self._iterates = None
+            self.finished = True
+            return None
+        except SolverError:
+            self.drop()
+            raise
+        self.last_iterate = it
+        return it
+
+
 class PosingSession:
     """The state of a posing session and the operations on it.
 
@@ -59,12 +138,11 @@ class PosingSession:
     paused : the user paused the loop.
     held : the loop waits for a target edit or :meth:`toggle_pause` (after
         a contraction change, a reset, or at start with the problem's targets).
-    finished : the loop stopped and nothing changed since.
     message : what just happened, for the user.
-    controller : the running :class:`~plush_opt.control.gradient.Controller`, or None.
-    last_iterate : the last iterate shown, or None.
+    loop : the :class:`AnytimeLoop` (``controller``, ``finished``,
+        ``last_iterate``, ``iterate_seconds`` read through to it).
     forward_solves, iterates_shown : counts.
-    iterate_seconds : wall time of each iterate taken (for timing tables).
+    iterate_clock : clock times of the last iterates shown (for the rate).
     """
 
     def __init__(self, problem, board: BoardLink | None = None, options: GuiOptions | None = None,
@@ -82,17 +160,13 @@ class PosingSession:
         self.frozen = problem.scene.frozen.copy()
         self.paused = False
         self.held = self.targets.n_targets > 0
-        self.finished = False
         self.closed = False
         self.message = ("loop held: press space or drag a target to run it"
                         if self.held else "drag the body to pose it")
-        self.controller = None
-        self.last_iterate = None
-        self._iterates = None          # the running generator of controller iterates
+        self.loop = AnytimeLoop(self.model, self.control_options, self.options.max_history)
         self.forward_solves = 0
         self.iterates_shown = 0
-        self.iterate_seconds = deque(maxlen=TIMES_KEPT)
-        self._iterate_clock = deque(maxlen=RATE_TIMES_KEPT)
+        self.iterate_clock = deque(maxlen=RATE_TIMES_KEPT)
         self._t_start = time.perf_counter()
         self.solve_seconds = 0.0
         self._certified = None         # (equilibrium, the same pose with its eigenvalue)
@@ -126,18 +200,14 @@ class PosingSession:
     def contraction_by_name(self) -> dict[str, float]:
         return {n: float(c) for n, c in zip(self.winch_names, self.contraction)}
 
-    # the board, as the status line and the tests see it
+    # the loop and the board, as the window, the status line and the tests see them
+    controller = property(lambda self: self.loop.controller)
+    finished = property(lambda self: self.loop.finished)
+    last_iterate = property(lambda self: self.loop.last_iterate)
+    iterate_seconds = property(lambda self: self.loop.iterate_seconds)
     sends = property(lambda self: 0 if self.pacer is None else self.pacer.sends)
     measured = property(lambda self: None if self.pacer is None else self.pacer.measured)
     board_error = property(lambda self: None if self.pacer is None else self.pacer.error)
-
-    def iterate_rate(self) -> float:
-        """Iterates per second over the last ``options.rate_window`` seconds."""
-        now = self.clock()
-        recent = [t for t in self._iterate_clock if now - t <= self.options.rate_window]
-        if len(recent) < 2 or recent[-1] <= recent[0]:
-            return 0.0
-        return (len(recent) - 1) / (recent[-1] - recent[0])
 
     def index(self, name_or_index) -> int:
         """A winch's index from its name (or index)."""
@@ -162,23 +232,10 @@ class PosingSession:
             self.pacer.queue(self.contraction_by_name)
         self._service_board()
 
-    def _drop_controller(self) -> None:
-        if self._iterates is not None:
-            self._iterates.close()
-        self._iterates = None
-        self.controller = None
-        self.last_iterate = None
-        self.finished = False
-
     def _targets_changed(self) -> None:
         """New targets: the loop continues from the pose on screen."""
         self.held = False
-        self.finished = False
-        if self.controller is not None:
-            if len(self.controller.history) >= self.options.max_history:
-                self._drop_controller()
-            else:
-                self.controller.set_targets(self.targets)
+        self.loop.set_targets(self.targets)
 
     # ------------------------------------------- mode 1: contractions
 
@@ -192,7 +249,7 @@ class PosingSession:
         if c[i] == self.contraction[i]:
             return
         eq = self._forward(c, self.x)
-        self._drop_controller()
+        self.loop.drop()
         if self.targets.n_targets and not self.paused:
             self.held = True
         name = self.winch_names[i]
@@ -213,9 +270,7 @@ class PosingSession:
         if self.frozen[i] == frozen:
             return
         self.frozen[i] = frozen
-        if self.controller is not None:
-            self.controller.set_frozen(i, frozen)
-        self.finished = False
+        self.loop.set_frozen(i, frozen)
         self.message = f"{self.winch_names[i]} {'frozen' if frozen else 'released'}"
 
     # ------------------------------------------------ mode 2: targets
@@ -235,17 +290,12 @@ class PosingSession:
         b = np.clip(beta[0], 0.0, None)
         return int(tri[0]), b / b.sum()
 
-    def rest_point(self, triangle: int, beta) -> np.ndarray:
-        """Rest coordinates of the body point (triangle, beta), (2,)."""
-        X = self.model.X.reshape(-1, 2)
-        return np.asarray(beta) @ X[self.model.mesh.triangles[triangle]]
-
     def add_target(self, triangle: int, beta, to) -> int:
         """A target for body point (triangle, beta) going to ``to``; returns its index."""
         self.targets = with_target(self.targets, self.model.mesh, triangle, beta, to,
                                    self.options.target_weight)
         k = self.targets.n_targets - 1
-        rest = ", ".join(f"{v:.1f}" for v in self.rest_point(triangle, beta))
+        rest = ", ".join(f"{v:.1f}" for v in rest_point(self.model, triangle, beta))
         self.message = f"target {k + 1} at rest point ({rest}) \u2192 ({to[0]:.1f}, {to[1]:.1f})"
         self._targets_changed()
         return k
@@ -270,7 +320,8 @@ class PosingSession:
         """Pause a running loop; run a paused or held one."""
         if self.paused or self.held:
             self.paused = self.held = False
-            self.message = "loop running" if self.targets.n_targets else "no targets: drag the body to pose it"
+            self.message = ("loop running" if self.targets.n_targets
+                            else "no targets: drag the body to pose it")
         else:
             self.paused = True
             self.message = "paused: space runs the loop again"
@@ -282,7 +333,7 @@ class PosingSession:
 
     def reset(self) -> None:
         """Back to rest: the scene's contractions, no targets (frozen flags stay)."""
-        self._drop_controller()
+        self.loop.drop()
         self.targets = Targets.empty()
         self.held = False
         self._show(self._forward(self.problem.scene.contraction, None))
@@ -299,33 +350,20 @@ class PosingSession:
         return shown
 
     def _step(self):
-        from ...control.gradient import Controller
+        t0 = time.perf_counter()
         try:
-            if self.controller is None:
-                self.controller = Controller(self.model, self.targets, self.contraction, self.frozen,
-                                             x0=self.x, options=self.control_options)
-            if self._iterates is None:
-                self._iterates = self.controller.iterates()
-            t0 = time.perf_counter()
-            try:
-                it = next(self._iterates)
-            finally:
-                dt = time.perf_counter() - t0
-                self.solve_seconds += dt
-                self.iterate_seconds.append(dt)
-        except StopIteration:
-            self._iterates = None
-            self.finished = True
-            self.message = f"loop stopped: {self.controller.status}"
-            return None
+            it = self.loop.step(self.targets, self.contraction, self.frozen, self.x)
         except SolverError as exc:
-            self._drop_controller()
             self.held = True
             self.message = f"loop cannot start: {exc}"
             return None
-        self.last_iterate = it
+        finally:
+            self.solve_seconds += time.perf_counter() - t0
+        if it is None:
+            self.message = f"loop stopped: {self.controller.status}"
+            return None
         self.iterates_shown += 1
-        self._iterate_clock.append(self.clock())
+        self.iterate_clock.append(self.clock())
         self._show(it.equilibrium)
         return it
 
@@ -373,11 +411,23 @@ class PosingSession:
         if self.closed:
             return
         self.closed = True
-        if self._iterates is not None:
-            self._iterates.close()
-            self._iterates = None
+        self.loop.close()
         if self.pacer is not None:
             self.pacer.stop()
+
+
+def rest_point(model, triangle: int, beta) -> np.ndarray:
+    """Rest coordinates of the body point (triangle, beta), (2,)."""
+    return np.asarray(beta) @ model.X.reshape(-1, 2)[model.mesh.triangles[triangle]]
+
+
+def iterate_rate(session: PosingSession) -> float:
+    """Iterates per second over the last ``options.rate_window`` seconds."""
+    now = session.clock()
+    recent = [t for t in session.iterate_clock if now - t <= session.options.rate_window]
+    if len(recent) < 2 or recent[-1] <= recent[0]:
+        return 0.0
+    return (len(recent) - 1) / (recent[-1] - recent[0])
 
 
 def with_target(targets: Targets, mesh, triangle: int, beta, to, weight: float) -> Targets:
@@ -418,7 +468,7 @@ def result_document(session: PosingSession) -> dict:
     extra = {"gui": {
         "bounds": session.control_options.bounds,
         "frozen": [n for n, f in zip(session.winch_names, session.frozen) if f],
-        "targets_rest": [session.rest_point(e, b).tolist() for e, b in zip(t.triangles, t.beta)],
+        "targets_rest": [rest_point(session.model, e, b).tolist() for e, b in zip(t.triangles, t.beta)],
         "board": None if session.pacer is None else session.pacer.state(),
     }}
     return result_dict(session.model, t, eq, method=method, converged=converged, status=status,
@@ -437,7 +487,7 @@ def status_line(session: PosingSession) -> str:
     else:
         parts.append("O -")
     parts.append(f"residual {eq.residual_norm:.1e} N{'' if eq.converged else ' (NOT converged)'}")
-    parts.append(f"{session.iterate_rate():5.1f} it/s")
+    parts.append(f"{iterate_rate(session):5.1f} it/s")
     bounds = session.last_iterate.active_bounds if session.last_iterate is not None else ()
     parts.append(f"bounds: {', '.join(bounds) if bounds else '-'}")
     frozen = [n for n, f in zip(session.winch_names, session.frozen) if f]

@@ -57,7 +57,7 @@ class PosingWindow:
         self.options = session.options
         self.callback_times = {k: deque(maxlen=TIMES_KEPT) for k in HANDLER_KINDS}
         self._syncing = False         # widgets being set from the state: not user input
-        self._drag = None             # {'kind': 'new'|'move', ...} during a mouse drag
+        self.mouse = TargetDrag(self)
         model = session.model
         self._tension_max = F.tension_scale(model, session.equilibrium_options)
         self._clim_drawn = self._tension_max
@@ -97,9 +97,9 @@ class PosingWindow:
         canvas = self.fig.canvas
         self._cids = [
             canvas.mpl_connect("draw_event", self.blitter.on_draw),
-            canvas.mpl_connect("button_press_event", self._on_press),
-            canvas.mpl_connect("motion_notify_event", self._on_motion),
-            canvas.mpl_connect("button_release_event", self._on_release),
+            canvas.mpl_connect("button_press_event", self.mouse.on_press),
+            canvas.mpl_connect("motion_notify_event", self.mouse.on_motion),
+            canvas.mpl_connect("button_release_event", self.mouse.on_release),
             canvas.mpl_connect("key_press_event", self._on_key),
             canvas.mpl_connect("close_event", self._on_close),
         ]
@@ -162,34 +162,16 @@ class PosingWindow:
             for k in ("targets", "points"):
                 a[k].set_data([], [])
             a["target_lines"].set_segments([])
-        self._draw_preview()
-        self._update_status()
+        self.mouse.draw_preview()
+        self.update_status()
 
-    def _draw_preview(self) -> None:
-        a = self.artists
-        self.blitter.pose_changed = True
-        d = self._drag
-        if d is None or d.get("to") is None:
-            for k in ("preview", "preview_line", "grab"):
-                a[k].set_data([], [])
-            return
-        x = self.session.x
-        if d["kind"] == "new":
-            start = d["beta"] @ x.reshape(-1, 2)[self.session.model.mesh.triangles[d["triangle"]]]
-        else:
-            start = self.session.targets.y(x)[d["k"]]
-        to = d["to"]
-        a["grab"].set_data([start[0]], [start[1]])
-        a["preview_line"].set_data([start[0], to[0]], [start[1], to[1]])
-        a["preview"].set_data([to[0]], [to[1]])
-
-    def _update_status(self) -> None:
+    def update_status(self) -> None:
         """The status strip follows the session; then blit what changed."""
         self.status_text.set_text(status_line(self.session))
         self.message_text.set_text(self.session.message)
-        self._refresh()
+        self.refresh()
 
-    def _refresh(self) -> None:
+    def refresh(self) -> None:
         if self._clim_drawn != self._tension_max:     # the colour bar must be redrawn too
             self._clim_drawn = self._tension_max
             self.blitter.backgrounds = None
@@ -210,7 +192,7 @@ class PosingWindow:
             if shown is not None:
                 self.sync()
             else:
-                self._update_status()
+                self.update_status()
         finally:
             dt = time.perf_counter() - t0
             self.callback_times["tick"].append(dt)
@@ -234,95 +216,8 @@ class PosingWindow:
 
     # ------------------------------------------------------------ events
 
-    def _timed(self, kind: str, t0: float) -> None:
+    def timed(self, kind: str, t0: float) -> None:
         self.callback_times[kind].append(time.perf_counter() - t0)
-
-    def _toolbar_busy(self) -> bool:
-        toolbar = getattr(self.fig.canvas, "toolbar", None)
-        return getattr(toolbar, "mode", "") not in ("", None)
-
-    def _data_per_pixel(self) -> float:
-        inv = self.ax.transData.inverted()
-        (x0, _), (x1, _) = inv.transform([(0.0, 0.0), (1.0, 0.0)])
-        return abs(x1 - x0)
-
-    def _target_near(self, event, include_points: bool):
-        """Index of the target marker (or body point) within the pick radius, or None."""
-        t = self.session.targets
-        if not t.n_targets:
-            return None
-        spots = [t.to] + ([t.y(self.session.x)] if include_points else [])
-        best, best_d = None, self.options.pick_radius
-        for pts in spots:
-            pix = self.ax.transData.transform(pts)
-            d = np.hypot(pix[:, 0] - event.x, pix[:, 1] - event.y)
-            k = int(np.argmin(d))
-            if d[k] <= best_d:
-                best, best_d = k, d[k]
-        return best
-
-    def _on_press(self, event) -> None:
-        t0 = time.perf_counter()
-        try:
-            if event.inaxes is not self.ax or self._toolbar_busy() or event.xdata is None:
-                return
-            if event.button == 3:
-                k = self._target_near(event, include_points=True)
-                if k is not None:
-                    self.session.remove_target(k)
-                    self.redraw()
-                return
-            if event.button == 1:
-                self._start_drag(event)
-        finally:
-            self._timed("press", t0)
-
-    def _start_drag(self, event) -> None:
-        s = self.session
-        k = self._target_near(event, include_points=False)
-        if k is not None:
-            self._drag = {"kind": "move", "k": k, "to": None}
-            s.message = f"moving target {k + 1}"
-            return
-        found = s.locate((event.xdata, event.ydata), tol=self.options.pick_radius * self._data_per_pixel())
-        if found is None:
-            s.message = "press on the body to grab a point of it"
-            self._update_status()
-            return
-        tri, beta = found
-        self._drag = {"kind": "new", "triangle": tri, "beta": beta,
-                      "to": (float(event.xdata), float(event.ydata))}
-        s.message = "drag to where this point should go, release to set the target"
-        self.redraw()
-
-    def _on_motion(self, event) -> None:
-        if self._drag is None or event.inaxes is not self.ax or event.xdata is None:
-            return
-        t0 = time.perf_counter()
-        self._drag["to"] = (float(event.xdata), float(event.ydata))
-        self._draw_preview()
-        self._refresh()
-        self._timed("motion", t0)
-
-    def _on_release(self, event) -> None:
-        d = self._drag
-        if d is None or event.button != 1:
-            return
-        t0 = time.perf_counter()
-        try:
-            self._drag = None
-            if event.inaxes is self.ax and event.xdata is not None:
-                to = (float(event.xdata), float(event.ydata))
-            else:
-                to = d["to"]   # released outside the axes: the last position seen
-            if to is not None:
-                if d["kind"] == "new":
-                    self.session.add_target(d["triangle"], d["beta"], to)
-                else:
-                    self.session.move_target(d["k"], to)
-            self.redraw()
-        finally:
-            self._timed("release", t0)
 
     def _on_key(self, event) -> None:
         t0 = time.perf_counter()
@@ -332,7 +227,7 @@ class PosingWindow:
                 self.session.toggle_pause()
                 self.redraw()
             elif key == "r":
-                self._drag = None
+                self.mouse.drag = None
                 self.session.reset()
                 self.sync()
             elif key == "s":
@@ -342,7 +237,7 @@ class PosingWindow:
             else:
                 key_press_handler(event, self.fig.canvas, getattr(self.fig.canvas, "toolbar", None))
         finally:
-            self._timed("key", t0)
+            self.timed("key", t0)
 
     def _on_slider(self, i: int, value: float) -> None:
         if self._syncing:
@@ -352,7 +247,7 @@ class PosingWindow:
             self.session.set_contraction(i, value)
             self.sync()
         finally:
-            self._timed("slider", t0)
+            self.timed("slider", t0)
 
     def _on_freeze(self, i: int) -> None:
         if self._syncing:
@@ -363,7 +258,7 @@ class PosingWindow:
             self.session.set_frozen(i, status)
             self.redraw()
         finally:
-            self._timed("freeze", t0)
+            self.timed("freeze", t0)
 
     def _on_close(self, event) -> None:
         self.shutdown()
@@ -401,3 +296,124 @@ class PosingWindow:
             plt.show()
         finally:
             self.shutdown()
+
+
+class TargetDrag:
+    """Mouse handling on the pose axes: press on the body and drag to make
+    a target, drag a target's cross to move it, right-click to remove it;
+    the orange preview while dragging.
+
+    Attributes
+    ----------
+    drag : {'kind': 'new'|'move', ...} during a drag, else None.
+    """
+
+    def __init__(self, window: PosingWindow):
+        self.window = window
+        self.drag = None
+
+    def _toolbar_busy(self) -> bool:
+        toolbar = getattr(self.window.fig.canvas, "toolbar", None)
+        return getattr(toolbar, "mode", "") not in ("", None)
+
+    def _data_per_pixel(self) -> float:
+        inv = self.window.ax.transData.inverted()
+        (x0, _), (x1, _) = inv.transform([(0.0, 0.0), (1.0, 0.0)])
+        return abs(x1 - x0)
+
+    def _target_near(self, event, include_points: bool):
+        """Index of the target marker (or body point) within the pick radius, or None."""
+        t = self.window.session.targets
+        if not t.n_targets:
+            return None
+        spots = [t.to] + ([t.y(self.window.session.x)] if include_points else [])
+        best, best_d = None, self.window.options.pick_radius
+        for pts in spots:
+            pix = self.window.ax.transData.transform(pts)
+            d = np.hypot(pix[:, 0] - event.x, pix[:, 1] - event.y)
+            k = int(np.argmin(d))
+            if d[k] <= best_d:
+                best, best_d = k, d[k]
+        return best
+
+    def on_press(self, event) -> None:
+        t0 = time.perf_counter()
+        try:
+            if event.inaxes is not self.window.ax or self._toolbar_busy() or event.xdata is None:
+                return
+            if event.button == 3:
+                k = self._target_near(event, include_points=True)
+                if k is not None:
+                    self.window.session.remove_target(k)
+                    self.window.redraw()
+                return
+            if event.button == 1:
+                self._start_drag(event)
+        finally:
+            self.window.timed("press", t0)
+
+    def _start_drag(self, event) -> None:
+        s = self.window.session
+        k = self._target_near(event, include_points=False)
+        if k is not None:
+            self.drag = {"kind": "move", "k": k, "to": None}
+            s.message = f"moving target {k + 1}"
+            return
+        tol = self.window.options.pick_radius * self._data_per_pixel()
+        found = s.locate((event.xdata, event.ydata), tol=tol)
+        if found is None:
+            s.message = "press on the body to grab a point of it"
+            self.window.update_status()
+            return
+        tri, beta = found
+        self.drag = {"kind": "new", "triangle": tri, "beta": beta,
+                      "to": (float(event.xdata), float(event.ydata))}
+        s.message = "drag to where this point should go, release to set the target"
+        self.window.redraw()
+
+    def on_motion(self, event) -> None:
+        if self.drag is None or event.inaxes is not self.window.ax or event.xdata is None:
+            return
+        t0 = time.perf_counter()
+        self.drag["to"] = (float(event.xdata), float(event.ydata))
+        self.draw_preview()
+        self.window.refresh()
+        self.window.timed("motion", t0)
+
+    def on_release(self, event) -> None:
+        d = self.drag
+        if d is None or event.button != 1:
+            return
+        t0 = time.perf_counter()
+        try:
+            self.drag = None
+            if event.inaxes is self.window.ax and event.xdata is not None:
+                to = (float(event.xdata), float(event.ydata))
+            else:
+                to = d["to"]   # released outside the axes: the last position seen
+            if to is not None:
+                if d["kind"] == "new":
+                    self.window.session.add_target(d["triangle"], d["beta"], to)
+                else:
+                    self.window.session.move_target(d["k"], to)
+            self.window.redraw()
+        finally:
+            self.window.timed("release", t0)
+
+    def draw_preview(self) -> None:
+        a = self.window.artists
+        self.window.blitter.pose_changed = True
+        d = self.drag
+        if d is None or d.get("to") is None:
+            for k in ("preview", "preview_line", "grab"):
+                a[k].set_data([], [])
+            return
+        x = self.window.session.x
+        if d["kind"] == "new":
+            start = d["beta"] @ x.reshape(-1, 2)[self.window.session.model.mesh.triangles[d["triangle"]]]
+        else:
+            start = self.window.session.targets.y(x)[d["k"]]
+        to = d["to"]
+        a["grab"].set_data([start[0]], [start[1]])
+        a["preview_line"].set_data([start[0], to[0]], [start[1], to[1]])
+        a["preview"].set_data([to[0]], [to[1]])
