@@ -293,7 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_demo(sub)
     from .bench import add_bench_parser
     add_bench_parser(sub)
-    from ..gui import add_gui_parser
+    from .gui import add_gui_parser
     add_gui_parser(sub)
     from .compare import add_compare_parser
     add_compare_parser(sub)
