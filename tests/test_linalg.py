@@ -55,7 +55,7 @@ def test_backend_matches_dense_linear_algebra(hessian, backend):
 
 
 @pytest.mark.parametrize("backend", INSTALLED)
-def test_backend_refuses_indefinite_and_near_singular(hessian, backend):
+def test_backend_refuses_an_indefinite_matrix_and_shifts_it(hessian, backend):
     H = hessian
     lam = _dense_min_eig(H)
     fz = Factorizer(backend)
@@ -68,10 +68,18 @@ def test_backend_refuses_indefinite_and_near_singular(hessian, backend):
     value, vector = shifted.most_negative_eigenpair()
     assert value == pytest.approx(-lam, rel=1e-6)
     assert np.linalg.norm(indefinite @ vector - value * vector) <= 1e-6 * abs(value)
-    # singular to round-off: positive pivots, but some below the margin
-    singular = (H - lam * (1 - 1e-15) * sp.identity(H.shape[0], format="csc")).tocsc()
+
+
+@pytest.mark.parametrize("backend", INSTALLED)
+def test_backend_refuses_a_matrix_singular_to_round_off(backend):
+    """Positive pivots, one of them below PIVOT_MARGIN x the largest (in
+    either elimination order the pivots multiply to the 2x2 block's
+    determinant, 1e-14)."""
+    block = sp.csc_matrix([[1.0, 1.0], [1.0, 1.0 + 1e-14]])
+    singular = sp.block_diag([block, sp.identity(8)], format="csc")
+    assert np.all(np.linalg.eigvalsh(singular.toarray()) > 0)
     with pytest.raises(NotPositiveDefinite, match=f"not above {PIVOT_MARGIN:g}"):
-        fz.factor(singular)
+        Factorizer(backend).factor(singular)
 
 
 def test_a_factor_stays_valid_after_later_factorisations(hessian):
