@@ -5,6 +5,7 @@ the same forward and control results on a shipped problem."""
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,9 +17,7 @@ from plush_opt.errors import SolverError
 from plush_opt.linalg import PIVOT_MARGIN, Factorizer, NotPositiveDefinite
 from plush_opt.problem import load
 
-from conftest import ROOT
-
-GRIPPER = ROOT / "problems" / "gripper.yaml"
+GRIPPER = Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"
 INSTALLED = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
 needs_both = pytest.mark.skipif(len(INSTALLED) < 2, reason="CHOLMOD (the [cholmod] extra) not installed")
 
