@@ -1,5 +1,6 @@
 # The two commands a user needs: `make demo` and `make test`.
-# Both create .venv on first use and install everything, system packages included.
+# Both create .venv on first use and install everything, system packages included,
+# at the versions in requirements.lock (`make lock` regenerates it).
 
 PYTHON ?= python3
 VENV   := .venv
@@ -7,7 +8,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: demo test system-deps emulator clean
+.PHONY: demo test system-deps lock emulator clean
 
 demo: $(STAMP) emulator
 	$(VENV)/bin/plush-opt demo --out out/demo
@@ -17,7 +18,8 @@ demo: $(STAMP) emulator
 test: $(STAMP) emulator
 	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q tests
 
-# CHOLMOD headers for scikit-sparse and a C++ compiler for the board emulator.
+# CHOLMOD headers for the [cholmod] extra (scikit-sparse builds from source)
+# and a C++ compiler for the board emulator.
 system-deps:
 	@if [ ! -f /usr/include/suitesparse/cholmod.h ] || ! command -v g++ >/dev/null; then \
 	  echo "installing system packages: libsuitesparse-dev g++"; \
@@ -26,15 +28,28 @@ system-deps:
 	  { echo "error: could not install libsuitesparse-dev and g++ (need apt-get and root or sudo)" >&2; exit 1; }; \
 	fi
 
-$(STAMP): pyproject.toml | system-deps
+# The lock constrains every dependency to the versions the suite passed with.
+$(STAMP): pyproject.toml requirements.lock | system-deps
 	@[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q -c requirements.lock -e '.[cholmod,dev]'
 	@touch $(STAMP)
+
+# Resolve pyproject's dependencies afresh in a clean venv and freeze them.
+# Run it to move to newer versions, then `make test` before committing.
+LOCK_VENV := .lock-venv
+lock: | system-deps
+	rm -rf $(LOCK_VENV)
+	$(PYTHON) -m venv $(LOCK_VENV)
+	$(LOCK_VENV)/bin/python -m pip install -q --upgrade pip
+	$(LOCK_VENV)/bin/python -m pip install -q '.[cholmod,dev]'
+	{ echo "# Versions the test suite passes with; made by \`make lock\`, used as pip constraints."; \
+	  $(LOCK_VENV)/bin/python -m pip freeze --exclude plush_opt --exclude plush-opt; } > requirements.lock
+	rm -rf $(LOCK_VENV) build
 
 emulator:
 	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw; fi
 
 clean:
-	rm -rf $(VENV) out build *.egg-info
+	rm -rf $(VENV) $(LOCK_VENV) out build *.egg-info
 	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw clean; fi

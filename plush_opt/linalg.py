@@ -1,10 +1,23 @@
-"""Sparse symmetric factorisation: CHOLMOD with the symbolic analysis done
+"""Sparse symmetric factorisation: an LDL^T with the symbolic analysis done
 once per sparsity pattern, a positive-definiteness test for free, and a
-cheap smallest-eigenvalue estimate from the factor."""
+cheap smallest-eigenvalue estimate from the factor.
+
+Two backends, the same results to round-off:
+
+- ``cholmod``: CHOLMOD (scikit-sparse, the ``[cholmod]`` extra; needs the
+  SuiteSparse headers to build). Used when installed.
+- ``qdldl``: QDLDL (a wheel on every platform, a normal dependency). Used
+  when CHOLMOD is not installed, or when forced.
+
+The environment variable ``PLUSH_OPT_LINALG`` (``cholmod`` or ``qdldl``)
+forces one; :data:`BACKEND` names the one in use.
+"""
 
 from __future__ import annotations
 
 import logging
+import os
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -12,14 +25,31 @@ import scipy.sparse.linalg as spla
 
 from .errors import SolverError
 
-try:
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
-except ImportError as exc:  # pragma: no cover - a broken install
-    raise SolverError(
-        "scikit-sparse (CHOLMOD) is not installed; run `make test` or "
-        "`pip install scikit-sparse` after installing libsuitesparse-dev") from exc
-
 log = logging.getLogger(__name__)
+
+#: the backends, fastest first
+BACKENDS = ("cholmod", "qdldl")
+#: environment variable forcing a backend (empty: the fastest installed)
+ENV_VAR = "PLUSH_OPT_LINALG"
+
+
+def _cholmod_installed() -> bool:
+    try:
+        import sksparse.cholmod  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _default_backend() -> str:
+    forced = os.environ.get(ENV_VAR, "").strip().lower()
+    if forced:
+        return forced           # checked when a Factorizer is made: an error there is one line
+    return "cholmod" if _cholmod_installed() else "qdldl"
+
+
+#: name of the backend new :class:`Factorizer` objects use
+BACKEND = _default_backend()
 
 
 # Relative pivot margin: round-off in a factorisation is ~1e-16 |H|; a
@@ -32,41 +62,134 @@ class NotPositiveDefinite(Exception):
     """The matrix has a non-positive pivot: it is not positive definite."""
 
 
+def _checked_backend(name: str) -> str:
+    if name not in BACKENDS:
+        raise SolverError(f"{ENV_VAR}={name!r}: expected one of {', '.join(BACKENDS)}")
+    if name == "cholmod" and not _cholmod_installed():
+        raise SolverError(f"{ENV_VAR}=cholmod: scikit-sparse (CHOLMOD) is not installed; install "
+                          "libsuitesparse-dev, then `pip install 'plush_opt[cholmod]'`")
+    if name == "qdldl":
+        try:
+            import qdldl  # noqa: F401
+        except ImportError:
+            raise SolverError("qdldl is not installed (a dependency of plush_opt): "
+                              "`pip install qdldl`") from None
+    return name
+
+
 class Factorizer:
-    """Cholesky factorisations of matrices sharing one sparsity pattern.
+    """LDL^T factorisations of matrices sharing one sparsity pattern.
 
     The fill-reducing ordering (AMD) and symbolic analysis are computed on
     the first call and reused for every later matrix with the same pattern.
-    CHOLMOD's simplicial LDL^T is used: on these meshes it is about twice
-    as fast as the supernodal LL^T. The matrix counts as positive definite
-    when every pivot of D exceeds ``PIVOT_MARGIN`` times the largest: a
-    matrix singular to round-off (a free rigid mode, a bifurcation point)
-    can factor with tiny positive pivots, and must not be certified.
+    Both backends factor without pivoting, as a simplicial LDL^T (with
+    CHOLMOD, about twice as fast as its supernodal LL^T on these meshes).
+    The matrix counts as positive definite when every pivot of D exceeds
+    ``PIVOT_MARGIN`` times the largest: a matrix singular to round-off (a
+    free rigid mode, a bifurcation point) can factor with tiny positive
+    pivots, and must not be certified.
+
+    ``backend``: one of :data:`BACKENDS`; default :data:`BACKEND`.
     """
 
-    def __init__(self):
+    def __init__(self, backend: str | None = None):
+        self.backend = _checked_backend(BACKEND if backend is None else backend)
         self._symbolic = None
         self._pattern = None
+        self._spare: list = []      # qdldl: solvers of this pattern no live Factor holds
 
     def factor(self, H: sp.csc_matrix, shift: float = 0.0) -> "Factor":
-        """Cholesky of ``H + shift I``; raises :class:`NotPositiveDefinite`."""
+        """LDL^T of ``H + shift I``; raises :class:`NotPositiveDefinite`."""
         pattern = (H.shape, H.indptr.tobytes(), H.indices.tobytes())
         if self._symbolic is None or pattern != self._pattern:
-            self._symbolic = analyze(H, mode="simplicial", ordering_method="amd")
+            self._symbolic = None
+            self._spare = []
             self._pattern = pattern
+        if self.backend == "cholmod":
+            return self._factor_cholmod(H, shift)
+        return self._factor_qdldl(H, shift)
+
+    def _factor_cholmod(self, H, shift) -> "Factor":
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
+        if self._symbolic is None:
+            self._symbolic = analyze(H, mode="simplicial", ordering_method="amd")
         try:
             f = self._symbolic.cholesky(H, beta=shift)
         except CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(str(exc)) from None
-        d = f.D()
-        if not np.all(np.isfinite(d)) or not np.min(d) > PIVOT_MARGIN * np.max(np.abs(d)):
-            raise NotPositiveDefinite(f"LDL^T pivot {float(np.min(d)):.3g} not above "
-                                      f"{PIVOT_MARGIN:g} x {float(np.max(np.abs(d))):.3g}")
+        _check_pivots(f.D())
         return Factor(f, H, shift)
+
+    def _factor_qdldl(self, H, shift) -> "Factor":
+        # One qdldl solver holds one numeric factor, refactored in place;
+        # a Factor handed out must stay valid, so each live Factor owns its
+        # solver and gives it back (to be refactored) when it is dropped.
+        import qdldl
+        if self._symbolic is None:
+            self._symbolic = _UpperPattern(H)
+        U = self._symbolic.upper(H, shift)
+        if self._spare:
+            solver = self._spare.pop()
+            solver.update(U, upper=True)
+        else:
+            solver = qdldl.Solver(U, upper=True)       # AMD + symbolic + numeric
+        try:
+            _check_pivots(solver.factors()[1])
+        except NotPositiveDefinite:
+            self._spare.append(solver)
+            raise
+        f = Factor(_columnwise(solver.solve), H, shift)
+        weakref.finalize(f, self._give_back, self._pattern, solver).atexit = False
+        return f
+
+    def _give_back(self, pattern, solver):
+        if pattern == self._pattern:
+            self._spare.append(solver)
+
+
+def _check_pivots(d: np.ndarray):
+    if not np.all(np.isfinite(d)) or not np.min(d) > PIVOT_MARGIN * np.max(np.abs(d)):
+        raise NotPositiveDefinite(f"LDL^T pivot {float(np.min(d)):.3g} not above "
+                                  f"{PIVOT_MARGIN:g} x {float(np.max(np.abs(d))):.3g}")
+
+
+def _columnwise(solve):
+    """A solve of one vector extended to the columns of a matrix."""
+    def f(b):
+        b = np.asarray(b, dtype=np.float64)
+        if b.ndim == 1:
+            return solve(b)
+        return np.column_stack([solve(np.ascontiguousarray(b[:, j])) for j in range(b.shape[1])])
+    return f
+
+
+class _UpperPattern:
+    """The upper triangle of a symmetric CSC pattern, diagonal included
+    (QDLDL reads the upper triangle), with where each entry of H goes: the
+    pattern is built once, then each matrix costs one scatter."""
+
+    def __init__(self, H: sp.csc_matrix):
+        n = H.shape[0]
+        cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(H.indptr))
+        rows = H.indices.astype(np.int64)
+        self._keep = np.flatnonzero(rows <= cols)
+        diag = np.arange(n, dtype=np.int64)
+        key = np.concatenate([cols[self._keep] * n + rows[self._keep], diag * n + diag])
+        ukey = np.unique(key)          # column-major order: a canonical CSC
+        self._shape = H.shape
+        self._indices = (ukey % n).astype(np.int32)
+        self._indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // n, minlength=n))]).astype(np.int32)
+        where = np.searchsorted(ukey, key)
+        self._src, self._diag = where[:len(self._keep)], where[len(self._keep):]
+
+    def upper(self, H: sp.csc_matrix, shift: float) -> sp.csc_matrix:
+        data = np.bincount(self._src, weights=H.data[self._keep], minlength=len(self._indices))
+        data[self._diag] += shift
+        return sp.csc_matrix((data, self._indices, self._indptr), shape=self._shape)
 
 
 class Factor:
-    """A Cholesky factor of ``H + shift I``: solve, and the smallest eigenvalue."""
+    """An LDL^T factor of ``H + shift I``: solve, and the smallest eigenvalue."""
 
     def __init__(self, chol, H, shift):
         self._chol = chol

@@ -1,0 +1,148 @@
+"""The factorisation backends: CHOLMOD (the optional extra) and QDLDL (the
+wheel-only fallback) give the same solves, verdicts and eigenvalues, and
+the same forward and control results on a shipped problem."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from plush_opt import linalg
+from plush_opt.control.gradient import solve_control
+from plush_opt.errors import SolverError
+from plush_opt.linalg import PIVOT_MARGIN, Factorizer, NotPositiveDefinite
+from plush_opt.problem import load
+
+GRIPPER = Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"
+INSTALLED = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
+needs_both = pytest.mark.skipif(len(INSTALLED) < 2, reason="CHOLMOD (the [cholmod] extra) not installed")
+
+# the two backends factor the same matrix in different orders of operations
+# (and read opposite triangles of a Hessian symmetric to round-off)
+AGREE = 1e-9
+
+
+@pytest.fixture(scope="module")
+def hessian():
+    """The gripper's Hessian at an equilibrium: positive definite, larger
+    than the size where min_eigenvalue turns to Lanczos."""
+    p = load(GRIPPER)
+    eq = p.equilibrium({"left": 10.0})
+    H = p.model.evaluate(eq.x, eq.contraction).hessian
+    assert H.shape[0] > 200
+    return H
+
+
+def _dense_min_eig(H):
+    return float(np.linalg.eigvalsh(H.toarray())[0])
+
+
+@pytest.mark.parametrize("backend", INSTALLED)
+def test_backend_matches_dense_linear_algebra(hessian, backend):
+    H = hessian
+    b = np.random.default_rng(3).standard_normal(H.shape[0])
+    f = Factorizer(backend).factor(H)
+    x = f.solve(b)
+    assert np.linalg.norm(H @ x - b) <= 1e-10 * np.linalg.norm(b)
+    X = f.solve(np.column_stack([b, 2 * b]))
+    assert X.shape == (H.shape[0], 2) and np.allclose(X[:, 1], 2 * x, rtol=1e-12, atol=0)
+    assert f.min_eigenvalue() == pytest.approx(_dense_min_eig(H), rel=1e-6)
+
+
+@pytest.mark.parametrize("backend", INSTALLED)
+def test_backend_refuses_an_indefinite_matrix_and_shifts_it(hessian, backend):
+    H = hessian
+    lam = _dense_min_eig(H)
+    fz = Factorizer(backend)
+    indefinite = (H - 2 * lam * sp.identity(H.shape[0], format="csc")).tocsc()
+    with pytest.raises(NotPositiveDefinite, match="pivot"):
+        fz.factor(indefinite)
+    # the regularised shift makes it definite; Lanczos on that factor
+    # finds the negative eigenvalue (-lam) of the unshifted matrix
+    shifted = fz.factor(indefinite, shift=3 * lam)
+    value, vector = shifted.most_negative_eigenpair()
+    assert value == pytest.approx(-lam, rel=1e-6)
+    assert np.linalg.norm(indefinite @ vector - value * vector) <= 1e-6 * abs(value)
+
+
+@pytest.mark.parametrize("backend", INSTALLED)
+def test_backend_refuses_a_matrix_singular_to_round_off(backend):
+    """Positive pivots, one of them below PIVOT_MARGIN x the largest (in
+    either elimination order the pivots multiply to the 2x2 block's
+    determinant, 1e-14)."""
+    block = sp.csc_matrix([[1.0, 1.0], [1.0, 1.0 + 1e-14]])
+    singular = sp.block_diag([block, sp.identity(8)], format="csc")
+    assert np.all(np.linalg.eigvalsh(singular.toarray()) > 0)
+    with pytest.raises(NotPositiveDefinite, match=f"not above {PIVOT_MARGIN:g}"):
+        Factorizer(backend).factor(singular)
+
+
+def test_a_factor_stays_valid_after_later_factorisations(hessian):
+    """QDLDL refactors one solver in place: a Factor kept (an equilibrium's)
+    must not change when the same Factorizer factors other matrices."""
+    fz = Factorizer("qdldl")
+    b = np.ones(hessian.shape[0])
+    kept = fz.factor(hessian)
+    x = kept.solve(b)
+    for scale in (2.0, 3.0, 5.0):
+        fz.factor(scale * hessian).solve(b)      # each dropped at once: its solver reused
+    assert np.array_equal(kept.solve(b), x)
+
+
+@needs_both
+def test_backends_agree(hessian):
+    H = hessian
+    b = np.random.default_rng(5).standard_normal(H.shape[0])
+    fa, fb = Factorizer("cholmod").factor(H), Factorizer("qdldl").factor(H)
+    xa, xb = fa.solve(b), fb.solve(b)
+    assert np.linalg.norm(xa - xb) <= AGREE * np.linalg.norm(xa)
+    assert fb.min_eigenvalue() == pytest.approx(fa.min_eigenvalue(), rel=AGREE)
+    lam = fa.min_eigenvalue()
+    for delta, definite in ((0.5, True), (1.5, False)):
+        M = (H - delta * lam * sp.identity(H.shape[0], format="csc")).tocsc()
+        verdicts = []
+        for backend in ("cholmod", "qdldl"):
+            try:
+                Factorizer(backend).factor(M)
+                verdicts.append(True)
+            except NotPositiveDefinite:
+                verdicts.append(False)
+        assert verdicts == [definite, definite]
+
+
+def _forward_and_control(monkeypatch, backend):
+    monkeypatch.setattr(linalg, "BACKEND", backend)
+    p = load(GRIPPER)                      # its model's Factorizer takes BACKEND
+    eq = p.equilibrium({"left": 10.0})
+    res = solve_control(p.model, p.targets, p.scene.contraction)
+    return eq, res
+
+
+@needs_both
+def test_forward_and_control_agree_on_gripper(monkeypatch):
+    (eq_a, res_a), (eq_b, res_b) = (_forward_and_control(monkeypatch, b) for b in ("cholmod", "qdldl"))
+    assert eq_a.converged and eq_b.converged and eq_a.iterations == eq_b.iterations
+    assert np.linalg.norm(eq_b.x - eq_a.x) <= AGREE * np.linalg.norm(eq_a.x)
+    assert eq_b.min_eigenvalue == pytest.approx(eq_a.min_eigenvalue, rel=AGREE)
+    ca, cb = res_a.equilibrium.contraction, res_b.equilibrium.contraction
+    assert np.linalg.norm(cb - ca) <= AGREE * np.linalg.norm(ca)
+    assert res_b.objective == pytest.approx(res_a.objective, rel=AGREE)
+    xa, xb = res_a.equilibrium.x, res_b.equilibrium.x
+    assert np.linalg.norm(xb - xa) <= AGREE * np.linalg.norm(xa)
+
+
+def test_environment_variable_forces_the_fallback():
+    env = dict(os.environ, PLUSH_OPT_LINALG="qdldl")
+    code = "from plush_opt import linalg; print(linalg.BACKEND, linalg.Factorizer().backend)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["qdldl", "qdldl"]
+
+
+def test_unknown_backend_is_one_clear_error(monkeypatch):
+    monkeypatch.setattr(linalg, "BACKEND", "umfpack")
+    with pytest.raises(SolverError, match=r"^PLUSH_OPT_LINALG='umfpack': expected one of cholmod, qdldl$"):
+        Factorizer()

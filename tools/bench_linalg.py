@@ -1,0 +1,127 @@
+"""Time one factorisation + solve per sparse backend on the shipped problems'
+Hessians, with the symbolic analysis reused across refactorisations (as
+Newton does).
+
+    python tools/bench_linalg.py [--nodes 1000 2000 3000] [--repeats 30]
+
+For each problem and node count: the Hessian at the equilibrium of a
+mid-range contraction, then the time of ``factor(H)`` +
+``solve(b)`` through :class:`plush_opt.linalg.Factorizer` for each
+installed backend (the pivot test included), and of SciPy's SuperLU
+(``splu``, no reuse of the analysis possible) as a baseline, and of
+cholespy if installed (another wheel, no refactorisation API): the fastest
+of ``--repeats`` calls, the backends interleaved. Prints a
+Markdown table; the ratio column is QDLDL's time over CHOLMOD's.
+Run it with one BLAS thread (OPENBLAS_NUM_THREADS=1), as the test suite does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from plush_opt import linalg
+from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.mesh import mesh_for_nodes
+from plush_opt.model import build_model
+from plush_opt.scene import load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+PROBLEMS = ("gripper", "hexapod", "hexapod_leg")
+#: where in each winch's range the Hessian is taken (a loaded, not a rest, pose)
+CONTRACTION_FRACTION = 0.4
+
+
+def _best_seconds(fns: dict, repeats: int) -> dict:
+    """Fastest of ``repeats`` timed calls of each function, the functions
+    taken in turn so a busy machine slows them alike (the fastest call is
+    the one least disturbed by other processes)."""
+    for fn in fns.values():
+        fn()                               # the first call does the symbolic analysis
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(repeats):
+        for key, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            best[key] = min(best[key], time.perf_counter() - t0)
+    return best
+
+
+def _hessian(name: str, nodes: int):
+    scene = load_scene(ROOT / "problems" / f"{name}.yaml")
+    mesh = mesh_for_nodes(scene, nodes)
+    model = build_model(scene, mesh)
+    c = model.lower + CONTRACTION_FRACTION * (model.upper - model.lower)
+    eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
+    return mesh.n_nodes, model.evaluate(eq.x, c).hessian
+
+
+def _version(pkg: str) -> str:
+    try:
+        return version(pkg)
+    except PackageNotFoundError:
+        return "not installed"
+
+
+def _cholespy():
+    try:
+        import cholespy
+    except ImportError:
+        return None
+    return cholespy
+
+
+def _cholespy_solve(H, b):
+    """cholespy (CHOLMOD bundled in a wheel) has no refactorisation: every
+    call redoes the analysis."""
+    cs = _cholespy()
+    solver = cs.CholeskySolverD(H.shape[0], H.indptr.astype(np.int32), H.indices.astype(np.int32),
+                                H.data, cs.MatrixType.CSC)
+    x = np.empty_like(b)
+    solver.solve(b.copy(), x)
+    return x
+
+
+def bench(name: str, nodes: int, repeats: int, backends) -> dict:
+    n_nodes, H = _hessian(name, nodes)
+    b = np.random.default_rng(0).standard_normal(H.shape[0])
+    fns = {backend: (lambda fz: lambda: fz.factor(H).solve(b))(linalg.Factorizer(backend))
+           for backend in backends}
+    fns["splu"] = lambda: spla.splu(H).solve(b)
+    if _cholespy() is not None:
+        fns["cholespy"] = lambda: _cholespy_solve(H, b)
+    return {"problem": name, "nodes": n_nodes, "nnz": H.nnz, **_best_seconds(fns, repeats)}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--nodes", type=int, nargs="+", default=[1000, 2000, 3000])
+    ap.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=PROBLEMS)
+    ap.add_argument("--repeats", type=int, default=40)
+    args = ap.parse_args(argv)
+    backends = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
+    print(f"Python {platform.python_version()}, scipy {_version('scipy')}, "
+          f"scikit-sparse {_version('scikit-sparse')}, qdldl {_version('qdldl')}; "
+          f"{platform.processor() or platform.machine()}\n")
+    extra = ["splu"] + (["cholespy"] if _cholespy() is not None else [])
+    cols = [f"{b} (ms)" for b in backends + extra]
+    ratio = "cholmod" in backends
+    print("| problem | nodes | nnz(H) | " + " | ".join(cols) + (" | qdldl / cholmod |" if ratio else " |"))
+    print("|---" * (3 + len(cols) + ratio) + "|")
+    for name in args.problems:
+        for nodes in args.nodes:
+            r = bench(name, nodes, args.repeats, backends)
+            cells = [f"{1e3 * r[b]:.2f}" for b in backends + extra]
+            if ratio:
+                cells.append(f"{r['qdldl'] / r['cholmod']:.2f}")
+            print(f"| {r['problem']} | {r['nodes']} | {r['nnz']} | " + " | ".join(cells) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
