@@ -14,14 +14,27 @@ Everything else lives in the modules named in docs/architecture.md.
 
 __version__ = "0.1.0"
 
-from .control import (BilevelOptions, ControlIterate, ControlOptions, ControlResult,  # noqa: E402
-                      ControlStats)
-from .equilibrium import Equilibrium, EquilibriumOptions  # noqa: E402
-from .errors import HardwareError, PlushError, SceneError, SolverError  # noqa: E402
-from .problem import Problem, from_scene, load  # noqa: E402
+# The names are imported on first use (PEP 562): importing a submodule, the
+# command line's parser for one, stays free of numpy, CasADi and the solvers.
+_API = {
+    "BilevelOptions": "control", "ControlIterate": "control", "ControlOptions": "control",
+    "ControlResult": "control", "ControlStats": "control",
+    "Equilibrium": "equilibrium", "EquilibriumOptions": "equilibrium",
+    "HardwareError": "errors", "PlushError": "errors", "SceneError": "errors", "SolverError": "errors",
+    "Problem": "problem", "from_scene": "problem", "load": "problem",
+}
 
-__all__ = [
-    "BilevelOptions", "ControlIterate", "ControlOptions", "ControlResult", "ControlStats",
-    "Equilibrium", "EquilibriumOptions", "HardwareError", "PlushError", "Problem", "SceneError",
-    "SolverError", "__version__", "from_scene", "load",
-]
+__all__ = sorted(_API) + ["__version__"]
+
+
+def __getattr__(name):
+    if name in _API:
+        import importlib
+        value = getattr(importlib.import_module(f".{_API[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'plush_opt' has no attribute {name!r}")
+
+
+def __dir__():
+    return __all__
