@@ -125,8 +125,7 @@ class PosingSession:
         The robot. The session stops it on :meth:`shutdown`; closing the
         link is the caller's business.
     options : :class:`GuiOptions`
-    clock : callable returning seconds, optional (``time.monotonic``): paces
-        board commands and counts the iterate rate.
+    clock : callable returning seconds (``time.monotonic``): paces the board, counts iterates.
 
     Attributes
     ----------
