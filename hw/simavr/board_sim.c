@@ -77,8 +77,10 @@ static const PwmPin PWM_PINS[MAX_MOTORS] = {
 };
 
 // Quadrature state (bit 0: channel A, bit 1: channel B) of encoder count
-// n, in the order the firmware's decoding table counts upwards.
-static const uint8_t QUAD[4] = {0, 2, 3, 1};
+// n, in the order the firmware's decoding table counts upwards. Count 0
+// has both lines high, as the pulled-up inputs read before the encoder
+// lines are first driven, so the firmware's first reading agrees.
+static const uint8_t QUAD[4] = {3, 1, 0, 2};
 
 // Time steps, in CPU cycles and their reason.
 #define MOTOR_PERIOD_CYCLES 800u  // 50 us: at the top speed a motor moves < 1 tick per step
@@ -152,8 +154,8 @@ static void usage(FILE* out) {
           "  --deadzone FRACTION  PWM fraction that does not turn the motor (default 0.06)\n"
           "  --state-file PATH    write the true state as JSON to PATH (atomically)\n"
           "  --state-interval MS  how often to write it (default 20)\n"
-          "  --encoder-start N    the encoders read N once the firmware has started, as\n"
-          "                       after a long travel (writes the firmware's enc_count)\n"
+          "  --encoder-start N    the encoders read N (a multiple of 4) once the firmware has\n"
+          "                       started, as after a long travel (writes its enc_count)\n"
           "  --verbose            log the serial bytes on stderr\n"
           "  --version, --help\n",
           MAX_MOTORS);
@@ -214,7 +216,7 @@ static int parse_args(int argc, char** argv, Options* o) {
     } else if (!strcmp(a, "--state-file")) {
       o->state_file = v;
     } else if (!strcmp(a, "--encoder-start")) {
-      ok = parse_long(v, -1000000000L, 1000000000L, &o->encoder_start);
+      ok = parse_long(v, -1000000000L, 1000000000L, &o->encoder_start) && o->encoder_start % 4 == 0;
     } else if (!strcmp(a, "--state-interval")) {
       ok = parse_long(v, 1, 60000, &o->state_interval_ms);
     } else {
@@ -306,11 +308,7 @@ static void preset_encoders(void) {
     m->count = m->min_count = m->max_count = g_opt.encoder_start;
     const uint32_t v = (uint32_t)g_opt.encoder_start;
     for (int b = 0; b < 4; ++b) g_avr->data[g_enc_addr + 4u * (uint32_t)a + (uint32_t)b] = (uint8_t)(v >> (8 * b));
-    const uint8_t q = QUAD[g_opt.encoder_start & 3];
-    avr_raise_irq(g_enc_irq[a][0], q & 1);
-    avr_raise_irq(g_enc_irq[a][1], (q >> 1) & 1);
-  }
-  g_avr->data[REG_PCIFR] &= (uint8_t)~(1u << BIT_PCIE2);  // those edges are not motion
+  }  // a multiple of 4 (see parse_args): the lines stay as the firmware last read them
 }
 
 static avr_cycle_count_t motor_step(avr_t* avr, avr_cycle_count_t when, void* param) {

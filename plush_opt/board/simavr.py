@@ -112,6 +112,7 @@ class SimavrBoard(_emulator.Emulator):
                          state_interval_ms=state_interval_ms, binary=sim,
                          extra_args=["--firmware", str(elf), *extra_args], start_timeout=start_timeout)
         self.firmware = elf
+        self.tau_s = float(tau)
 
     def __enter__(self) -> "SimavrBoard":
         self.start()
