@@ -107,9 +107,9 @@ class BoardUnderTest:
 
         The emulator's axes never overshoot. The firmware declares arrival on
         position alone and the simulated motor coasts for about its time
-        constant after the PID's own lag of about as long: two time constants.
+        constant after the PID's lag, then rings on its minimum PWM: about three.
         """
-        return 0.0 if self.kind == "emulator" else 2 * speed * self.sim.tau_s
+        return 0.0 if self.kind == "emulator" else 3 * speed * self.sim.tau_s
 
     def read_state(self, fresh: bool = True) -> dict:
         return self.sim.read_state(fresh=fresh)

@@ -22,7 +22,7 @@ def _get(port, seq):
     return P.parse_state(reply.payload, 4)
 
 
-def _settled(port, axis, seq=100, polls=4, interval=0.05):
+def _settled(port, axis, seq=100, polls=6, interval=0.1):
     """Wait until ``axis`` reads not moving in ``polls`` GETs in a row (a motor
     may pass through its deadband and coast on); True once it does."""
     def still():
@@ -31,7 +31,7 @@ def _settled(port, axis, seq=100, polls=4, interval=0.05):
                 return False
             time.sleep(interval)
         return True
-    return wait_until(still, timeout=4.0)
+    return wait_until(still, timeout=6.0)
 
 
 def test_identify_and_initial_state(board, raw_port):
@@ -101,13 +101,13 @@ def test_out_of_limit_targets_are_refused_not_clamped(board, raw_port):
     assert port.ask("4 SETALL 100 - 5 -") == "4 ERR 6 target outside limits"  # axis 2 limits are [0, 0]
     state = _get(port, 5)
     assert state.target == (0, 0, 0, 0) and not any(state.enabled)  # the refused SETALL moved nothing
-    assert port.ask("6 SPEED 0 1000") == "6 OK speed=1000"
+    assert port.ask("6 SPEED 0 500") == "6 OK speed=500"
     assert port.ask("7 SETALL 500 - - -") == "7 OK"
     assert _settled(port, 0)
     state = _get(port, 9)
     assert abs(state.position[0] - 500) <= board.deadband and state.enabled == (True, False, False, False)
     # The limit bounds targets; a real motor coasts past its target by up to speed x time constant.
-    assert board.read_state()["max_ticks"][0] <= 500 + board.coast(1000)
+    assert board.read_state()["max_ticks"][0] <= 500 + board.coast(500)
 
 
 def test_zero_limit_speed_and_busy(board, raw_port):
