@@ -303,3 +303,22 @@ def test_bad_flags_exit_2(emu_binary):
 def test_missing_binary_says_how_to_build(tmp_path):
     with pytest.raises(HardwareError, match=r"board emulator not built: .*make -C hw"):
         Emulator(1, binary=tmp_path / "plush-board-emu")
+
+
+def test_unread_replies_are_dropped_whole_never_cut(make_emulator, raw_port):
+    """A host that stops reading loses whole replies, never the tail of one."""
+    emu = make_emulator(3)
+    port = raw_port(emu.port)
+    n = 3000  # ~150 kB of GET replies: far more than the terminal holds
+    for start in range(1, n + 1, 100):
+        port.ser.write(b"".join(b"%d GET\n" % seq for seq in range(start, min(start + 100, n + 1))))
+    assert wait_until(lambda: emu.read_state(fresh=False)["lines"] == n, timeout=10.0)
+    assert emu.read_state()["dropped_replies"] > 0
+    port.ser.timeout = 0.3
+    seqs = []
+    while line := port.ser.readline():
+        reply = P.parse_reply(line)  # a cut reply glued to the next one does not parse
+        assert reply.ok and line.endswith(b"\n"), line
+        P.parse_state(reply.payload, 3)
+        seqs.append(reply.seq)
+    assert seqs == sorted(seqs) and len(seqs) + emu.read_state()["dropped_replies"] == n
