@@ -7,7 +7,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: demo test system-deps emulator clean
+.PHONY: demo test system-deps firmware-deps emulator clean
 
 demo: $(STAMP) emulator
 	$(VENV)/bin/plush-opt demo --out out/demo
@@ -32,8 +32,19 @@ $(STAMP): pyproject.toml | system-deps
 	$(PY) -m pip install -q -e '.[dev]'
 	@touch $(STAMP)
 
-emulator:
-	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw; fi
+# The AVR toolchain and Arduino core for the firmware, simavr for the simulated board.
+FIRMWARE_PKGS := gcc-avr avr-libc binutils-avr arduino-core-avr avrdude simavr libsimavr-dev libelf-dev pkg-config
+firmware-deps:
+	@if ! command -v avr-g++ >/dev/null || [ ! -f /usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h ] || \
+	    [ ! -f /usr/include/simavr/sim_avr.h ] || ! pkg-config --exists libelf 2>/dev/null; then \
+	  echo "installing firmware packages: $(FIRMWARE_PKGS)"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(FIRMWARE_PKGS) >/dev/null || \
+	  { echo "error: could not install $(FIRMWARE_PKGS) (need apt-get and root or sudo)" >&2; exit 1; }; \
+	fi
+
+emulator: | firmware-deps
+	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw everything; fi
 
 clean:
 	rm -rf $(VENV) out build *.egg-info
