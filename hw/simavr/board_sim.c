@@ -458,6 +458,23 @@ static void log_to_stderr(avr_t* avr, const int level, const char* format, va_li
   vfprintf(stderr, format, ap);
 }
 
+// The pseudo-terminal the host opens, raw until the host configures it.
+static int open_pty(void) {
+  g_master = posix_openpt(O_RDWR | O_NOCTTY);
+  if (g_master < 0 || grantpt(g_master) != 0 || unlockpt(g_master) != 0 || !ptsname(g_master)) {
+    fprintf(stderr, "plush-board-sim: cannot create a pseudo-terminal: %s\n", strerror(errno));
+    return 0;
+  }
+  fcntl(g_master, F_SETFL, fcntl(g_master, F_GETFL) | O_NONBLOCK);
+  struct termios tio;
+  if (tcgetattr(g_master, &tio) == 0) {  // raw until the host configures it
+    cfmakeraw(&tio);
+    tcsetattr(g_master, TCSANOW, &tio);
+  }
+
+  return 1;
+}
+
 int main(int argc, char** argv) {
   Options o = {4, 3000.0, 0.02, 0.06, NULL, NULL, 20, 0, 0};
   int rc = parse_args(argc, argv, &o);
@@ -505,17 +522,7 @@ int main(int argc, char** argv) {
   }
   avr_cycle_timer_register(g_avr, MOTOR_PERIOD_CYCLES, motor_step, NULL);
 
-  g_master = posix_openpt(O_RDWR | O_NOCTTY);
-  if (g_master < 0 || grantpt(g_master) != 0 || unlockpt(g_master) != 0 || !ptsname(g_master)) {
-    fprintf(stderr, "plush-board-sim: cannot create a pseudo-terminal: %s\n", strerror(errno));
-    return 1;
-  }
-  fcntl(g_master, F_SETFL, fcntl(g_master, F_GETFL) | O_NONBLOCK);
-  struct termios tio;
-  if (tcgetattr(g_master, &tio) == 0) {  // raw until the host configures it
-    cfmakeraw(&tio);
-    tcsetattr(g_master, TCSANOW, &tio);
-  }
+  if (!open_pty()) return 1;
 
   struct sigaction sa;
   memset(&sa, 0, sizeof sa);

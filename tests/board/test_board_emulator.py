@@ -270,10 +270,11 @@ def test_fuzzing_never_crashes_nor_leaves_the_limits(make_emulator, raw_port):
         stop.set()
         reader.join(2)
     assert emu.running, "emulator died while fuzzed"
-    time.sleep(0.05)
-    port.ser.timeout = 1.0
-    port.ser.reset_input_buffer()
     port.ser.write(b"\n")  # end whatever half line the fuzzer left
+    port.ser.timeout = 0.2
+    while port.ser.read(4096):  # replies still queued in the emulator: read until it is quiet
+        pass
+    port.ser.timeout = 1.0
     assert port.ask("54321 ID") == "54321 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
     state = emu.read_state()
     assert state["lines"] > 3000 and state["errors"] > 1000
