@@ -8,7 +8,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 SUDO   := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: demo test system-deps lock emulator clean
+.PHONY: demo test system-deps firmware-deps lock emulator clean
 
 demo: $(STAMP) emulator
 	$(VENV)/bin/plush-opt demo --out out/demo
@@ -47,8 +47,19 @@ lock: | system-deps
 	  $(LOCK_VENV)/bin/python -m pip freeze --exclude plush_opt --exclude plush-opt; } > requirements.lock
 	rm -rf $(LOCK_VENV) build
 
-emulator:
-	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw; fi
+# The AVR toolchain and Arduino core for the firmware, simavr for the simulated board.
+FIRMWARE_PKGS := gcc-avr avr-libc binutils-avr arduino-core-avr avrdude simavr libsimavr-dev libelf-dev pkg-config
+firmware-deps:
+	@if ! command -v avr-g++ >/dev/null || [ ! -f /usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h ] || \
+	    [ ! -f /usr/include/simavr/sim_avr.h ] || ! pkg-config --exists libelf 2>/dev/null; then \
+	  echo "installing firmware packages: $(FIRMWARE_PKGS)"; \
+	  $(SUDO) apt-get update -qq && \
+	  $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(FIRMWARE_PKGS) >/dev/null || \
+	  { echo "error: could not install $(FIRMWARE_PKGS) (need apt-get and root or sudo)" >&2; exit 1; }; \
+	fi
+
+emulator: | firmware-deps
+	@if [ -f hw/Makefile ]; then $(MAKE) -s -C hw everything; fi
 
 clean:
 	rm -rf $(VENV) $(LOCK_VENV) out build *.egg-info

@@ -141,22 +141,39 @@ double now_s() {
   return static_cast<double>(ts.tv_sec) + 1e-9 * static_cast<double>(ts.tv_nsec);
 }
 
-void write_all(int fd, const char* s, size_t n, unsigned long* dropped) {
-  while (n > 0) {
-    ssize_t w = write(fd, s, n);
-    if (w > 0) {
-      s += w;
-      n -= static_cast<size_t>(w);
-    } else if (w < 0 && errno == EINTR) {
-      continue;
-    } else {
-      // EAGAIN: the host does not read its replies; EIO: nobody has the
-      // port open. A board would lose these bytes too.
-      ++*dropped;
+// Replies wait here until the terminal takes them. Only whole replies are
+// queued or dropped, so the host never reads half a line followed by the
+// next reply.
+struct Outbox {
+  static const size_t kMaxPending = 4096;  // about one terminal buffer of replies not yet read
+  std::string pending;
+  unsigned long dropped = 0;  // whole replies lost
+
+  void queue(const char* reply, size_t n) {
+    if (pending.size() + n > kMaxPending) {
+      ++dropped;  // the host does not read its replies: a board would lose them too
       return;
     }
+    pending.append(reply, n);
   }
-}
+
+  void flush(int fd) {
+    while (!pending.empty()) {
+      ssize_t w = write(fd, pending.data(), pending.size());
+      if (w > 0) {
+        pending.erase(0, static_cast<size_t>(w));
+      } else if (w < 0 && errno == EINTR) {
+        continue;
+      } else {
+        if (w < 0 && errno == EIO) {  // nobody has the port open: the replies go nowhere
+          for (char c : pending) dropped += (c == '\n');
+          pending.clear();
+        }
+        return;  // EAGAIN: the rest goes out when the host reads
+      }
+    }
+  }
+};
 
 struct Sim {
   double x[plush::kMaxAxes] = {};       // true position, raw ticks
@@ -303,7 +320,7 @@ int main(int argc, char** argv) {
   double t_last = t0;
   double t_state = -1.0;
   bool connected = false;  // a host has the terminal open
-  unsigned long dropped = 0;
+  Outbox outbox;
   char line_in[512];
   size_t line_in_len = 0;
 
@@ -345,7 +362,7 @@ int main(int argc, char** argv) {
             const char* reply = core.feed(buf[i], now_ms);
             if (reply) {
               log_line(o, "->", reply, strlen(reply));
-              write_all(master, reply, strlen(reply), &dropped);
+              outbox.queue(reply, strlen(reply));
             }
           }
         } else if (r < 0 && errno == EIO) {
@@ -358,6 +375,7 @@ int main(int argc, char** argv) {
       connected = true;  // no POLLHUP any more: a host opened the terminal
       if (o.verbose) fprintf(stderr, "plush-board-emu: host connected\n");
     }
+    outbox.flush(master);
     if (hup && connected) {
       connected = false;
       core.hangup();
@@ -389,12 +407,12 @@ int main(int argc, char** argv) {
 
     if (o.state_file && (t - t_state) * 1000.0 >= o.state_interval_ms) {
       t_state = t;
-      write_state(o, core, sim, t - t0, connected, dropped);
+      write_state(o, core, sim, t - t0, connected, outbox.dropped);
     }
   }
 
   core.stop_all(plush::STOP_COMMAND);
-  write_state(o, core, sim, now_s() - t0, connected, dropped);
+  write_state(o, core, sim, now_s() - t0, connected, outbox.dropped);
   if (o.link) unlink(o.link);
   close(master);
   if (o.verbose) fprintf(stderr, "plush-board-emu: stopped\n");

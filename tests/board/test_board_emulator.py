@@ -1,4 +1,6 @@
-"""The emulator (and through it protocol_core.cpp) spoken to by hand over its pty."""
+"""Both boards spoken to by hand over their pty: the emulator (protocol_core.cpp
+compiled for the host) and the firmware binary on simavr (``board`` fixture),
+then what only the emulator has (state file, fuzzing, flags)."""
 
 import random
 import signal
@@ -9,14 +11,33 @@ import time
 import pytest
 
 from board_helpers import wait_until
+from plush_opt.board import protocol as P
 from plush_opt.board.emulator import Emulator
 from plush_opt.errors import HardwareError
 
+def _get(port, seq):
+    """The board's GET, decoded (4 axes)."""
+    reply = P.parse_reply(port.ask(f"{seq} GET"))
+    assert reply.ok and reply.seq == seq, reply
+    return P.parse_state(reply.payload, 4)
 
-def test_identify_and_initial_state(emulator, raw_port):
-    port = raw_port(emulator.port)
-    assert port.ask("1 ID") == "1 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
-    assert port.ask("2 GET") == "2 OK pos=0,0,0 tgt=0,0,0 mov=0,0,0 en=0,0,0 wd=0"
+
+def _settled(port, axis, seq=100, polls=6, interval=0.1):
+    """Wait until ``axis`` reads not moving in ``polls`` GETs in a row (a motor
+    may pass through its deadband and coast on); True once it does."""
+    def still():
+        for i in range(polls):
+            if _get(port, seq + i).moving[axis]:
+                return False
+            time.sleep(interval)
+        return True
+    return wait_until(still, timeout=6.0)
+
+
+def test_identify_and_initial_state(board, raw_port):
+    port = raw_port(board.port)
+    assert port.ask("1 ID") == f"1 OK board={board.name} fw=1.0.0 proto=1 winches=4"
+    assert port.ask("2 GET") == "2 OK pos=0,0,0,0 tgt=0,0,0,0 mov=0,0,0,0 en=0,0,0,0 wd=0"
     assert port.ask("007 ping") == "7 OK"
     assert port.ask("3 LIMIT 1") == "3 OK lo=0 hi=0"      # nothing moves before limits are set
     assert port.ask("4 SET 1 1") == "4 ERR 6 target outside limits"
@@ -38,7 +59,7 @@ def test_identify_and_initial_state(emulator, raw_port):
     ("5 SET 0 99999999999", "5 ERR 4 bad target"),
     ("5 SET x 1", "5 ERR 4 bad axis"),
     ("5 SET -1 1", "5 ERR 4 bad axis"),
-    ("5 SET 3 1", "5 ERR 5 no such axis"),
+    ("5 SET 4 1", "5 ERR 5 no such axis"),
     ("5 SETALL 1 2", "5 ERR 4 expected one target per axis"),
     ("5 SETALL 1 2 3 4 5 6 7 8 9", "5 ERR 4 too many arguments"),
     ("5 LIMIT 0 9 1", "5 ERR 4 bad limits"),
@@ -50,65 +71,79 @@ def test_identify_and_initial_state(emulator, raw_port):
     ("5 " + "X" * 200, "5 ERR 2 line too long"),
     ("Y" * 121, "* ERR 2 line too long"),
 ])
-def test_refusals(emulator, raw_port, line, reply):
-    port = raw_port(emulator.port)
+def test_refusals(board, raw_port, line, reply):
+    port = raw_port(board.port)
     assert port.ask(line) == reply
-    assert port.ask("6 GET").startswith("6 OK pos=0,0,0 ")  # still answering, nothing moved
+    assert port.ask("6 GET").startswith("6 OK pos=0,0,0,0 ")  # still answering, nothing moved
 
 
-def test_blank_lines_and_crlf(emulator, raw_port):
-    port = raw_port(emulator.port)
+def test_blank_lines_and_crlf(board, raw_port):
+    port = raw_port(board.port)
     port.ser.write(b"\r\n   \n\t\n1 ID\r\n")
     assert port.ser.readline().startswith(b"1 OK board=")
     port.ser.write(b"2 PING\n")
     assert port.ser.readline() == b"2 OK\n"  # nothing was answered to the blank lines
 
 
-def test_out_of_limit_targets_are_refused_not_clamped(emulator, raw_port):
-    port = raw_port(emulator.port)
+def test_sequence_numbers_are_echoed_in_decimal(board, raw_port):
+    port = raw_port(board.port)
+    for seq, echo in (("0", "0"), ("00042", "42"), ("65535", "65535"), ("1", "1")):
+        assert port.ask(f"{seq} PING") == f"{echo} OK"
+    port.ser.write(b"10 PING\n11 ID\n12 PING\n")  # in order, one reply each
+    assert [port.ser.readline().split()[0] for _ in range(3)] == [b"10", b"11", b"12"]
+
+
+def test_out_of_limit_targets_are_refused_not_clamped(board, raw_port):
+    port = raw_port(board.port)
     assert port.ask("1 LIMIT 0 -100 500") == "1 OK lo=-100 hi=500"
     assert port.ask("2 SET 0 501") == "2 ERR 6 target outside limits"
     assert port.ask("3 SET 0 -101") == "3 ERR 6 target outside limits"
-    assert port.ask("4 SETALL 100 - 5") == "4 ERR 6 target outside limits"  # axis 2 limits are [0, 0]
-    state = emulator.read_state()
-    assert state["target"] == [0, 0, 0] and state["enabled"] == [False] * 3  # the refused SETALL moved nothing
-    assert port.ask("5 SETALL 500 - -") == "5 OK"
-    assert wait_until(lambda: emulator.read_state()["ticks"][0] == 500)
-    state = emulator.read_state()
-    assert state["max_ticks"][0] == 500 and state["enabled"] == [True, False, False]
+    assert port.ask("4 SETALL 100 - 5 -") == "4 ERR 6 target outside limits"  # axis 2 limits are [0, 0]
+    state = _get(port, 5)
+    assert state.target == (0, 0, 0, 0) and not any(state.enabled)  # the refused SETALL moved nothing
+    assert port.ask("6 SPEED 0 500") == "6 OK speed=500"
+    assert port.ask("7 SETALL 500 - - -") == "7 OK"
+    assert _settled(port, 0)
+    state = _get(port, 9)
+    assert abs(state.position[0] - 500) <= board.deadband and state.enabled == (True, False, False, False)
+    # The limit bounds targets; a real motor coasts past its target by up to speed x time constant.
+    assert board.read_state()["max_ticks"][0] <= 500 + board.coast(500)
 
 
-def test_zero_limit_speed_and_busy(make_emulator, raw_port):
-    emu = make_emulator(2, speed=200.0)
-    port = raw_port(emu.port)
+def test_zero_limit_speed_and_busy(board, raw_port):
+    port = raw_port(board.port)
     assert port.ask("1 LIMIT 0 0 1000") == "1 OK lo=0 hi=1000"
     assert port.ask("2 SPEED 0 100") == "2 OK speed=100"
     assert port.ask("3 SET 0 1000") == "3 OK"
-    time.sleep(0.1)
+    time.sleep(0.2)
     assert port.ask("4 ZERO") == "4 ERR 7 axis is moving"
     assert port.ask("5 LIMIT 0 0 2000") == "5 ERR 7 axis is moving"
     assert port.ask("6 ZERO 1") == "6 OK"          # axis 1 is not moving
     assert port.ask("7 STOP") == "7 OK"
-    pos = emu.read_state()["ticks"][0]
+    pos = _get(port, 8).position[0]
     assert 0 < pos < 500
-    assert port.ask("8 LIMIT 0 0 5") == "8 OK lo=0 hi=5"   # stopped: new limits accepted
-    assert port.ask("9 ZERO 0") == "9 OK"
-    assert port.ask("10 GET") == "10 OK pos=0,0 tgt=0,0 mov=0,0 en=0,0 wd=0"
-    assert port.ask("11 SET 0 5") == "11 OK"
-    assert wait_until(lambda: not emu.read_state()["moving"][0])
-    assert port.ask("12 LIMIT 0 10 20") == "12 ERR 8 target outside new limits"
+    assert port.ask("9 LIMIT 0 0 5") == "9 OK lo=0 hi=5"   # stopped: new limits accepted
+    assert port.ask("10 ZERO 0") == "10 OK"
+    assert port.ask("11 GET") == "11 OK pos=0,0,0,0 tgt=0,0,0,0 mov=0,0,0,0 en=0,0,0,0 wd=0"
+    assert port.ask("12 SET 0 5") == "12 OK"
+    assert _settled(port, 0)
+    assert port.ask("14 LIMIT 0 10 20") == "14 ERR 8 target outside new limits"
 
 
-def _stopped(emu, axis):
-    """The emulator's state once ``axis`` is no longer enabled, else None."""
-    state = emu.read_state()
+def _stopped(board, axis):
+    """The board's true state once ``axis`` is no longer driven, else None."""
+    state = board.read_state(fresh=False)
     return None if state["enabled"][axis] else state
 
 
-def test_watchdog_stops_motors_after_host_silence(make_emulator, raw_port):
-    emu = make_emulator(2)
-    port = raw_port(emu.port)
-    assert port.ask("1 WDOG 200") == "1 OK ms=200"
+WATCHDOG_MS = 200
+CONTROL_PERIOD_S = 0.002     # the firmware's control cycle: the watchdog acts within one
+STATE_PERIOD_S = 0.010       # how often the boards write their state (the fixtures' default)
+
+
+def test_watchdog_stops_motors_after_host_silence(board, raw_port):
+    port = raw_port(board.port)
+    assert port.ask(f"1 WDOG {WATCHDOG_MS}") == f"1 OK ms={WATCHDOG_MS}"
     assert port.ask("2 LIMIT 0 0 100000") == "2 OK lo=0 hi=100000"
     assert port.ask("3 SPEED 0 1000") == "3 OK speed=1000"
     assert port.ask("4 SET 0 100000") == "4 OK"
@@ -116,48 +151,60 @@ def test_watchdog_stops_motors_after_host_silence(make_emulator, raw_port):
     for seq in range(5, 17):
         time.sleep(0.03)
         assert port.ask(f"{seq} PING") == f"{seq} OK"
-    assert emu.read_state()["moving"][0]
+    assert board.read_state()["enabled"][0]
+    assert _get(port, 17).moving[0]
     # ... silence stops it.
-    state = wait_until(lambda: _stopped(emu, 0), timeout=1.0)
-    assert state and state["stops"]["watchdog"] == 1 and not state["moving"][0]
+    state = wait_until(lambda: _stopped(board, 0), timeout=2.0)
+    assert state and not state["enabled"][0]
+    if board.kind == "simavr":
+        # In the board's own time: stopped after the promised silence, within a control cycle of it.
+        silent = state["time"] - state["last_rx_time"]
+        assert WATCHDOG_MS / 1000 <= silent <= WATCHDOG_MS / 1000 + CONTROL_PERIOD_S + STATE_PERIOD_S + 0.005, state
+        assert state["speed"][0] == 0.0 and state["drive"][0] == 0.0
+    else:
+        assert state["stops"]["watchdog"] == 1
     stopped_at = state["ticks"][0]
-    assert 300 < stopped_at < 5000  # moved while pinged (>= 0.36 s at 1000 ticks/s), stopped long before the target
+    assert 100 < stopped_at < 5000  # moved while pinged, stopped long before the target
     time.sleep(0.1)
-    assert emu.read_state()["ticks"][0] == stopped_at
-    assert port.ask("20 GET").endswith(f"en=0,0 wd=1")
+    assert board.read_state()["ticks"][0] == stopped_at
+    assert port.ask("20 GET").endswith("en=0,0,0,0 wd=1")
 
 
-def test_holding_is_not_moving_so_no_watchdog(emulator, raw_port):
-    port = raw_port(emulator.port)
-    assert port.ask("1 WDOG 50") == "1 OK ms=50"
+def test_holding_is_not_moving_so_no_watchdog(board, raw_port):
+    port = raw_port(board.port)
     assert port.ask("2 LIMIT 0 0 100") == "2 OK lo=0 hi=100"
     assert port.ask("3 SET 0 100") == "3 OK"
-    assert wait_until(lambda: not emulator.read_state()["moving"][0])
-    time.sleep(0.2)
-    state = emulator.read_state()
-    assert state["enabled"][0] and state["stops"]["watchdog"] == 0
+    assert _settled(port, 0)
+    assert port.ask("1 WDOG 50") == "1 OK ms=50"
+    time.sleep(0.3)
+    state = _get(port, 5)
+    assert state.enabled[0] and state.watchdog_trips == 0
 
 
-def test_host_closing_port_mid_move_stops_motors(make_emulator, raw_port):
-    emu = make_emulator(2)
-    port = raw_port(emu.port)
-    assert port.ask("1 WDOG 10000") == "1 OK ms=10000"  # the hang-up, not the watchdog, must stop it
+def test_host_closing_port_mid_move_stops_motors(board, raw_port):
+    """The emulator sees the hang-up at once; the firmware cannot (a closed USB
+    port does not always reach the board), so its watchdog stops the motors."""
+    port = raw_port(board.port)
+    wd = 10000 if board.stops_on_hangup else 300   # the hang-up, not the watchdog, must stop the emulator
+    assert port.ask(f"1 WDOG {wd}") == f"1 OK ms={wd}"
     assert port.ask("2 LIMIT 1 -100000 0") == "2 OK lo=-100000 hi=0"
     assert port.ask("3 SPEED 1 1000") == "3 OK speed=1000"
     assert port.ask("4 SET 1 -100000") == "4 OK"
     time.sleep(0.05)
     port.close()
-    state = wait_until(lambda: _stopped(emu, 1), timeout=1.0)
-    assert state and state["stops"]["hangup"] >= 1 and state["stops"]["watchdog"] == 0
-    assert not state["connected"]
+    state = wait_until(lambda: _stopped(board, 1), timeout=2.0)
+    assert state and not state["enabled"][1]
+    if board.stops_on_hangup:
+        assert state["stops"]["hangup"] >= 1 and state["stops"]["watchdog"] == 0
+        assert not state["connected"]
     stopped_at = state["ticks"][1]
     assert -3000 < stopped_at < 0
     time.sleep(0.1)
-    assert emu.read_state()["ticks"][1] == stopped_at
+    assert board.read_state()["ticks"][1] == stopped_at
     # The port can be opened again and the board answers.
-    again = raw_port(emu.port)
-    assert again.ask("5 GET") == f"5 OK pos=0,{stopped_at} tgt=0,{stopped_at} mov=0,0 en=0,0 wd=0"
-    assert emu.read_state()["connected"]
+    again = raw_port(board.port)
+    wd_trips = 0 if board.stops_on_hangup else 1
+    assert again.ask("5 GET") == f"5 OK pos=0,{stopped_at},0,0 tgt=0,{stopped_at},0,0 mov=0,0,0,0 en=0,0,0,0 wd={wd_trips}"
 
 
 def _fuzz_lines(rng: random.Random, n: int):
@@ -223,10 +270,11 @@ def test_fuzzing_never_crashes_nor_leaves_the_limits(make_emulator, raw_port):
         stop.set()
         reader.join(2)
     assert emu.running, "emulator died while fuzzed"
-    time.sleep(0.05)
-    port.ser.timeout = 1.0
-    port.ser.reset_input_buffer()
     port.ser.write(b"\n")  # end whatever half line the fuzzer left
+    port.ser.timeout = 0.2
+    while port.ser.read(4096):  # replies still queued in the emulator: read until it is quiet
+        pass
+    port.ser.timeout = 1.0
     assert port.ask("54321 ID") == "54321 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
     state = emu.read_state()
     assert state["lines"] > 3000 and state["errors"] > 1000
@@ -256,3 +304,22 @@ def test_bad_flags_exit_2(emu_binary):
 def test_missing_binary_says_how_to_build(tmp_path):
     with pytest.raises(HardwareError, match=r"board emulator not built: .*make -C hw"):
         Emulator(1, binary=tmp_path / "plush-board-emu")
+
+
+def test_unread_replies_are_dropped_whole_never_cut(make_emulator, raw_port):
+    """A host that stops reading loses whole replies, never the tail of one."""
+    emu = make_emulator(3)
+    port = raw_port(emu.port)
+    n = 3000  # ~150 kB of GET replies: far more than the terminal holds
+    for start in range(1, n + 1, 100):
+        port.ser.write(b"".join(b"%d GET\n" % seq for seq in range(start, min(start + 100, n + 1))))
+    assert wait_until(lambda: emu.read_state(fresh=False)["lines"] == n, timeout=10.0)
+    assert emu.read_state()["dropped_replies"] > 0
+    port.ser.timeout = 0.3
+    seqs = []
+    while line := port.ser.readline():
+        reply = P.parse_reply(line)  # a cut reply glued to the next one does not parse
+        assert reply.ok and line.endswith(b"\n"), line
+        P.parse_state(reply.payload, 3)
+        seqs.append(reply.seq)
+    assert seqs == sorted(seqs) and len(seqs) + emu.read_state()["dropped_replies"] == n

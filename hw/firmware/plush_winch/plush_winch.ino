@@ -54,7 +54,11 @@ static volatile int32_t enc_count[4];
 static volatile uint8_t enc_prev;
 
 struct Pid {
-  float ref;       // speed-limited reference, raw ticks
+  // Speed-limited reference, raw ticks: whole ticks plus the fraction
+  // walked so far. A float alone stalls at large counts (above 2^24 a
+  // step of ~1 tick per cycle rounds away).
+  int32_t ref;
+  float ref_frac;  // 0 <= ref_frac < 1
   float integral;  // PWM counts
   float prev_err;
   bool active;
@@ -122,24 +126,32 @@ static void control(float dt) {
     }
     any_enabled = true;
     if (!p.active) {  // start the reference where the motor is: no jump
-      p.ref = static_cast<float>(pos);
+      p.ref = pos;
+      p.ref_frac = 0.0f;
       p.integral = 0.0f;
       p.prev_err = 0.0f;
       p.active = true;
     }
     // Speed limit: the reference walks towards the setpoint at most at
-    // speed_limit ticks/s; the PID tracks the reference.
-    const float goal = static_cast<float>(core.setpoint_raw(a));
-    const float step = static_cast<float>(core.speed_limit(a)) * dt;
-    if (goal > p.ref + step)
+    // speed_limit ticks/s; the PID tracks the reference. Differences of
+    // raw counts are taken in integers, so they are exact at any count.
+    const int32_t goal = core.setpoint_raw(a);
+    p.ref_frac += static_cast<float>(core.speed_limit(a)) * dt;
+    const int32_t step = static_cast<int32_t>(p.ref_frac);
+    p.ref_frac -= static_cast<float>(step);
+    const int32_t to_go = goal - p.ref;
+    if (to_go > step)
       p.ref += step;
-    else if (goal < p.ref - step)
+    else if (to_go < -step)
       p.ref -= step;
     else
       p.ref = goal;
 
-    const float err = p.ref - static_cast<float>(pos);
-    if (err > -DEADBAND && err < DEADBAND && p.ref == goal) {
+    const float err = static_cast<float>(p.ref - pos);
+    // Arrived exactly when the core stops calling the axis moving
+    // (|target - position| <= deadband), so an axis the watchdog ignores
+    // is never driven by the full PID.
+    if (err >= -DEADBAND && err <= DEADBAND && p.ref == goal) {
       // Arrived: hold with the integral only, no dithering around zero.
       p.prev_err = err;
       drive(a, static_cast<int16_t>(p.integral));
