@@ -125,12 +125,12 @@ class SerialLink:
 
 def _simulator(kind: str, calibration: BoardCalibration):
     """An unstarted simulated board with every calibrated axis."""
+    top = EMULATOR_SPEED_FACTOR * max(w.speed_ticks for w in calibration.winches)
     if kind == "emulator":
-        top = EMULATOR_SPEED_FACTOR * max(w.speed_ticks for w in calibration.winches)
         return Emulator(winches=calibration.n_axes_required, speed=top)
     if kind == "simavr":
         from plush_opt.board.simavr import SimavrBoard   # needs simavr; only when asked for
-        return SimavrBoard(calibration.n_axes_required)
+        return SimavrBoard(calibration.n_axes_required, speed=top)   # capped at the harness's limit
     raise HardwareError(f"simulator: must be one of {', '.join(map(repr, SIMULATORS))}, got {kind!r}")
 
 
