@@ -5,10 +5,10 @@ from __future__ import annotations
 import functools
 from pathlib import Path
 
+from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
 from plush_opt.objective import Targets
-from plush_opt.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEMS = ("gripper", "hexapod", "hexapod_leg")
