@@ -27,10 +27,11 @@ import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .errors import SceneError
+from .geometry import ring_area
 from .mesh import Mesh, build_mesh
 from .model import Model, build_model
 from .objective import Targets
-from .scene import Scene, ring_area
+from .scene import Scene
 
 log = logging.getLogger(__name__)
 

@@ -25,3 +25,13 @@ class SolverError(PlushError, RuntimeError):
 
 class HardwareError(PlushError, RuntimeError):
     """The winch board misbehaved: timeout, bad reply, refused command."""
+
+
+def format_number(x) -> str:
+    """A number as error messages write it: ``repr`` of the float (``-6.0``)."""
+    return repr(float(x))
+
+
+def format_point(p) -> str:
+    """A point as error messages write it: ``(81.0, 3.0)``."""
+    return f"({format_number(p[0])}, {format_number(p[1])})"

@@ -10,9 +10,9 @@ import numpy as np
 import triangle as _triangle
 from scipy.spatial import cKDTree
 
-from .errors import SceneError
-from .scene import (POINT_TOL, Scene, _fmt_point, classify_points, diameter, distance_to_segments,
-                    locate_in_triangles, ring_area)
+from .errors import SceneError, format_point
+from .geometry import diameter, distance_to_segments, locate_in_triangles, ring_area
+from .scene import POINT_TOL, Scene
 
 DEFAULT_MIN_ANGLE = 20.0     # Triangle's own default for quality meshing, degrees
 MAX_ELEMS = 4_000_000        # refuse to start a mesh that would be larger than this
@@ -256,7 +256,7 @@ def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
             bad = np.flatnonzero(dist > tol)
             if bad.size:
                 j = int(bad[0])
-                raise SceneError(f"{src}: {keys[j]}: point {_fmt_point(forced[j])} "
+                raise SceneError(f"{src}: {keys[j]}: point {format_point(forced[j])} "
                                  "is not a node of the explicit mesh")
 
     # counter-clockwise in X
@@ -305,7 +305,7 @@ def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
     bad = np.flatnonzero(target_tri < 0)
     if bad.size:
         k = int(bad[0])
-        raise SceneError(f"{src}: targets[{k}].at: point {_fmt_point(at[k])} "
+        raise SceneError(f"{src}: targets[{k}].at: point {format_point(at[k])} "
                          "lies outside the mesh")
 
     return Mesh(X=X, triangles=tris, pin_nodes=pin_nodes, tendon_nodes=tuple(tendon_nodes),

@@ -14,10 +14,11 @@ import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .errors import SceneError
+from .io import load_scene
 from .mesh import Mesh, build_mesh
 from .model import Model, build_model
 from .objective import Targets
-from .scene import Scene, load_scene
+from .scene import Scene
 
 
 class Problem:

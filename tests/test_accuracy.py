@@ -5,8 +5,8 @@ import pytest
 
 from plush_opt.accuracy import choose_mesh, default_levels, probe_contractions, transfer_pose
 from plush_opt.errors import SceneError
+from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import build_mesh
-from plush_opt.scene import load_scene, scene_from_dict
 from shipped import ROOT
 
 

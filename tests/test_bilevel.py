@@ -11,10 +11,10 @@ from plush_opt.control.bilevel import BilevelOptions, BilevelSolver, solve_bilev
 from plush_opt.control.bilevel_nlp import _objective_expression, force_reference
 from plush_opt.control.gradient import solve_control
 from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
 from plush_opt.objective import Targets
-from plush_opt.scene import load_scene, scene_from_dict
 from shipped import PROBLEMS, ROOT, body_size, built
 
 

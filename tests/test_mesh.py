@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plush_opt.errors import SceneError
+from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import Mesh, build_mesh, mesh_for_nodes
-from plush_opt.scene import load_scene, scene_from_dict
 
 
 def problem(**mesh):

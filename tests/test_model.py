@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plush_opt import model as model_mod
+from plush_opt.io import scene_from_dict
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
-from plush_opt.scene import scene_from_dict
 from shipped import PROBLEMS, built
 
 SQRT_EPS = np.sqrt(np.finfo(float).eps)

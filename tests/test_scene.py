@@ -13,8 +13,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from plush_opt.errors import SceneError
+from plush_opt.io import load_scene, scene_from_dict
+from plush_opt.io.yaml_reader import MAX_FILE_BYTES
 from plush_opt.mesh import build_mesh
-from plush_opt.scene import MAX_FILE_BYTES, Scene, load_scene, scene_from_dict
+from plush_opt.scene import Scene
 
 
 def valid():
@@ -639,11 +641,11 @@ def test_docs_example_loads_and_meshes():
 @pytest.mark.parametrize("name", ["billion_laughs.yaml", "duplicate_key.yaml", "merge_key.yaml",
                                   "syntax_error.yaml", "via_outside.yaml"])
 def test_pure_python_yaml_path_gives_the_same_errors(bad_dir, monkeypatch, name):
-    import plush_opt.scene as scene_module
+    from plush_opt.io import yaml_reader
     path = bad_dir / name
     with pytest.raises(SceneError) as fast:
         load_scene(path)
-    monkeypatch.setattr(scene_module, "_CParser", None)       # as without libyaml
+    monkeypatch.setattr(yaml_reader, "_CParser", None)       # as without libyaml
     with pytest.raises(SceneError) as slow:
         load_scene(path)
     expect = path.read_text().splitlines()[0][len("# expect: "):]
@@ -659,28 +661,3 @@ def test_numpy_input_is_accepted():
     d["material"]["thickness"] = np.float64(30.0)
     d["winches"][1]["frozen"] = np.bool_(True)
     assert load(d) == load(valid())
-
-
-def _brute_force_crossing(rings):
-    from plush_opt.scene import _segments_touch
-    segs = [(r, i, len(ring), ring[i], ring[(i + 1) % len(ring)])
-            for r, ring in enumerate(rings) for i in range(len(ring))]
-    for x, (ra, ia, na, a, b) in enumerate(segs):
-        for rb, ib, _, c, d in segs[x + 1:]:
-            if ra == rb and abs(ia - ib) in (1, na - 1):
-                continue
-            boxes = (min(a[0], b[0]) <= max(c[0], d[0]) and min(c[0], d[0]) <= max(a[0], b[0])
-                     and min(a[1], b[1]) <= max(c[1], d[1]) and min(c[1], d[1]) <= max(a[1], b[1]))
-            if boxes and _segments_touch(a[None], b[None], c[None], d[None])[0]:
-                return True
-    return False
-
-
-@settings(max_examples=200, deadline=None)
-@given(st.lists(st.lists(st.tuples(st.integers(0, 5), st.integers(0, 5)), min_size=3, max_size=7),
-                min_size=1, max_size=3),
-       st.integers(1, 64))
-def test_crossing_sweep_agrees_with_brute_force(rings, chunk):
-    from plush_opt.scene import find_crossing
-    rings = [np.array(r, dtype=float) for r in rings]
-    assert (find_crossing(rings, chunk=chunk) is not None) == _brute_force_crossing(rings)

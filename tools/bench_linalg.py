@@ -30,7 +30,7 @@ from plush_opt import linalg
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.mesh import mesh_for_nodes
 from plush_opt.model import build_model
-from plush_opt.scene import load_scene
+from plush_opt.io import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEMS = ("gripper", "hexapod", "hexapod_leg")

@@ -13,7 +13,7 @@ from plush_opt.mesh import build_mesh  # noqa: E402
 from plush_opt.model import build_model  # noqa: E402
 from plush_opt.objective import Targets  # noqa: E402
 from plush_opt.apps.plot import plot_pose, plot_trace  # noqa: E402
-from plush_opt.scene import load_scene  # noqa: E402
+from plush_opt.io import load_scene  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "docs" / "img"

@@ -31,10 +31,10 @@ import numpy as np
 from plush_opt.control.gradient import ControlOptions, solve_control
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.errors import PlushError, SceneError
+from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
 from plush_opt.objective import Targets
-from plush_opt.scene import load_scene
 
 try:
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel

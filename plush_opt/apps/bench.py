@@ -28,7 +28,7 @@ from ..mesh import build_mesh, mesh_for_nodes
 from ..model import build_model
 from ..objective import Targets
 from ..results import write_json_atomic, write_text_atomic
-from ..scene import load_scene
+from ..io import load_scene
 from ..sensitivity import state_sensitivity
 
 NO_EIG = EquilibriumOptions(eigenvalue=False)
@@ -68,7 +68,7 @@ def machine() -> dict:
 
 _BUILD_SNIPPET = """
 import sys, time, json
-from plush_opt.scene import load_scene
+from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh, mesh_for_nodes
 from plush_opt.model import build_model
 scene = load_scene(sys.argv[1])

@@ -34,24 +34,20 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-import yaml
 
 from plush_opt.apps.run_log import ProgressLine, RunLog
 from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
 from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.errors import HardwareError, SceneError, SolverError
+from plush_opt.io.run_script import RunScript, Step, load_run_script
 
 log = logging.getLogger(__name__)
 
-FORMAT = "plush-opt-run/1"
-STEP_KINDS = ("set", "pose", "hold", "release")
-MAX_RATE = 1000.0          # Hz
-DEFAULT_MAX_TIME = 10.0    # s, pose steps
 PLANNER_GRACE = 10.0       # s beyond 2 * max_time before a silent planner is an error
 SETTLE_MARGIN = 2.0        # s added to twice the slowest move when waiting for arrival
 
@@ -77,36 +73,6 @@ class Planner(Protocol):
         each a stable equilibrium within bounds."""
 
 
-# ----------------------------------------------------------------- script --
-
-@dataclass(frozen=True)
-class Step:
-    """One step of a run script.
-
-    ``kind`` is ``set`` (``contraction``), ``pose`` (``targets``, ``freeze``,
-    ``max_time``), ``hold`` (``seconds``) or ``release``.
-    """
-
-    kind: str
-    contraction: dict = field(default_factory=dict)      # set: {name: mm}
-    targets: tuple = ()                                   # pose: ({"at", "to", "weight"}, ...)
-    freeze: tuple[str, ...] = ()                          # pose
-    max_time: float = DEFAULT_MAX_TIME                    # pose, s
-    seconds: float = 0.0                                  # hold
-
-
-@dataclass(frozen=True)
-class RunScript:
-    """A validated run script; paths are resolved against the script's folder."""
-
-    path: Path
-    problem: Path
-    board: Path
-    rate: float
-    steps: tuple[Step, ...]
-    description: str = ""
-
-
 @dataclass(frozen=True)
 class RunResult:
     """How a run that finished went (an interrupted or failed run raises)."""
@@ -122,115 +88,6 @@ class RunResult:
     def to_dict(self) -> dict:
         return {"script": self.script, "log": self.log_path, "dry_run": self.dry_run, "steps": self.steps,
                 "commands": self.commands, "contraction": dict(self.contraction), "status": self.status}
-
-
-def _fail(source, key: str, message: str):
-    raise SceneError(f"{source}: {key}: {message}")
-
-
-def _number(source, value, key: str, *, positive=False, nonnegative=False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        _fail(source, key, f"must be a finite number, got {value!r}")
-    if positive and value <= 0:
-        _fail(source, key, f"must be > 0, got {value!r}")
-    if nonnegative and value < 0:
-        _fail(source, key, f"must be >= 0, got {value!r}")
-    return float(value)
-
-
-def _mapping(source, value, key: str, allowed: set[str]) -> dict:
-    if not isinstance(value, dict):
-        _fail(source, key, f"must be a mapping, got {value!r}")
-    for k in value:
-        if k not in allowed:
-            _fail(source, f"{key}.{k}", f"unknown key; allowed keys: {', '.join(sorted(allowed))}")
-    return value
-
-
-def _point(source, value, key: str) -> tuple[float, float]:
-    if not isinstance(value, list) or len(value) != 2:
-        _fail(source, key, f"must be [x, y], got {value!r}")
-    return (_number(source, value[0], f"{key}[0]"), _number(source, value[1], f"{key}[1]"))
-
-
-def _parse_step(source, item, i: int) -> Step:
-    key = f"steps[{i}]"
-    if item == "release":
-        return Step(kind="release")
-    if not isinstance(item, dict) or len(item) != 1:
-        _fail(source, key, f"must be one of 'release', {{set: ...}}, {{pose: ...}}, {{hold: seconds}}, "
-                           f"{{release: null}}; got {item!r}")
-    (kind, body), = item.items()
-    if kind not in STEP_KINDS:
-        _fail(source, key, f"unknown step {kind!r}; steps are: {', '.join(STEP_KINDS)}")
-    key = f"{key}.{kind}"
-    if kind == "release":
-        if body not in (None, {}, True):
-            _fail(source, key, f"takes no value, got {body!r}")
-        return Step(kind="release")
-    if kind == "hold":
-        return Step(kind="hold", seconds=_number(source, body, key, nonnegative=True))
-    if kind == "set":
-        if not isinstance(body, dict) or not body:
-            _fail(source, key, f"must map winch names to contractions, got {body!r}")
-        return Step(kind="set", contraction={str(name): _number(source, v, f"{key}.{name}")
-                                             for name, v in body.items()})
-    # pose
-    body = _mapping(source, body, key, {"targets", "freeze", "max_time"})
-    items = body.get("targets")
-    if not isinstance(items, list) or not items:
-        _fail(source, f"{key}.targets", f"must be a non-empty list, got {items!r}")
-    targets = []
-    for j, t in enumerate(items):
-        tkey = f"{key}.targets[{j}]"
-        t = _mapping(source, t, tkey, {"at", "to", "weight"})
-        for required in ("at", "to"):
-            if required not in t:
-                _fail(source, f"{tkey}.{required}", "is required")
-        targets.append({"at": list(_point(source, t["at"], f"{tkey}.at")),
-                        "to": list(_point(source, t["to"], f"{tkey}.to")),
-                        "weight": _number(source, t.get("weight", 1.0), f"{tkey}.weight", positive=True)})
-    freeze = body.get("freeze", [])
-    if not isinstance(freeze, list) or not all(isinstance(n, str) for n in freeze):
-        _fail(source, f"{key}.freeze", f"must be a list of winch names, got {freeze!r}")
-    max_time = _number(source, body.get("max_time", DEFAULT_MAX_TIME), f"{key}.max_time", positive=True)
-    return Step(kind="pose", targets=tuple(targets), freeze=tuple(freeze), max_time=max_time)
-
-
-def load_run_script(path) -> RunScript:
-    """Read and validate a run script (structure only; names and bounds are
-    checked against a planner by :func:`check_run_script`). Raises :class:`SceneError`."""
-    path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read run script: {e.strerror or e}") from None
-    except yaml.YAMLError as e:
-        raise SceneError(f"{path}: not valid YAML: {e}") from None
-    top = _mapping(path, data, "document", {"format", "description", "problem", "board", "rate", "steps"})
-    for required in ("format", "problem", "board", "rate", "steps"):
-        if required not in top:
-            _fail(path, required, "is required")
-    if top["format"] != FORMAT:
-        _fail(path, "format", f"must be {FORMAT!r}, got {top['format']!r}")
-    files = {}
-    for key in ("problem", "board"):
-        if not isinstance(top[key], str) or not top[key]:
-            _fail(path, key, f"must be a file path, got {top[key]!r}")
-        files[key] = (path.parent / top[key]).resolve()
-        if not files[key].is_file():
-            _fail(path, key, f"{top[key]!r} (relative to the script) does not exist: {files[key]}")
-    rate = _number(path, top["rate"], "rate", positive=True)
-    if rate > MAX_RATE:
-        _fail(path, "rate", f"must be <= {MAX_RATE:g} Hz, got {rate:g}")
-    steps = top["steps"]
-    if not isinstance(steps, list) or not steps:
-        _fail(path, "steps", f"must be a non-empty list, got {steps!r}")
-    description = top.get("description", "")
-    if not isinstance(description, str):
-        _fail(path, "description", f"must be a string, got {description!r}")
-    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate,
-                     steps=tuple(_parse_step(path, s, i) for i, s in enumerate(steps)), description=description)
 
 
 SETTLE_FACTOR = 2.0        # a move may take this many times its time at top speed (ramps, the last ticks)

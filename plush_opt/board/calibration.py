@@ -19,12 +19,10 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
-
-import yaml
 
 from plush_opt.board.protocol import DEFAULT_BAUDRATE, MAX_AXES, MAX_TICKS, MIN_WATCHDOG_MS, MAX_WATCHDOG_MS
-from plush_opt.errors import SceneError
+from plush_opt.io import Checker, read_yaml
+from plush_opt.io.checker import at_index, at_key, describe
 
 FORMAT = "plush-board/1"
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -131,130 +129,99 @@ class BoardCalibration:
 
 # --------------------------------------------------------------- loading --
 
-class _Checker:
-    """Typed reads from a parsed YAML mapping, errors naming file and key."""
+_TOP_KEYS = ("format", "name", "description", "port", "winches")
+_PORT_KEYS = ("device", "baudrate", "timeout", "retries", "watchdog_ms", "boot_time")
+_WINCH_KEYS = ("name", "axis", "spool_radius", "ticks_per_rev", "gear_ratio", "direction", "limits",
+               "max_speed")
+_WINCH_REQUIRED = ("name", "spool_radius", "ticks_per_rev", "gear_ratio", "limits", "max_speed")
 
-    def __init__(self, source: str):
-        self.source = source
 
-    def fail(self, key: str, message: str):
-        raise SceneError(f"{self.source}: {key or 'document'}: {message}")
+def _name(c: Checker, value, key: str) -> str:
+    if not isinstance(value, str) or not _NAME.match(value):
+        c.fail(key, f"must be a name of letters, digits, '_' or '-', got {describe(value)}")
+    return value
 
-    def mapping(self, value, key: str, allowed: set[str], required: set[str]) -> dict:
-        if not isinstance(value, dict):
-            self.fail(key, f"must be a mapping, got {type(value).__name__}")
-        for k in value:
-            if k not in allowed:
-                self.fail(f"{key}.{k}" if key else str(k),
-                          f"unknown key; allowed keys: {', '.join(sorted(allowed))}")
-        for k in sorted(required):
-            if k not in value:
-                self.fail(f"{key}.{k}" if key else k, "is required")
-        return value
 
-    def number(self, value, key: str, *, positive=False, integer=False) -> float:
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-        if ok and integer:
-            ok = float(value).is_integer()
-        if not ok or not math.isfinite(value):
-            self.fail(key, f"must be {'an integer' if integer else 'a number'}, got {value!r}")
-        if positive and value <= 0:
-            self.fail(key, f"must be > 0, got {value!r}")
-        return int(value) if integer else float(value)
-
-    def name(self, value, key: str) -> str:
-        if not isinstance(value, str) or not _NAME.match(value):
-            self.fail(key, f"must be a name of letters, digits, '_' or '-', got {value!r}")
-        return value
+def _get(d: dict, key: str, default):
+    """Value of an optional key; an explicit null counts as absent."""
+    value = d.get(key)
+    return default if value is None else value
 
 
 def calibration_from_dict(data, source: str = "<memory>") -> BoardCalibration:
     """Validate an already parsed calibration document. Raises :class:`SceneError`."""
-    c = _Checker(source)
-    top = c.mapping(data, "", {"format", "name", "description", "port", "winches"},
-                    {"format", "name", "winches"})
+    c = Checker(source)
+    top = c.document(data, _TOP_KEYS, required=("format", "name", "winches"))
     if top["format"] != FORMAT:
-        c.fail("format", f"must be {FORMAT!r}, got {top['format']!r}")
-    name = c.name(top["name"], "name")
-    description = top.get("description", "")
-    if not isinstance(description, str):
-        c.fail("description", f"must be a string, got {description!r}")
-
-    port = PortSettings()
-    if top.get("port") is not None:
-        p = c.mapping(top["port"], "port", {"device", "baudrate", "timeout", "retries", "watchdog_ms", "boot_time"},
-                      set())
-        device = p.get("device")
-        if device is not None and (not isinstance(device, str) or not device):
-            c.fail("port.device", f"must be a device path or null, got {device!r}")
-        baud = c.number(p.get("baudrate", port.baudrate), "port.baudrate", positive=True, integer=True)
-        timeout = c.number(p.get("timeout", port.timeout), "port.timeout", positive=True)
-        retries = c.number(p.get("retries", port.retries), "port.retries", integer=True)
-        if retries < 0:
-            c.fail("port.retries", f"must be >= 0, got {retries}")
-        wd = c.number(p.get("watchdog_ms", port.watchdog_ms), "port.watchdog_ms", integer=True)
-        if not MIN_WATCHDOG_MS <= wd <= MAX_WATCHDOG_MS:
-            c.fail("port.watchdog_ms", f"must be in {MIN_WATCHDOG_MS}..{MAX_WATCHDOG_MS}, got {wd}")
-        boot = c.number(p.get("boot_time", port.boot_time), "port.boot_time")
-        if boot < 0:
-            c.fail("port.boot_time", f"must be >= 0, got {boot}")
-        port = PortSettings(device=device, baudrate=baud, timeout=timeout, retries=retries, watchdog_ms=wd,
-                            boot_time=boot)
-
-    items = top["winches"]
-    if not isinstance(items, list) or not items:
-        c.fail("winches", f"must be a non-empty list, got {items!r}")
+        c.fail("format", f"must be {FORMAT!r}, got {describe(top['format'])}")
+    name = _name(c, top["name"], "name")
+    description = _get(top, "description", "")
+    description = c.string(description, "description")
+    port = PortSettings() if top.get("port") is None else _port_section(c, top["port"])
+    items = c.seq(top["winches"], "winches", min_len=1, what="list of winches")
     winches = []
-    names, axes = set(), set()
     for i, item in enumerate(items):
-        key = f"winches[{i}]"
-        w = c.mapping(item, key,
-                      {"name", "axis", "spool_radius", "ticks_per_rev", "gear_ratio", "direction", "limits",
-                       "max_speed"},
-                      {"name", "spool_radius", "ticks_per_rev", "gear_ratio", "limits", "max_speed"})
-        wname = c.name(w["name"], f"{key}.name")
-        if wname in names:
-            c.fail(f"{key}.name", f"duplicate winch name {wname!r}")
-        names.add(wname)
-        axis = c.number(w.get("axis", i), f"{key}.axis", integer=True)
-        if not 0 <= axis < MAX_AXES:
-            c.fail(f"{key}.axis", f"must be in 0..{MAX_AXES - 1}, got {axis}")
-        if axis in axes:
-            c.fail(f"{key}.axis", f"axis {axis} is already used by another winch")
-        axes.add(axis)
-        direction = w.get("direction", 1)
-        if direction not in (1, -1) or isinstance(direction, bool):
-            c.fail(f"{key}.direction", f"must be 1 or -1, got {direction!r}")
-        limits = w["limits"]
-        if not isinstance(limits, list) or len(limits) != 2:
-            c.fail(f"{key}.limits", f"must be [lower, upper], got {limits!r}")
-        lo = c.number(limits[0], f"{key}.limits[0]")
-        hi = c.number(limits[1], f"{key}.limits[1]")
-        if not lo < hi:
-            c.fail(f"{key}.limits", f"lower must be < upper, got [{lo}, {hi}]")
-        wc = WinchCalibration(
-            name=wname, axis=axis,
-            spool_radius=c.number(w["spool_radius"], f"{key}.spool_radius", positive=True),
-            ticks_per_rev=c.number(w["ticks_per_rev"], f"{key}.ticks_per_rev", positive=True),
-            gear_ratio=c.number(w["gear_ratio"], f"{key}.gear_ratio", positive=True),
-            direction=int(direction), limits=(lo, hi),
-            max_speed=c.number(w["max_speed"], f"{key}.max_speed", positive=True))
-        t_lo, t_hi = wc.tick_limits
-        if max(abs(t_lo), abs(t_hi)) > MAX_TICKS:
-            c.fail(f"{key}.limits", f"[{lo}, {hi}] is [{t_lo}, {t_hi}] ticks, beyond the board's +-{MAX_TICKS}")
-        winches.append(wc)
+        winches.append(_winch_section(c, item, i, winches))
     return BoardCalibration(name=name, winches=tuple(winches), port=port, description=description, source=source)
+
+
+def _port_section(c: Checker, raw) -> PortSettings:
+    p = c.mapping(raw, "port", _PORT_KEYS)
+    default = PortSettings()
+    device = p.get("device")
+    if device is not None and (not isinstance(device, str) or not device):
+        c.fail("port.device", f"must be a device path or null, got {describe(device)}")
+    baud = c.integer(_get(p, "baudrate", default.baudrate), "port.baudrate")
+    if baud <= 0:
+        c.fail("port.baudrate", f"must be > 0, got {baud}")
+    timeout = c.number(_get(p, "timeout", default.timeout), "port.timeout", gt=0)
+    retries = c.integer(_get(p, "retries", default.retries), "port.retries")
+    if retries < 0:
+        c.fail("port.retries", f"must be >= 0, got {retries}")
+    wd = c.integer(_get(p, "watchdog_ms", default.watchdog_ms), "port.watchdog_ms")
+    if not MIN_WATCHDOG_MS <= wd <= MAX_WATCHDOG_MS:
+        c.fail("port.watchdog_ms", f"must be in {MIN_WATCHDOG_MS}..{MAX_WATCHDOG_MS}, got {wd}")
+    boot = c.number(_get(p, "boot_time", default.boot_time), "port.boot_time", ge=0)
+    return PortSettings(device=device, baudrate=baud, timeout=timeout, retries=retries, watchdog_ms=wd,
+                        boot_time=boot)
+
+
+def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> WinchCalibration:
+    """Entry ``i`` of ``winches``; ``before`` are the entries already read."""
+    key = at_index("winches", i)
+    w = c.mapping(item, key, _WINCH_KEYS, required=_WINCH_REQUIRED)
+    wname = _name(c, w["name"], at_key(key, "name"))
+    if wname in {b.name for b in before}:
+        c.fail(at_key(key, "name"), f"duplicate winch name {wname!r}")
+    axis = c.integer(_get(w, "axis", i), at_key(key, "axis"))
+    if not 0 <= axis < MAX_AXES:
+        c.fail(at_key(key, "axis"), f"must be in 0..{MAX_AXES - 1}, got {axis}")
+    if axis in {b.axis for b in before}:
+        c.fail(at_key(key, "axis"), f"axis {axis} is already used by another winch")
+    direction = _get(w, "direction", 1)
+    if direction not in (1, -1) or isinstance(direction, bool):
+        c.fail(at_key(key, "direction"), f"must be 1 or -1, got {describe(direction)}")
+    limits = w["limits"]
+    if not isinstance(limits, list) or len(limits) != 2:
+        c.fail(at_key(key, "limits"), f"must be [lower, upper], got {describe(limits)}")
+    lo = c.number(limits[0], at_index(at_key(key, "limits"), 0))
+    hi = c.number(limits[1], at_index(at_key(key, "limits"), 1))
+    if not lo < hi:
+        c.fail(at_key(key, "limits"), f"lower must be < upper, got [{lo}, {hi}]")
+    wc = WinchCalibration(
+        name=wname, axis=axis,
+        spool_radius=c.number(w["spool_radius"], at_key(key, "spool_radius"), gt=0),
+        ticks_per_rev=c.number(w["ticks_per_rev"], at_key(key, "ticks_per_rev"), gt=0),
+        gear_ratio=c.number(w["gear_ratio"], at_key(key, "gear_ratio"), gt=0),
+        direction=int(direction), limits=(lo, hi),
+        max_speed=c.number(w["max_speed"], at_key(key, "max_speed"), gt=0))
+    t_lo, t_hi = wc.tick_limits
+    if max(abs(t_lo), abs(t_hi)) > MAX_TICKS:
+        c.fail(at_key(key, "limits"), f"[{lo}, {hi}] is [{t_lo}, {t_hi}] ticks, beyond the board's +-{MAX_TICKS}")
+    return wc
 
 
 def load_calibration(path) -> BoardCalibration:
     """Read and validate a board calibration file. Raises :class:`SceneError`."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read calibration file: {e.strerror or e}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise SceneError(f"{path}: not valid YAML: {e}") from None
-    return calibration_from_dict(data, source=str(path))
+    source = str(path)
+    return calibration_from_dict(read_yaml(path, what="board calibration file", source=source), source=source)

@@ -14,7 +14,8 @@ import yaml
 
 from board_helpers import fast_calibration_dict, wait_until
 from fake_planner import FakePlanner
-from plush_opt.apps.runs import (FORMAT, RunScript, add_run_arguments, check_run_script, cli_run, load_run_script,
+from plush_opt.io.run_script import FORMAT, RunScript, load_run_script
+from plush_opt.apps.runs import (add_run_arguments, check_run_script, cli_run,
                                  run_script)
 from plush_opt.board import SerialLink, calibration_from_dict
 from plush_opt.errors import HardwareError, SceneError, SolverError
@@ -64,22 +65,22 @@ def test_load_run_script(tmp_path):
 @pytest.mark.parametrize("change, match", [
     ({"format": "plush-opt-run/2"}, r"run\.yaml: format: must be 'plush-opt-run/1'"),
     ({"rate": 0}, r"run\.yaml: rate: must be > 0"),
-    ({"rate": "fast"}, r"run\.yaml: rate: must be a finite number"),
+    ({"rate": "fast"}, r"run\.yaml: rate: expected a number, got string 'fast'"),
     ({"problem": "missing.yaml"}, r"run\.yaml: problem: 'missing\.yaml' \(relative to the script\) does not exist"),
-    ({"speed": 3}, r"run\.yaml: document\.speed: unknown key"),
-    ({"steps": []}, r"run\.yaml: steps: must be a non-empty list"),
+    ({"speed": 3}, r"run\.yaml: speed: unknown key"),
+    ({"steps": []}, r"run\.yaml: steps: empty list"),
     ({"steps": ["relax"]}, r"run\.yaml: steps\[0\]: must be one of"),
     ({"steps": [{"jump": 1}]}, r"steps\[0\]: unknown step 'jump'"),
     ({"steps": [{"set": {"grip": 1}, "hold": 1}]}, r"steps\[0\]: must be one of"),
-    ({"steps": ["release", {"set": {"grip": "lots"}}]}, r"steps\[1\]\.set\.grip: must be a finite number"),
+    ({"steps": ["release", {"set": {"grip": "lots"}}]}, r"steps\[1\]\.set\.grip: expected a number, got string 'lots'"),
     ({"steps": [{"hold": -1}]}, r"steps\[0\]\.hold: must be >= 0"),
-    ({"steps": [{"pose": {"targets": []}}]}, r"steps\[0\]\.pose\.targets: must be a non-empty list"),
-    ({"steps": [{"pose": {"targets": [{"at": [0, 1]}]}}]}, r"steps\[0\]\.pose\.targets\[0\]\.to: is required"),
-    ({"steps": [{"pose": {"targets": [{"at": [0], "to": [1, 2]}]}}]}, r"targets\[0\]\.at: must be \[x, y\]"),
+    ({"steps": [{"pose": {"targets": []}}]}, r"steps\[0\]\.pose\.targets: empty list"),
+    ({"steps": [{"pose": {"targets": [{"at": [0, 1]}]}}]}, r"steps\[0\]\.pose\.targets\[0\]\.to: missing required key"),
+    ({"steps": [{"pose": {"targets": [{"at": [0], "to": [1, 2]}]}}]}, r"targets\[0\]\.at: expected a point \[x, y\], got a list of 1"),
     ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2], "weight": 0}]}}]},
      r"targets\[0\]\.weight: must be > 0"),
     ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "freeze": "grip"}}]},
-     r"steps\[0\]\.pose\.freeze: must be a list"),
+     r"steps\[0\]\.pose\.freeze: expected a list of winch names"),
     ({"steps": [{"pose": {"targets": [{"at": [0, 1], "to": [1, 2]}], "max_time": 0}}]},
      r"steps\[0\]\.pose\.max_time: must be > 0"),
     ({"steps": [{"release": 3}]}, r"steps\[0\]\.release: takes no value"),

@@ -30,9 +30,10 @@ from hypothesis import strategies as st
 
 from hardlib import HARD, SHIPPED
 from plush_opt.errors import SceneError
+from plush_opt.geometry import ring_area
+from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
-from plush_opt.scene import load_scene, ring_area
 
 OUTLINE_SOURCES = ("gripper", "hexapod", "hexapod_leg", "near_inversion", "stiff_tendons",
                    "slack_taut", "contradictory_targets", "unreachable_target")

@@ -20,9 +20,9 @@ from hardlib import (BACKENDS, GTOL, HARD, UNDERPINNED, assert_certified, assert
 from plush_opt.control.gradient import ControlOptions, Controller, solve_control
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.errors import SceneError
+from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import Model, build_model
-from plush_opt.scene import load_scene
 
 try:                                     # method 2, when it has landed
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel

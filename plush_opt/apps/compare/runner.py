@@ -16,7 +16,7 @@ from ...control import BilevelOptions, ControlOptions, run_control
 from ...equilibrium import EquilibriumOptions, solve_equilibrium
 from ...errors import PlushError, SceneError
 from ...problem import from_scene
-from ...scene import load_scene
+from ...io import load_scene
 from .report import write_outputs
 from .settings import BILEVEL_TOL, GRADIENT_TOL, METHODS, CompareSettings, Run
 

@@ -280,7 +280,7 @@ class PosingSession:
         and its barycentric weights, which are also the point's weights in
         the rest triangle. Returns (triangle, beta) or None off the body.
         Points within ``tol`` (length units) of the body snap onto its edge."""
-        from ...mesh import locate_in_triangles
+        from ...geometry import locate_in_triangles
         nodes = self.x.reshape(-1, 2)
         tri, beta = locate_in_triangles(nodes[self.model.mesh.triangles],
                                         np.asarray(point, dtype=np.float64).reshape(1, 2), tol=tol)

@@ -1,0 +1,138 @@
+"""Run scripts (YAML, format ``plush-opt-run/1``, docs/hardware.md) ->
+validated :class:`RunScript`.
+
+A run script names a problem file, a board calibration, a streaming rate
+and a list of steps::
+
+    format: plush-opt-run/1
+    problem: ../problems/gripper.yaml     # relative to the script
+    board: ../hw/boards/gripper.yaml
+    rate: 20                              # Hz, at most this many commands per second
+    steps:
+      - set: {grip: 10.0}                 # contractions, mm; other winches keep theirs
+      - pose: {targets: [{at: [-78, 122], to: [-74, 80], weight: 1}], freeze: [grip], max_time: 5}
+      - hold: 1.5                         # seconds
+      - release                           # every winch back to its lower bound
+
+Only the structure is checked here; winch names and bounds are checked
+against the scene and the calibration by ``check_run_script`` of the runner.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .checker import Checker, at_index, at_key, describe
+from .yaml_reader import read_yaml
+
+FORMAT = "plush-opt-run/1"
+STEP_KINDS = ("set", "pose", "hold", "release")
+MAX_RATE = 1000.0          # Hz
+DEFAULT_MAX_TIME = 10.0    # s, pose steps
+
+_TOP_KEYS = ("format", "description", "problem", "board", "rate", "steps")
+_POSE_KEYS = ("targets", "freeze", "max_time")
+_TARGET_KEYS = ("at", "to", "weight")
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of a run script.
+
+    ``kind`` is ``set`` (``contraction``), ``pose`` (``targets``, ``freeze``,
+    ``max_time``), ``hold`` (``seconds``) or ``release``.
+    """
+
+    kind: str
+    contraction: dict = field(default_factory=dict)      # set: {name: mm}
+    targets: tuple = ()                                   # pose: ({"at", "to", "weight"}, ...)
+    freeze: tuple[str, ...] = ()                          # pose
+    max_time: float = DEFAULT_MAX_TIME                    # pose, s
+    seconds: float = 0.0                                  # hold
+
+
+@dataclass(frozen=True)
+class RunScript:
+    """A validated run script; paths are resolved against the script's folder."""
+
+    path: Path
+    problem: Path
+    board: Path
+    rate: float
+    steps: tuple[Step, ...]
+    description: str = ""
+
+
+def load_run_script(path) -> RunScript:
+    """Read and validate a run script (structure only; names and bounds are
+    checked against a planner by ``check_run_script``). Raises :class:`SceneError`."""
+    path = Path(path)
+    ck = Checker(path)
+    top = ck.document(read_yaml(path, what="run script", source=str(path)), _TOP_KEYS,
+                      required=("format", "problem", "board", "rate", "steps"))
+    if top["format"] != FORMAT:
+        ck.fail("format", f"must be {FORMAT!r}, got {describe(top['format'])}")
+    files = {}
+    for key in ("problem", "board"):
+        if not isinstance(top[key], str) or not top[key]:
+            ck.fail(key, f"must be a file path, got {describe(top[key])}")
+        files[key] = (path.parent / top[key]).resolve()
+        if not files[key].is_file():
+            ck.fail(key, f"{top[key]!r} (relative to the script) does not exist: {files[key]}")
+    rate = ck.number(top["rate"], "rate", gt=0)
+    if rate > MAX_RATE:
+        ck.fail("rate", f"must be <= {MAX_RATE:g} Hz, got {rate:g}")
+    steps = ck.seq(top["steps"], "steps", min_len=1, what="list of steps")
+    description = top.get("description")
+    description = "" if description is None else ck.string(description, "description")
+    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate,
+                     steps=tuple(_parse_step(ck, s, i) for i, s in enumerate(steps)),
+                     description=description)
+
+
+def _parse_step(ck: Checker, item, i: int) -> Step:
+    key = at_index("steps", i)
+    if item == "release":
+        return Step(kind="release")
+    if not isinstance(item, dict) or len(item) != 1:
+        ck.fail(key, "must be one of 'release', {set: ...}, {pose: ...}, {hold: seconds}, "
+                f"{{release: null}}; got {describe(item)}")
+    (kind, body), = item.items()
+    if kind not in STEP_KINDS:
+        ck.fail(key, f"unknown step {kind!r}; steps are: {', '.join(STEP_KINDS)}")
+    key = at_key(key, kind)
+    if kind == "release":
+        if body not in (None, {}, True):
+            ck.fail(key, f"takes no value, got {describe(body)}")
+        return Step(kind="release")
+    if kind == "hold":
+        return Step(kind="hold", seconds=ck.number(body, key, ge=0))
+    if kind == "set":
+        if not isinstance(body, dict) or not body:
+            ck.fail(key, f"must map winch names to contractions, got {describe(body)}")
+        return Step(kind="set", contraction={str(name): ck.number(v, at_key(key, name))
+                                             for name, v in body.items()})
+    return _parse_pose(ck, body, key)
+
+
+def _parse_pose(ck: Checker, body, key: str) -> Step:
+    body = ck.mapping(body, key, _POSE_KEYS, required=("targets",))
+    targets = []
+    items = ck.seq(body["targets"], at_key(key, "targets"), min_len=1, what="list of targets")
+    for j, t in enumerate(items):
+        tkey = at_index(at_key(key, "targets"), j)
+        t = ck.mapping(t, tkey, _TARGET_KEYS, required=("at", "to"))
+        weight = t.get("weight")
+        targets.append({"at": list(ck.point(t["at"], at_key(tkey, "at"))),
+                        "to": list(ck.point(t["to"], at_key(tkey, "to"))),
+                        "weight": 1.0 if weight is None else ck.number(weight, at_key(tkey, "weight"),
+                                                                       gt=0)})
+    freeze = body.get("freeze")
+    freeze = [] if freeze is None else ck.seq(freeze, at_key(key, "freeze"),
+                                              what="list of winch names")
+    freeze = [ck.name(n, at_index(at_key(key, "freeze"), k)) for k, n in enumerate(freeze)]
+    max_time = body.get("max_time")
+    max_time = (DEFAULT_MAX_TIME if max_time is None
+                else ck.number(max_time, at_key(key, "max_time"), gt=0))
+    return Step(kind="pose", targets=tuple(targets), freeze=tuple(freeze), max_time=max_time)
