@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from board_helpers import wait_until
+from plush_opt.board.limits import check_contractions
 from plush_opt.board import Driver, load_calibration
 from plush_opt.board import protocol as P
 from plush_opt.board.simavr import DEADBAND, SimavrBoard
@@ -117,7 +118,7 @@ def test_gripper_run_contractions_are_reached_on_the_firmware(make_simavr, tmp_p
     played, last_ticks = 0, None
     with Driver(sim.start(), calibration) as board:
         for commanded in _run_contractions(tmp_path):
-            ticks = board.check_contractions(commanded)
+            ticks = check_contractions(commanded, board.allowed, calibration)
             if last_ticks is not None and all(abs(ticks[n] - last_ticks[n]) <= DEADBAND for n in ticks):
                 continue  # the same pose to within the deadband: nothing to see
             last_ticks = ticks
