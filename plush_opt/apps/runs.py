@@ -1,17 +1,8 @@
 """Scripted runs: a run script drives the robot through a list of steps.
 
-A run script (YAML, format ``plush-opt-run/1``, see docs/hardware.md)
-names a problem file, a board calibration, a streaming rate and steps::
-
-    format: plush-opt-run/1
-    problem: ../problems/gripper.yaml     # relative to the script
-    board: ../hw/boards/gripper.yaml
-    rate: 20                              # Hz, at most this many commands per second
-    steps:
-      - set: {grip: 10.0}                 # contractions, mm; other winches keep theirs
-      - pose: {targets: [{at: [-78, 122], to: [-74, 80], weight: 1}], freeze: [grip], max_time: 5}
-      - hold: 1.5                         # seconds
-      - release                           # every winch back to its lower bound
+A run script (``plush-opt-run/1``, read by :mod:`plush_opt.io.run_script`;
+the format is in docs/hardware.md) names a problem file, a board
+calibration, a streaming rate and a list of steps (set, pose, hold, release).
 
 The control problems are solved by a :class:`Planner` passed in (the
 runner never imports a solver); its iterates are streamed to the board at
