@@ -125,7 +125,7 @@ def rows_for(path: Path) -> list[dict]:
                                     options=BilevelOptions(max_time=CONTROL_BUDGET_S))
                 add("bilevel (IPOPT)", f"targets, c = {fmt_c(res.contraction)}",
                     outcome(model, res.equilibrium, res.converged),
-                    f"{res.status}; O = {targets.value(res.equilibrium.x):.4g}", res.iterations,
+                    f"{res.status}; O = {res.objective:.4g}", res.stats.iterations,
                     time.perf_counter() - t)
             except PlushError as exc:
                 add("bilevel (IPOPT)", "targets", "refused", str(exc), 0, time.perf_counter() - t)

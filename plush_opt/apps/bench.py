@@ -25,8 +25,7 @@ import numpy as np
 from ..control import BilevelOptions, BilevelSolver, run_control
 from ..equilibrium import EquilibriumOptions, solve_equilibrium
 from ..mesh import build_mesh, mesh_for_nodes
-from ..model import build_model
-from ..objective import Targets
+from ..problem import from_scene
 from ..results import write_json_atomic, write_text_atomic
 from ..io import load_scene
 from ..sensitivity import state_sensitivity
@@ -107,8 +106,8 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
         _build_in_fresh_process(problem, nodes, cache)   # populate
         row["build_cached_s"] = float(np.median([_build_in_fresh_process(problem, nodes, cache)
                                                  for _ in range(max(1, min(repeats, 3)))]))
-    model = build_model(scene, mesh)
-    targets = Targets.from_mesh(mesh, scene)
+    problem = from_scene(scene, mesh)
+    model, targets = problem.model, problem.targets
     c = _default_contraction(model, name)
     row["contraction"] = c.tolist()
 
