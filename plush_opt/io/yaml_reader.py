@@ -197,13 +197,13 @@ def read_yaml(path, *, what: str = "problem file", source: str | None = None,
     if source is None:
         source = os.path.basename(os.fspath(path)) or os.fspath(path)
     raw = _read_bytes(path, what, source, max_bytes)
-    nul = raw.find(b"\0")
-    if nul >= 0:
-        raise SceneError(f"{source}: not a text file (NUL byte at byte {nul}); not a {what}")
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise SceneError(f"{source}: not UTF-8 text (byte {exc.start})") from None
+    nul = raw.find(b"\0")               # valid UTF-8 has NUL bytes only as NUL characters
+    if nul >= 0:
+        raise SceneError(f"{source}: not a text file (NUL byte at byte {nul}); not a {what}")
     return _parse_yaml(text, source)
 
 
