@@ -60,9 +60,11 @@ def machine() -> dict:
         sksparse = version("scikit-sparse")
     except Exception:  # noqa: BLE001 - version is informative only
         sksparse = "?"
+    from ..linalg import BACKEND
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
             "numpy": np.__version__, "scipy": scipy.__version__, "casadi": casadi.__version__,
-            "scikit-sparse": sksparse, "plush_opt": __version__, "platform": platform.platform()}
+            "scikit-sparse": sksparse, "linear_solver": BACKEND, "plush_opt": __version__,
+            "platform": platform.platform()}
 
 
 _BUILD_SNIPPET = """
@@ -187,7 +189,7 @@ def render_markdown(report: dict) -> str:
         "",
         f"Command: `{report['command']}`  ",
         f"Machine: {m['cpu']}, {m['cores']} cores; Python {m['python']}, numpy {m['numpy']}, "
-        f"scipy {m['scipy']}, CasADi {m['casadi']}, scikit-sparse {m['scikit-sparse']}.  ",
+        f"scipy {m['scipy']}, CasADi {m['casadi']}, scikit-sparse {m['scikit-sparse']}; sparse LDL^T by {m['linear_solver']}.  ",
         f"Date: {report['date']}. Times are medians over {report['repeats']} repeats (5x that for "
         "single evaluations) in one run; the machine is shared and noisy, so compare figures "
         "within a table, not across runs.",
