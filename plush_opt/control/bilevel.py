@@ -89,6 +89,10 @@ class BilevelOptions:
     stuck_fraction, probe_fractions, probe_gain : (reduced) the look-further
         moves where IPOPT stops with O above stuck_fraction x its start
         (the gradient loop's, docs/control.md).
+    hessian_damping : (reduced) Levenberg-Marquardt damping added to the
+        Gauss-Newton Hessian, relative to its largest diagonal entry (the
+        gradient loop's initial damping): bounds the step of a winch whose
+        column is (nearly) zero.
     mu_init, bound_push : (reduced) IPOPT's ``mu_init`` and
         ``bound_push``/``bound_frac``: the start is a certified equilibrium
         already, so a small barrier and a small push off the bounds keep
@@ -134,6 +138,7 @@ class BilevelOptions:
     stuck_fraction: float = 0.5
     probe_fractions: tuple = (0.05, 0.15, 0.4)
     probe_gain: float = 1e-3
+    hessian_damping: float = 1e-3
     mu_init: float = 1e-4
     bound_push: float = 1e-6
     tol: float = 1e-8
@@ -154,6 +159,8 @@ class BilevelOptions:
     def __post_init__(self):
         if self.formulation not in FORMULATIONS:
             raise ValueError(f"formulation: expected one of {FORMULATIONS}, got {self.formulation!r}")
+        if not (isinstance(self.hessian_damping, (int, float)) and self.hessian_damping >= 0):
+            raise ValueError(f"hessian_damping: expected a number >= 0, got {self.hessian_damping!r}")
         for name in ("gtol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

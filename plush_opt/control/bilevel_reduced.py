@@ -77,8 +77,9 @@ class Evaluator:
     its step back."""
 
     def __init__(self, model: Model, targets: Targets, c_full: np.ndarray, free: np.ndarray,
-                 start: Equilibrium, options: EquilibriumOptions):
+                 start: Equilibrium, options: EquilibriumOptions, damping: float = 0.0):
         self.model, self.targets = model, targets
+        self.damping = damping
         self.c_full, self.free = c_full.copy(), free
         self.options = options
         self.B = targets.selection(model.n_dofs)
@@ -129,6 +130,21 @@ class Evaluator:
                 return xp
         return near.eq.x
 
+    def rows(self, point: Point) -> np.ndarray:
+        """The residuals IPOPT sees: r and n_free zeros (the damping rows)."""
+        return np.concatenate([point.r, np.zeros(len(self.free))])
+
+    def jacobian_rows(self, point: Point) -> np.ndarray:
+        """dr/dc and the damping rows sqrt(lambda) I: their value is zero, so
+        O and its gradient are untouched, and the Hessian IPOPT gets is
+        J^T J + lambda I (Levenberg-Marquardt, lambda relative to the
+        largest curvature): a winch whose column is (nearly) zero, such as
+        one whose tendons are all slack, gets a bounded step instead of an
+        arbitrary one."""
+        J = self.derivatives(point).J
+        lam = self.damping * max(float(np.max(np.sum(J * J, axis=0), initial=0.0)), np.finfo(float).tiny)
+        return np.vstack([J, math.sqrt(lam) * np.eye(len(self.free))])
+
     def derivatives(self, point: Point) -> Point:
         if point.J is None:
             t0 = time.perf_counter()
@@ -173,7 +189,7 @@ class _JacobianCallback(ca.Callback):
         p = self.ev.at(arg[0])
         if p is None:
             return [ca.DM(np.full((self.m, self.n), np.nan))]
-        return [ca.DM(self.ev.derivatives(p).J)]
+        return [ca.DM(self.ev.jacobian_rows(p))]
 
     def has_jacobian(self):
         return True
@@ -206,7 +222,7 @@ class ResidualCallback(ca.Callback):
 
     def eval(self, arg):
         p = self.ev.at(arg[0])
-        return [ca.DM(np.full(self.m, np.nan)) if p is None else ca.DM(p.r)]
+        return [ca.DM(np.full(self.m, np.nan)) if p is None else ca.DM(self.ev.rows(p))]
 
     def has_jacobian(self):
         return True

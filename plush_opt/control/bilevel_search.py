@@ -46,7 +46,8 @@ class ReducedRun:
         self.t_start = t_start
         eq_opts = options.equilibrium
         self.ev = Evaluator(model, targets, start.contraction, self.free, start,
-                            eq_opts if not eq_opts.eigenvalue else _no_eigenvalue(eq_opts))
+                            eq_opts if not eq_opts.eigenvalue else _no_eigenvalue(eq_opts),
+                            options.hessian_damping)
         self.start = self.ev.derivatives(self.ev.points[-1])
         self.history = [history_point(self.start, self.ev, 0, time.perf_counter() - t_start,
                                       self._held(self.start))]
@@ -81,7 +82,8 @@ class ReducedRun:
     # -- the run ------------------------------------------------------------
 
     def solve(self) -> None:
-        n, m = len(self.free), self.ev.B.shape[0]
+        n = len(self.free)
+        m = self.ev.B.shape[0] + n
         t0 = time.perf_counter()
         solver, self._residual, self._recorder = build_solver(
             self.ev, n, m, self.options.reduced_ipopt_options(), self._rules)
@@ -204,9 +206,14 @@ class ReducedRun:
         if self.return_status not in KKT_STATUSES:
             return False, "solver_failed", (f"{head}; returned the best certified iterate "
                                             f"(projected gradient {pg:.3g}){note}")
-        if at_start and pg > opts.gtol * max(end.objective, opts.objective_floor):
-            return False, "no_decrease", (f"{head}; ended at its start with a nonzero projected "
-                                          f"gradient ({pg:.3g}){note}")
+        slack = slack_winches(self.model, end.eq.x, end.c, ~self.frozen, g)
+        gn = float(np.linalg.norm(g)) * float(np.mean(self.span))
+        if at_start and (slack or gn > opts.gtol * max(end.objective, opts.objective_floor)):
+            # a KKT point with a bound held (or a winch with no gradient at
+            # all) where it started: the look-further moves found nothing
+            # better, but nothing shows it is a minimum either
+            return False, "no_decrease", (f"{head}; ended at its start (gradient {gn:.3g}, "
+                                          f"projected {pg:.3g}); no move lowered O{note}")
         return True, "stationary", f"{head}; certified{note}"
 
     def _notes(self, end: Point, g) -> str:
