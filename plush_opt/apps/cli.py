@@ -143,13 +143,15 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         return p, eq, doc, ()
     quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False)
     if method == "bilevel":
-        options = BilevelOptions()
+        options = BilevelOptions(equilibrium=quiet)
+        if max_iterations is not None:
+            options = dataclasses.replace(options, max_iter=max_iterations)
     else:
         options = ControlOptions(equilibrium=quiet, direction=direction)
         if max_iterations is not None:
             options = dataclasses.replace(options, max_iterations=max_iterations)
-        if max_time is not None:
-            options = dataclasses.replace(options, max_time=max_time)
+    if max_time is not None:
+        options = dataclasses.replace(options, max_time=max_time)
     res = p.control(method, contraction, freeze, options=options)
     for it in res.history if method != "bilevel" else ():
         log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,

@@ -41,10 +41,11 @@ import numpy as np
 
 from ..equilibrium import EquilibriumOptions, certify, solve_equilibrium
 from ..errors import SolverError
-from ..linalg import NotPositiveDefinite, smallest_eigenpair
 from ..model import Model
 from ..objective import Targets
-from .bilevel_nlp import NlpEntry, build_nlp, force_reference
+from .bilevel_nlp import (NlpEntry, build_nlp, describe_pose as _describe_pose, force_reference,
+                          kkt as _kkt, parameters as _parameters, pose_check as _pose_check)
+from .bilevel_search import ReducedRun
 from .result import ControlResult, ControlStats
 from .slack import slack_winches, take_up
 
@@ -54,6 +55,8 @@ log = logging.getLogger(__name__)
 ALPHA_FOR_Y = ("primal", "bound-mult", "min", "max", "full", "min-dual-infeas",
                "safer-min-dual-infeas", "primal-and-full", "dual-and-full", "acceptor")
 
+FORMULATIONS = ("reduced", "full")
+
 #: IPOPT return statuses counted as success.
 SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 
@@ -61,9 +64,6 @@ SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 BUDGET = {"Maximum_Iterations_Exceeded": "max_iterations",
           "Maximum_CpuTime_Exceeded": "max_time", "Maximum_WallTime_Exceeded": "max_time"}
 
-# A pose whose relative residual is this small is an equilibrium in all but
-# stability: an indefinite Hessian there is reported as a saddle.
-SADDLE_RESIDUAL = 1e-6
 # Contractions outside the bounds by more than this fraction of the largest
 # range are not a success (IPOPT's bound_push keeps them inside otherwise).
 BOUND_SLACK = 1e-9
@@ -77,6 +77,26 @@ class BilevelOptions:
 
     Attributes
     ----------
+    formulation : 'reduced' (default: IPOPT on the contractions, the pose
+        eliminated through the certified equilibrium, docs/bilevel.md) or
+        'full' (IPOPT on pose and contractions, the equilibrium as a
+        constraint).
+    gtol : (reduced) stop, certified, once the projected gradient times the
+        mean bound range is below gtol * max(O, objective_floor) (the
+        gradient loop's rule, so both stop at the same accuracy).
+    objective_floor : (reduced) O below this (length^2) counts as targets
+        reached.
+    stuck_fraction, probe_fractions, probe_gain : (reduced) the look-further
+        moves where IPOPT stops with O above stuck_fraction x its start
+        (the gradient loop's, docs/control.md).
+    hessian_damping : (reduced) Levenberg-Marquardt damping added to the
+        Gauss-Newton Hessian, relative to its largest diagonal entry (the
+        gradient loop's initial damping): bounds the step of a winch whose
+        column is (nearly) zero.
+    mu_init, bound_push : (reduced) IPOPT's ``mu_init`` and
+        ``bound_push``/``bound_frac``: the start is a certified equilibrium
+        already, so a small barrier and a small push off the bounds keep
+        IPOPT from first walking away from it.
     tol : IPOPT ``tol``: the overall (scaled) KKT error at which IPOPT stops.
     constr_viol_tol : IPOPT ``constr_viol_tol`` on the scaled equilibrium
         constraint |grad_x E| / F_ref (dimensionless).
@@ -112,6 +132,15 @@ class BilevelOptions:
         ``ipopt.`` prefix, e.g. ``{"linear_solver": "ma27"}``).
     """
 
+    formulation: str = "reduced"
+    gtol: float = 1e-7
+    objective_floor: float = 1e-14
+    stuck_fraction: float = 0.5
+    probe_fractions: tuple = (0.05, 0.15, 0.4)
+    probe_gain: float = 1e-3
+    hessian_damping: float = 1e-3
+    mu_init: float = 1e-4
+    bound_push: float = 1e-6
     tol: float = 1e-8
     constr_viol_tol: float = 1e-10
     acceptable_tol: float = 1e-6
@@ -128,7 +157,11 @@ class BilevelOptions:
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        for name in ("tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
+        if self.formulation not in FORMULATIONS:
+            raise ValueError(f"formulation: expected one of {FORMULATIONS}, got {self.formulation!r}")
+        if not (isinstance(self.hessian_damping, (int, float)) and self.hessian_damping >= 0):
+            raise ValueError(f"hessian_damping: expected a number >= 0, got {self.hessian_damping!r}")
+        for name in ("gtol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
@@ -147,6 +180,16 @@ class BilevelOptions:
             raise ValueError(f"pose_tol: expected None or a number > 0, got {self.pose_tol!r}")
         if not isinstance(self.ipopt, dict) or not all(isinstance(k, str) for k in self.ipopt):
             raise ValueError(f"ipopt: expected a dict with string keys, got {self.ipopt!r}")
+
+    def reduced_ipopt_options(self) -> dict:
+        """The IPOPT options of the reduced-space solver (without prefix)."""
+        opts = {"tol": float(self.tol), "acceptable_tol": float(self.acceptable_tol),
+                "max_iter": int(self.max_iter), "mu_strategy": self.mu_strategy,
+                "mu_init": float(self.mu_init), "bound_push": float(self.bound_push),
+                "bound_frac": float(self.bound_push), "hessian_approximation": "exact",
+                "honor_original_bounds": "yes", "print_level": 0, "sb": "yes"}
+        opts.update(self.ipopt)
+        return opts
 
     def ipopt_options(self) -> dict:
         """The IPOPT options this solver is built with (without prefix)."""
@@ -176,6 +219,9 @@ class BilevelStats:
     ----------
     start : the starting equilibrium (contraction, objective, t_wall,
         slack_taken_up).
+    formulation : 'reduced' or 'full'.
+    moves, rounds : (reduced) the look-further moves taken, and each IPOPT
+        round's start, status and iterations.
     return_status, ipopt_success, iter_count, stopped_by_time_limit : IPOPT's verdict.
     t_build, cached_solver : solver set-up (0 when the solver was cached).
     t_ipopt_total, t_function_evaluations, t_inside_ipopt, t_callback,
@@ -195,6 +241,9 @@ class BilevelStats:
     start: dict
     objective_certified: float
     solver: str = "ipopt"
+    formulation: str | None = None
+    moves: list | None = None
+    rounds: list | None = None
     return_status: str | None = None
     ipopt_success: bool | None = None
     iter_count: int | None = None
@@ -290,6 +339,8 @@ class BilevelSolver:
             return self._result(targets, frozen, start, True,
                                 "targets_reached" if targets.n_targets == 0 else "stationary",
                                 status, (), 0, 0.0, stats, t_start)
+        if options.formulation == "reduced":
+            return self._solve_reduced(targets, frozen, start, start_info, options, t_start)
         run = _IpoptRun(self.model, targets, options, frozen, start, taken, start_info)
         run.entry, run.built = self._entry(frozen, targets, options)
         run.solve()
@@ -297,6 +348,35 @@ class BilevelSolver:
         return self._result(targets, frozen, run.eq, run.ok, run.reason(), run.status(),
                             run.history, run.iterations, run.entry.t_build if run.built else 0.0,
                             run.stats(), t_start)
+
+    def _solve_reduced(self, targets, frozen, start, start_info, options, t_start) -> ControlResult:
+        model = self.model
+        run = ReducedRun(model, targets, options, frozen, start, t_start)
+        run.solve()
+        ok, reason, status = run.verdict()
+        end, names = run.end, model.winch_names
+        g = run.gradient(end)
+        t_eval = run.ev.t_evaluations
+        stats = BilevelStats(
+            start=start_info, objective_certified=end.objective, formulation="reduced",
+            moves=run.moves, rounds=run.rounds, return_status=run.return_status,
+            ipopt_success=run.return_status in SUCCESS, iter_count=run.iterations,
+            stopped_by_time_limit=run.stop == "max_time", t_build=run.t_build, cached_solver=False,
+            t_ipopt_total=run.t_ipopt, t_function_evaluations=t_eval,
+            t_inside_ipopt=max(run.t_ipopt - t_eval, 0.0),
+            calls={**run.calls, "equilibrium_solves": run.ev.solves,
+                   "failed_equilibrium_solves": run.ev.failures},
+            options={"ipopt": _jsonable(options.reduced_ipopt_options()), "gtol": options.gtol,
+                     "objective_floor": options.objective_floor, "max_time": options.max_time},
+            frozen=[names[i] for i in np.flatnonzero(frozen)],
+            contraction_ipopt={names[i]: float(end.c[i]) for i in range(model.n_winches)},
+            bound_violation=0.0, objective_ipopt=end.objective,
+            kkt={"gradient": {names[i]: float(g[i]) for i in run.free}},
+            active_bounds=[names[w] for w in run._held_mask(end.c, g)],
+            slack_winches=[names[w] for w in slack_winches(model, end.eq.x, end.c, ~frozen, g)],
+            equilibrium_solves=run.ev.solves + 1, history_points=len(run.history))
+        return self._result(targets, frozen, end.eq, ok, reason, status, run.history,
+                            run.iterations, run.t_build, stats, t_start)
 
     def _result(self, targets, frozen, eq, ok, reason, status, history, iterations, t_setup,
                 stats: BilevelStats, t_start) -> ControlResult:
@@ -354,67 +434,6 @@ def _start(model: Model, targets: Targets, c0, frozen, x0, options: BilevelOptio
         c1[w] = min(take_up(model, start.x, c0, w), model.upper[w])
     moved = solve_equilibrium(model, c1, start.x, quick)
     return (moved, taken) if moved.converged else (start, [])
-
-
-def _parameters(entry: NlpEntry, c: np.ndarray, targets: Targets) -> np.ndarray:
-    return np.concatenate([c[entry.frozen], targets.to.T.reshape(-1), np.sqrt(targets.weight),
-                           targets.beta.T.reshape(-1)])
-
-
-def _pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) -> dict:
-    """Is ``x`` a stable equilibrium at ``c``? Residual, Cholesky, eigenvalue."""
-    out = {"admissible": bool(model.admissible(x)), "relative_residual": None,
-           "positive_definite": False, "min_eigenvalue": None, "stable_equilibrium": False}
-    if not out["admissible"]:
-        return out
-    ev = model.evaluate(x, c, order=2)
-    rel = float(np.linalg.norm(ev.gradient) / ev.force_scale)
-    out["relative_residual"] = rel
-    try:
-        model.factorizer.factor(ev.hessian)
-        # positive definite: the certified pose's eigenvalue is reported instead
-        out["positive_definite"] = True
-    except NotPositiveDefinite:
-        out["min_eigenvalue"] = float(smallest_eigenpair(ev.hessian)[0])
-    out["stable_equilibrium"] = bool(out["positive_definite"] and rel <= residual_tol)
-    return out
-
-
-def _describe_pose(check: dict) -> str:
-    if not check["admissible"]:
-        return "ipopt pose is not admissible (some element has J <= 0)"
-    rel = check["relative_residual"]
-    if not check["positive_definite"]:
-        if rel is not None and rel <= SADDLE_RESIDUAL:
-            return (f"ipopt pose is a saddle of E (min Hessian eigenvalue "
-                    f"{check['min_eigenvalue']:.3g}, relative residual {rel:.2g})")
-        return (f"ipopt pose is not an equilibrium (relative residual {rel:.2g}) and its Hessian "
-                f"is indefinite (min eigenvalue {check['min_eigenvalue']:.3g})")
-    return f"ipopt pose is not an equilibrium (relative residual {rel:.2g})"
-
-
-def _kkt(model: Model, entry: NlpEntry, sol, z, p, options: BilevelOptions) -> dict:
-    """Stationarity, feasibility and complementarity at IPOPT's answer."""
-    n = model.n_dofs
-    free = entry.free
-    lam_g = np.asarray(sol["lam_g"], dtype=np.float64).reshape(-1)
-    lam_x = np.asarray(sol["lam_x"], dtype=np.float64).reshape(-1)
-    gl, gval = entry.grad_lag(z, p, lam_g, lam_x)
-    gl = np.asarray(gl, dtype=np.float64).reshape(-1)
-    gval = np.asarray(gval, dtype=np.float64).reshape(-1)
-    feas = np.abs(gval[:n])
-    if options.min_jacobian is not None:
-        feas = np.concatenate([feas, np.maximum(options.min_jacobian - gval[n:], 0.0)])
-    zc = z[n:]
-    lx = lam_x[n:]
-    comp_x = np.where(lx < 0, -lx * (zc - model.lower[free]), lx * (model.upper[free] - zc))
-    comp = float(np.max(np.abs(comp_x), initial=0.0))
-    if options.min_jacobian is not None:
-        comp = max(comp, float(np.max(np.abs(lam_g[n:] * (gval[n:] - options.min_jacobian)),
-                                      initial=0.0)))
-    return {"stationarity": float(np.max(np.abs(gl), initial=0.0)),
-            "feasibility": float(np.max(feas, initial=0.0)),
-            "complementarity": comp}
 
 
 class _IpoptRun:

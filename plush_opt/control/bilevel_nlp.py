@@ -14,8 +14,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from ..linalg import NotPositiveDefinite, smallest_eigenpair
 from ..model import Model
 from .result import ControlIterate
+
+# A pose whose relative residual is this small is an equilibrium in all but
+# stability: an indefinite Hessian there is reported as a saddle.
+SADDLE_RESIDUAL = 1e-6
 
 class Recorder(ca.Callback):
     """IPOPT iteration callback: records (t, O, violation, c) and stops
@@ -177,3 +182,63 @@ def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, stor
     return NlpEntry(solver, recorder, grad_lag, free, fixed, gz.shape[0],
                   np.concatenate(lbg), np.concatenate(ubg), time.perf_counter() - t0, ipopt)
 
+
+def parameters(entry: NlpEntry, c: np.ndarray, targets) -> np.ndarray:
+    return np.concatenate([c[entry.frozen], targets.to.T.reshape(-1), np.sqrt(targets.weight),
+                           targets.beta.T.reshape(-1)])
+
+
+def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) -> dict:
+    """Is ``x`` a stable equilibrium at ``c``? Residual, Cholesky, eigenvalue."""
+    out = {"admissible": bool(model.admissible(x)), "relative_residual": None,
+           "positive_definite": False, "min_eigenvalue": None, "stable_equilibrium": False}
+    if not out["admissible"]:
+        return out
+    ev = model.evaluate(x, c, order=2)
+    rel = float(np.linalg.norm(ev.gradient) / ev.force_scale)
+    out["relative_residual"] = rel
+    try:
+        model.factorizer.factor(ev.hessian)
+        # positive definite: the certified pose's eigenvalue is reported instead
+        out["positive_definite"] = True
+    except NotPositiveDefinite:
+        out["min_eigenvalue"] = float(smallest_eigenpair(ev.hessian)[0])
+    out["stable_equilibrium"] = bool(out["positive_definite"] and rel <= residual_tol)
+    return out
+
+
+def describe_pose(check: dict) -> str:
+    if not check["admissible"]:
+        return "ipopt pose is not admissible (some element has J <= 0)"
+    rel = check["relative_residual"]
+    if not check["positive_definite"]:
+        if rel is not None and rel <= SADDLE_RESIDUAL:
+            return (f"ipopt pose is a saddle of E (min Hessian eigenvalue "
+                    f"{check['min_eigenvalue']:.3g}, relative residual {rel:.2g})")
+        return (f"ipopt pose is not an equilibrium (relative residual {rel:.2g}) and its Hessian "
+                f"is indefinite (min eigenvalue {check['min_eigenvalue']:.3g})")
+    return f"ipopt pose is not an equilibrium (relative residual {rel:.2g})"
+
+
+def kkt(model: Model, entry: NlpEntry, sol, z, p, options) -> dict:
+    """Stationarity, feasibility and complementarity at IPOPT's answer."""
+    n = model.n_dofs
+    free = entry.free
+    lam_g = np.asarray(sol["lam_g"], dtype=np.float64).reshape(-1)
+    lam_x = np.asarray(sol["lam_x"], dtype=np.float64).reshape(-1)
+    gl, gval = entry.grad_lag(z, p, lam_g, lam_x)
+    gl = np.asarray(gl, dtype=np.float64).reshape(-1)
+    gval = np.asarray(gval, dtype=np.float64).reshape(-1)
+    feas = np.abs(gval[:n])
+    if options.min_jacobian is not None:
+        feas = np.concatenate([feas, np.maximum(options.min_jacobian - gval[n:], 0.0)])
+    zc = z[n:]
+    lx = lam_x[n:]
+    comp_x = np.where(lx < 0, -lx * (zc - model.lower[free]), lx * (model.upper[free] - zc))
+    comp = float(np.max(np.abs(comp_x), initial=0.0))
+    if options.min_jacobian is not None:
+        comp = max(comp, float(np.max(np.abs(lam_g[n:] * (gval[n:] - options.min_jacobian)),
+                                      initial=0.0)))
+    return {"stationarity": float(np.max(np.abs(gl), initial=0.0)),
+            "feasibility": float(np.max(feas, initial=0.0)),
+            "complementarity": comp}

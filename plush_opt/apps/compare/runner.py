@@ -18,7 +18,7 @@ from ...errors import PlushError, SceneError
 from ...problem import from_scene
 from ...io import load_scene
 from .report import write_outputs
-from .settings import BILEVEL_TOL, GRADIENT_TOL, METHODS, CompareSettings, Run
+from .settings import BILEVEL_TOL, GRADIENT_TOL, LARGE_SHORTFALL, METHODS, CompareSettings, Run
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +42,18 @@ def _level(scene, factor):
     # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
     solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
     return p, time.perf_counter() - t0
+
+
+def _large_factor(levels: dict, settings: CompareSettings) -> float | None:
+    """The max_area factor of a level with about ``settings.large_nodes``
+    nodes (nodes scale as 1 / max_area), or None if the finest is close."""
+    if settings.large_nodes is None:
+        return None
+    finest = min(levels)
+    n = levels[finest][0].mesh.n_nodes
+    if len(levels) < 2 or n >= LARGE_SHORTFALL * settings.large_nodes:
+        return None
+    return finest * n / settings.large_nodes
 
 
 def _bound_violation(model, c) -> float:
@@ -73,7 +85,7 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
             opts = ControlOptions(bounds=method, max_time=settings.max_time, **GRADIENT_TOL[tol])
             res = run_control(model, targets, method, problem.start, problem.frozen, options=opts)
             eq = res.equilibrium
-            run.converged, run.status = res.converged, res.status
+            run.converged, run.reason, run.status = res.converged, res.reason, res.status
             run.t_solve = res.history[-1].t_wall
             run.iterations = res.stats.iterations
             run.equilibrium_solves = res.stats.equilibrium_solves
@@ -88,7 +100,7 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
                               options=opts, bilevel=p.bilevel_solver)
             eq = res.equilibrium
             info = res.stats.details
-            run.converged, run.status = res.converged, res.status
+            run.converged, run.reason, run.status = res.converged, res.reason, res.status
             run.t_setup = res.stats.t_setup
             run.t_solve = res.stats.t_wall - run.t_setup
             run.iterations = res.stats.iterations
@@ -96,11 +108,15 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
             pose = info.ipopt_pose
             run.saddle_flagged = bool(pose is not None and pose["admissible"]
                                       and not pose["positive_definite"])
-            t_start = info.start["t_wall"]
-            run.curve = ([(t_start, info.start["objective"], True)]
-                         + [(t_start + h.t_wall, h.objective, False) for h in res.history]
-                         + [(run.t_solve, targets.value(eq.x), True)])
-            run.ipopt_history = (t_start, res.history)
+            if info.formulation == "reduced":
+                # every iterate is a certified equilibrium: nothing to re-solve
+                run.curve = [(h.t_wall, h.objective, h.dispatchable) for h in res.history]
+            else:
+                t_start = info.start["t_wall"]
+                run.curve = ([(t_start, info.start["objective"], True)]
+                             + [(t_start + h.t_wall, h.objective, False) for h in res.history]
+                             + [(run.t_solve, targets.value(eq.x), True)])
+                run.ipopt_history = (t_start, res.history)
         run.x = eq.x
         run.contraction = eq.contraction.copy()
         run.objective = float(targets.value(eq.x))
@@ -203,6 +219,10 @@ def run_compare(problem_paths, out_dir, coarse: bool = False, progress=None,
         factors = settings.mesh_factors if scene.outline is not None else (settings.main_factor,)
         say(f"compare: [{k + 1}/{len(paths)}] {scene.name}: meshing {len(factors)} resolution(s)")
         levels = {f: _level(scene, f) for f in factors}
+        large = _large_factor(levels, settings)
+        if large is not None:
+            levels[large] = _level(scene, large)
+            factors = (*factors, large)
         problem = _Problem(path, scene, levels, scene.contraction.copy(), scene.frozen.copy())
         problems.append(problem)
         plan = [(m, "default", settings.main_factor, "main") for m in METHODS]

@@ -10,6 +10,9 @@ import numpy as np
 
 METHODS = ("reparam", "clip", "bilevel")
 TOLERANCES = ("loose", "default", "tight")
+# A problem whose finest factor already gives this fraction of large_nodes
+# gets no extra level (it is "about" that size).
+LARGE_SHORTFALL = 0.8
 
 #: Tolerance presets per method family (options fields).
 GRADIENT_TOL = {"loose": {"ftol": 1e-3, "gtol": 1e-3}, "default": {},
@@ -37,6 +40,9 @@ class CompareSettings:
     repeat : run each case this many times and keep the fastest (wall
         times of runs this short are noisy on a shared machine); setup is
         taken from the first run, which pays it.
+    large_nodes : also run the mesh sweep at about this many nodes (a
+        finer max_area chosen per problem) when the finest factor stays
+        below LARGE_SHORTFALL of it; None: no such level.
     """
 
     mesh_factors: tuple = (4.0, 1.0, 0.25)
@@ -45,6 +51,7 @@ class CompareSettings:
     max_time: float | None = 120.0
     resolve_bilevel_iterates: bool = True
     repeat: int = 3
+    large_nodes: int | None = 3000
 
     def __post_init__(self):
         if not (isinstance(self.repeat, int) and self.repeat >= 1):
@@ -68,7 +75,7 @@ class CompareSettings:
     def coarse(cls) -> "CompareSettings":
         """A quick smoke run: coarser meshes, two tolerance presets."""
         return cls(mesh_factors=(8.0, 4.0, 2.0), main_factor=4.0, tolerances=("loose", "default"),
-                   max_time=30.0, resolve_bilevel_iterates=False, repeat=1)
+                   max_time=30.0, resolve_bilevel_iterates=False, repeat=1, large_nodes=None)
 
 
 @dataclass
@@ -84,6 +91,7 @@ class Run:
     n_nodes: int
     n_elems: int
     converged: bool = False
+    reason: str = ""
     status: str = ""
     objective: float = math.nan
     rms_target_error: float = math.nan

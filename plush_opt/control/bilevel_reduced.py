@@ -1,0 +1,297 @@
+"""The bilevel method in the reduced space: IPOPT on the contractions only.
+
+The full-space NLP (:mod:`.bilevel_nlp`) keeps the pose x as variables and
+grad_x E(x, c) = 0 as constraints. Here the constraint is eliminated by the
+implicit function theorem instead of being handed to IPOPT: at every point
+IPOPT asks for, x(c) is the certified stable equilibrium (Newton, warm
+started with the first-order predictor), so the NLP is
+
+    minimise    O(c) = 1/2 |r(x(c))|^2        over the free c
+    subject to  lower <= c <= upper           (IPOPT variable bounds)
+
+with r the weighted target residuals. Its derivatives come from the
+equilibrium's own Cholesky factor: dx/dc = -H^-1 d2E/dxdc (one back
+substitution per free winch), so dr/dc = sqrt(w) B dx/dc, the gradient is
+J^T r and the Hessian IPOPT gets is the Gauss-Newton J^T J (the term with
+the residuals times d2x/dc2 is dropped: it needs third derivatives of E,
+and it vanishes where the targets are reached).
+
+It is still the bilevel KKT point in IPOPT with explicit bounds: IPOPT's
+stationarity and complementarity conditions on c are those of the full NLP
+with the equilibrium multipliers eliminated (lambda = -H^-1 dO/dx, the
+adjoint). What changes is that every iterate is a certified equilibrium,
+so a saddle of E cannot be a KKT point of this NLP, the history is a list
+of poses a robot could be sent to, and IPOPT's linear algebra is on
+n_free variables instead of about 2 n_dofs + n_elems.
+
+CasADi sees the residual as a :class:`casadi.Callback` whose Jacobian is
+another callback, whose own Jacobian is declared zero: that makes CasADi's
+exact Hessian of 1/2 |r|^2 the Gauss-Newton one. Nothing is generated or
+compiled, so building the solver costs milliseconds.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..model import Model
+from ..objective import Targets
+from ..sensitivity import state_sensitivity
+from .result import ControlIterate
+
+# Equilibria kept for warm starts and for IPOPT's repeated calls at the
+# same point (objective, gradient and Hessian are asked for separately).
+CACHE_SIZE = 8
+
+
+@dataclass
+class Point:
+    """One contraction vector with its certified equilibrium and derivatives."""
+
+    c: np.ndarray              # (n_winches,)
+    eq: Equilibrium
+    r: np.ndarray              # (2 k,) weighted residuals
+    J: np.ndarray | None       # (2 k, n_free) dr/dc_free, computed on demand
+    dxdc: np.ndarray | None    # (n_dofs, n_winches), free columns filled
+
+    @property
+    def objective(self) -> float:
+        return 0.5 * float(self.r @ self.r)
+
+    def gradient(self) -> np.ndarray:
+        """dO/dc_free."""
+        return self.J.T @ self.r
+
+
+class Evaluator:
+    """O(c), r(c) and dr/dc by Newton and the implicit sensitivity, cached.
+
+    A contraction at which Newton does not certify a stable equilibrium
+    gives NaN residuals: IPOPT treats that as an evaluation error and cuts
+    its step back."""
+
+    def __init__(self, model: Model, targets: Targets, c_full: np.ndarray, free: np.ndarray,
+                 start: Equilibrium, options: EquilibriumOptions, damping: float = 0.0):
+        self.model, self.targets = model, targets
+        self.damping = damping
+        self.c_full, self.free = c_full.copy(), free
+        self.options = options
+        self.B = targets.selection(model.n_dofs)
+        self.sqrt_w = np.repeat(np.sqrt(targets.weight), 2)
+        self.points: list[Point] = []
+        self.solves = 0
+        self.newton_iterations = 0
+        self.failures = 0
+        self.t_evaluations = 0.0
+        self.add(start)
+
+    def add(self, eq: Equilibrium) -> Point:
+        point = Point(eq.contraction.copy(), eq, self.targets.residual(eq.x), None, None)
+        self._keep(point)
+        return point
+
+    def _keep(self, point: Point) -> None:
+        self.points = [p for p in self.points if not np.array_equal(p.c, point.c)]
+        self.points.append(point)
+        del self.points[:-CACHE_SIZE]
+
+    def contraction(self, c_free) -> np.ndarray:
+        c = self.c_full.copy()
+        c[self.free] = np.asarray(c_free, dtype=np.float64).reshape(-1)
+        return c
+
+    def at(self, c_free) -> Point | None:
+        c = self.contraction(c_free)
+        for p in reversed(self.points):
+            if np.array_equal(p.c, c):
+                return p
+        near = min(self.points, key=lambda p: float(np.max(np.abs(p.c - c))))
+        t0 = time.perf_counter()
+        eq = solve_equilibrium(self.model, c, self._predict(near, c), self.options)
+        self.t_evaluations += time.perf_counter() - t0
+        self.solves += 1
+        self.newton_iterations += eq.iterations
+        if not eq.converged:
+            self.failures += 1
+            return None
+        return self.add(eq)
+
+    def _predict(self, near: Point, c) -> np.ndarray:
+        """x + dx/dc (c - c_near) if admissible, else x (the loop's predictor)."""
+        if near.dxdc is not None:
+            xp = near.eq.x + near.dxdc @ (c - near.c)
+            if self.model.admissible(xp):
+                return xp
+        return near.eq.x
+
+    def rows(self, point: Point) -> np.ndarray:
+        """The residuals IPOPT sees: r and n_free zeros (the damping rows)."""
+        return np.concatenate([point.r, np.zeros(len(self.free))])
+
+    def jacobian_rows(self, point: Point) -> np.ndarray:
+        """dr/dc and the damping rows sqrt(lambda) I: their value is zero, so
+        O and its gradient are untouched, and the Hessian IPOPT gets is
+        J^T J + lambda I (Levenberg-Marquardt, lambda relative to the
+        largest curvature): a winch whose column is (nearly) zero, such as
+        one whose tendons are all slack, gets a bounded step instead of an
+        arbitrary one."""
+        J = self.derivatives(point).J
+        lam = self.damping * max(float(np.max(np.sum(J * J, axis=0), initial=0.0)), np.finfo(float).tiny)
+        return np.vstack([J, math.sqrt(lam) * np.eye(len(self.free))])
+
+    def derivatives(self, point: Point) -> Point:
+        if point.J is None:
+            t0 = time.perf_counter()
+            point.dxdc = state_sensitivity(self.model, point.eq, columns=self.free)
+            point.J = self.sqrt_w[:, None] * (self.B @ point.dxdc[:, self.free])
+            self.t_evaluations += time.perf_counter() - t0
+        return point
+
+
+class _ZeroJacobian:
+    """The Jacobian of dr/dc declared zero: CasADi's Hessian becomes J^T J."""
+
+    @staticmethod
+    def function(name, inames, onames, shapes_in, n_out_rows) -> ca.Function:
+        ins = [ca.MX.sym(n, *s) for n, s in zip(inames, shapes_in)]
+        # one block per (output, nominal input); the nominal output is not differentiated
+        outs = [ca.MX(n_out_rows, int(np.prod(s))) for s in shapes_in[:len(onames)]]
+        return ca.Function(name, ins, outs, inames, onames)
+
+
+class _JacobianCallback(ca.Callback):
+    """(c, r) -> dr/dc, dense (m, n)."""
+
+    def __init__(self, name: str, evaluator: Evaluator, n: int, m: int):
+        ca.Callback.__init__(self)
+        self.ev, self.n, self.m = evaluator, n, m
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 2
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.n if i == 0 else self.m, 1)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(self.m, self.n)
+
+    def eval(self, arg):
+        p = self.ev.at(arg[0])
+        if p is None:
+            return [ca.DM(np.full((self.m, self.n), np.nan))]
+        return [ca.DM(self.ev.jacobian_rows(p))]
+
+    def has_jacobian(self):
+        return True
+
+    def get_jacobian(self, name, inames, onames, opts):
+        return _ZeroJacobian.function(name, inames, onames,
+                                      [(self.n, 1), (self.m, 1), (self.m, self.n)], self.m * self.n)
+
+
+class ResidualCallback(ca.Callback):
+    """c_free -> r(x(c)), with :class:`_JacobianCallback` as its Jacobian."""
+
+    def __init__(self, name: str, evaluator: Evaluator, n: int, m: int):
+        ca.Callback.__init__(self)
+        self.ev, self.n, self.m = evaluator, n, m
+        self.jac = None
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return 1
+
+    def get_n_out(self):
+        return 1
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity.dense(self.n, 1)
+
+    def get_sparsity_out(self, i):
+        return ca.Sparsity.dense(self.m, 1)
+
+    def eval(self, arg):
+        p = self.ev.at(arg[0])
+        return [ca.DM(np.full(self.m, np.nan)) if p is None else ca.DM(self.ev.rows(p))]
+
+    def has_jacobian(self):
+        return True
+
+    def get_jacobian(self, name, inames, onames, opts):
+        self.jac = _JacobianCallback(name + "_cb", self.ev, self.n, self.m)
+        c = ca.MX.sym(inames[0], self.n)
+        r = ca.MX.sym(inames[1], self.m)
+        return ca.Function(name, [c, r], [self.jac(c, r)], inames, onames)
+
+
+class IterationRecorder(ca.Callback):
+    """IPOPT's iteration callback: one dispatchable iterate per IPOPT
+    iteration (each is a certified equilibrium here), and the stop rules
+    IPOPT does not have (time limit, objective floor, stall)."""
+
+    def __init__(self, name: str, n: int, rules):
+        ca.Callback.__init__(self)
+        self.n, self.rules = n, rules
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        name = ca.nlpsol_out(i)
+        n = {"x": self.n, "lam_x": self.n, "f": 1}.get(name, 0)
+        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        return [1 if self.rules(np.asarray(arg[0], dtype=np.float64).reshape(-1)) else 0]
+
+
+def build_solver(evaluator: Evaluator, n: int, m: int, ipopt: dict, rules):
+    """IPOPT on c_free for this evaluator: (solver, residual callback, recorder).
+
+    The callbacks must outlive the solver (CasADi holds them by reference)."""
+    residual = ResidualCallback("reduced_residual", evaluator, n, m)
+    recorder = IterationRecorder("reduced_iterations", n, rules)
+    c = ca.MX.sym("c", n)
+    r = residual(c)
+    nlp = {"x": c, "f": 0.5 * ca.dot(r, r)}
+    opts = {"ipopt." + k: v for k, v in ipopt.items()}
+    opts.update({"print_time": False, "show_eval_warnings": False,
+                 "iteration_callback": recorder, "iteration_callback_step": 1,
+                 "iteration_callback_ignore_errors": False})
+    return ca.nlpsol("bilevel_reduced", "ipopt", nlp, opts), residual, recorder
+
+
+def history_point(point: Point, evaluator: Evaluator, k: int, t: float,
+                  active: tuple[str, ...]) -> ControlIterate:
+    """A ControlIterate for ``point`` (a certified equilibrium)."""
+    grad = np.zeros(evaluator.model.n_winches)
+    if point.J is not None:
+        grad[evaluator.free] = point.gradient()
+    return ControlIterate(iteration=k, t_wall=t, contraction=point.c.copy(),
+                          objective=point.objective, equilibrium=point.eq, gradient=grad,
+                          active_bounds=active, equilibrium_solves=evaluator.solves,
+                          newton_iterations=evaluator.newton_iterations)
+
+
+def finite(v) -> bool:
+    return v is not None and math.isfinite(v)
