@@ -169,6 +169,8 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
     log.info("%s: meshing and building the model", Path(problem).name)
     p = load(problem, accuracy=accuracy)
+    log.debug("%s: %d nodes, %d elements, %d tendons, winches %s", p.source, p.mesh.n_nodes, p.mesh.n_elems,
+              p.model.n_tendons, ", ".join(p.winch_names))
     contraction = _pairs(contraction_pairs)
     p.contraction_vector(contraction, what="--contraction")   # names and bounds checked first
     p.frozen_vector(freeze, what="--freeze")           # names checked before any solve
@@ -205,8 +207,14 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
 
 
+def _check_tension_max(value) -> None:
+    if value is not None and not (value > 0 and value != float("inf")):
+        raise SceneError(f"--tension-max: expected a tension > 0 (N), got {value:g}")
+
+
 def cmd_solve(args) -> int:
     from ..results import write_json_atomic
+    _check_tension_max(args.tension_max)
     p, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
         args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
@@ -303,6 +311,7 @@ def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
     from ..data_files import data_file
     from ..results import write_json_atomic
+    _check_tension_max(args.tension_max)
     _use_agg()
     problem = args.problem or default_problem()
     out = args.out
