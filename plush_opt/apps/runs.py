@@ -89,6 +89,7 @@ class RunResult:
 
     def to_dict(self) -> dict:
         return {"script": self.script, "log": self.log_path, "dry_run": self.dry_run, "steps": self.steps,
+                "pose_errors": list(self.pose_errors), "far_poses": list(self.far_poses),
                 "commands": self.commands, "contraction": dict(self.contraction), "status": self.status}
 
 
