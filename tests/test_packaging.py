@@ -32,7 +32,11 @@ def installed(tmp_path_factory):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PLUSH_BOARD_EMU")}
     env["PLUSH_CACHE_DIR"] = str(tmp / "cache")      # the emulator is built anew, as on a new machine
     env["OPENBLAS_NUM_THREADS"] = "1"
-    _sh([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(ROOT)], tmp, env)
+    # Built from a clean copy: a build/ folder left in the tree would smuggle stale files into the wheel.
+    src = tmp / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", ".venv", "build", "out", "*.egg-info",
+                                                             "__pycache__", ".pytest_cache", ".hypothesis"))
+    _sh([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)], tmp, env)
     wheel = next((tmp / "dist").glob("plush_opt-*.whl"))
     base = getattr(sys, "_base_executable", sys.executable)
     _sh([base, "-m", "venv", str(tmp / "venv")], tmp, env)
