@@ -30,7 +30,7 @@ def installed(tmp_path_factory):
         pytest.skip("no C++ compiler: the emulator cannot be compiled on first use")
     tmp = tmp_path_factory.mktemp("wheel")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PLUSH_BOARD_EMU")}
-    env["PLUSH_CACHE_DIR"] = str(tmp / "cache")      # the emulator is built anew, as on a new machine
+    env["PLUSH_OPT_CACHE"] = str(tmp / "cache")      # the emulator is built anew, as on a new machine
     env["OPENBLAS_NUM_THREADS"] = "1"
     # Built from a clean copy: a build/ folder left in the tree would smuggle stale files into the wheel.
     src = tmp / "src"
@@ -62,7 +62,7 @@ def test_a_new_user_in_an_empty_folder(installed, tmp_path):
     assert "targets RMS error" in demo.stdout
     run = _sh([cli, "run", "ex/examples/gripper_run.yaml", "--emulator"], tmp_path, env)
     assert "completed on emulator" in run.stderr
-    assert list(Path(env["PLUSH_CACHE_DIR"]).glob("emulator-*/plush-board-emu"))
+    assert list(Path(env["PLUSH_OPT_CACHE"]).glob("emulator-*/plush-board-emu"))
     _sh([str(bin_ / "python"), "-m", "plush_opt", "--version"], tmp_path, env)
 
 

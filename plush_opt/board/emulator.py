@@ -36,9 +36,10 @@ BINARY_ENV = "PLUSH_BOARD_EMU"
 
 _REPO_BINARY = Path(__file__).resolve().parents[2] / "hw" / "emulator" / "build" / "plush-board-emu"
 
-CACHE_ENV = "PLUSH_CACHE_DIR"
+CACHE_ENV = "PLUSH_OPT_CACHE"
 """Environment variable that overrides where built emulators are kept
-(default ``$XDG_CACHE_HOME/plush_opt``, else ``~/.cache/plush_opt``)."""
+(default ``$XDG_CACHE_HOME/plush_opt``, else ``~/.cache/plush_opt``): the
+same cache as the compiled CasADi kernels (plush_opt/kernels.py)."""
 
 COMPILERS = ("c++", "g++", "clang++")   # tried in this order after $CXX
 # hw/Makefile's flags: what the emulator has been tested with
