@@ -108,3 +108,98 @@ def test_accuracy_picks_a_mesh_and_says_which(tmp_path):
 def test_compare_is_wired(tmp_path):
     p = run("compare", "--help")
     assert p.returncode == 0 and "--coarse" in p.stdout
+
+
+# -- a new user's session: shipped files, output levels, honest summaries, pictures, viewers --
+
+def test_examples_copies_the_shipped_files_and_never_overwrites(tmp_path):
+    p = run("examples", "ex", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    for rel in ("problems/gripper.yaml", "examples/gripper_run.yaml", "hw/boards/gripper.yaml"):
+        assert (tmp_path / "ex" / rel).is_file(), rel
+    again = run("examples", "ex", cwd=tmp_path)
+    assert again.returncode == 2 and "exists already" in again.stderr and "Traceback" not in again.stderr
+
+
+def test_quiet_default_verbose_and_debug_say_more_and_more(tmp_path):
+    outs = {flag: run("solve", GRIPPER, *([flag] if flag else [])) for flag in ("-q", "", "-v", "-vv")}
+    for flag, p in outs.items():
+        assert p.returncode == 0, (flag, p.stderr)
+    assert outs["-q"].stdout == "" and outs["-q"].stderr == ""
+    assert "targets RMS error" in outs[""].stdout and outs[""].stderr == ""
+    assert "control (reparam)" in outs["-v"].stderr and "iterate 1" in outs["-v"].stderr
+    assert "debug" not in outs["-v"].stderr
+    assert "debug plush_opt" in outs["-vv"].stderr and "nodes" in outs["-vv"].stderr
+    top = run("-q", "solve", GRIPPER)
+    assert top.stdout == "" and top.returncode == 0
+    both = run("solve", GRIPPER, "-q", "-v")
+    assert both.returncode == 2 and "not allowed with" in both.stderr
+
+
+def test_forward_solve_of_a_file_with_targets_says_how_far_they_are():
+    p = run("solve", GRIPPER, "--method", "forward")
+    assert p.returncode == 0, p.stderr
+    rms = float(p.stdout.split("targets RMS error ")[1].split()[0])
+    assert rms > 10, p.stdout          # the rest pose is far from the gripper's targets
+    assert "targets objective" in p.stdout
+
+
+def test_ipopt_print_level_reaches_ipopt():
+    p = run("solve", GRIPPER, "--method", "forward", "--equilibrium", "ipopt", "--ipopt-print-level", "5")
+    assert p.returncode == 0, p.stderr
+    assert "Number of Iterations" in p.stdout
+    silent = run("solve", GRIPPER, "--method", "forward", "--equilibrium", "ipopt")
+    assert "Number of Iterations" not in silent.stdout
+    bad = run("solve", GRIPPER, "--ipopt-print-level", "13")
+    assert bad.returncode == 2 and "--ipopt-print-level" in bad.stderr
+
+
+def test_pose_picture_with_fixed_tension_scale_and_vtk_export(tmp_path):
+    meshio = pytest.importorskip("meshio")
+    png, vtk = tmp_path / "pose.png", tmp_path / "vtk"
+    p = run("solve", GRIPPER, "--max-iterations", "3", "--plot", str(png), "--tension-max", "5",
+            "--vtk", str(vtk))
+    assert p.returncode in (0, 3), p.stderr
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    pose = meshio.read(vtk / "pose.vtu")
+    assert {"triangle", "line"} <= {c.type for c in pose.cells}
+    assert {"J", "tension", "tendon"} <= set(pose.cell_data) and "displacement" in pose.point_data
+    J = pose.cell_data["J"][0]
+    assert J.min() > 0 and abs(J.mean() - 1) < 0.5           # area ratios of a sane pose
+    pvd = (vtk / "trace.pvd").read_text()
+    frames = pvd.count("<DataSet")
+    assert frames == 4 and all((vtk / f"trace_{k:04d}.vtu").is_file() for k in range(frames))
+    bad = run("solve", GRIPPER, "--tension-max", "-1", "--plot", str(png))
+    assert bad.returncode == 2 and "--tension-max" in bad.stderr
+
+
+def test_run_shows_its_steps_warns_when_far_and_plots_and_exports(tmp_path):
+    pytest.importorskip("meshio")
+    script = ROOT / "examples" / "gripper_run.yaml"
+    log, png, vtk = tmp_path / "run.jsonl", tmp_path / "run.png", tmp_path / "vtk"
+    p = run("run", str(script), "--dry-run", "--log", str(log), "--plot", str(png), "--vtk", str(vtk))
+    assert p.returncode == 0, p.stderr
+    assert "step 1/7 pose" in p.stderr and "step 7/7 release" in p.stderr
+    # the carry step cannot reach both its targets with the hand frozen: said, not hidden
+    assert "steps[3].pose ended" in p.stderr and "warning" in p.stderr
+    assert "RMS target error at most" in p.stderr and "1 far from their targets" in p.stderr
+    assert png.read_bytes()[:4] == b"\x89PNG"
+    assert (vtk / "run.pvd").read_text().count("<DataSet") >= 5
+    quiet = run("-q", "run", str(script), "--dry-run", "--log", str(tmp_path / "q.jsonl"))
+    assert "step 1/7" not in quiet.stderr
+    again = run("export", str(log), "--out", str(tmp_path / "again"))
+    assert again.returncode == 0, again.stderr
+    assert (tmp_path / "again" / "run.pvd").is_file()
+
+
+def test_export_a_pose_of_a_problem_file(tmp_path):
+    pytest.importorskip("meshio")
+    p = run("export", GRIPPER, "-c", "left=8", "--out", str(tmp_path / "e"))
+    assert p.returncode == 0, p.stderr
+    assert (tmp_path / "e" / "pose.vtu").is_file()
+
+
+def test_bench_without_problem_files_is_an_error(tmp_path):
+    p = run("bench", str(tmp_path / "none.yaml"), "--out", str(tmp_path / "b"))
+    assert p.returncode == 2 and "no such problem file" in p.stderr
+    assert not (tmp_path / "b" / "bench.md").exists()

@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "plush_opt"
 # Layers, lowest first. A module may import its own layer and the ones
 # below, never one above. Longest prefix wins.
 LAYERS = [
-    ("base", ("errors", "geometry", "kernels", "linalg")),
+    ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
     ("model", ("model", "objective")),

@@ -268,7 +268,7 @@ def run_bench(problems, sizes, out: Path, repeats: int = 5, command: str = "", p
 def add_bench_parser(sub) -> None:
     p = sub.add_parser("bench", help="measure build, evaluation, factorisation and solve times",
                        description="Benchmark the shipped problems (or those given) at several mesh sizes.")
-    p.add_argument("problems", nargs="*", type=Path, help="problem files (default: problems/*.yaml)")
+    p.add_argument("problems", nargs="*", type=Path, help="problem files (default: the shipped problems/*.yaml)")
     p.add_argument("--sizes", default="300,1000,3000",
                    help="approximate node counts, comma separated; 'file' for the mesh the problem asks for")
     p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
@@ -286,9 +286,18 @@ def cmd_bench(args) -> int:
         raise SceneError(f"--sizes: every size must be 'file' or at least 10 nodes, got {args.sizes!r}")
     if args.repeats < 1:
         raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
-    problems = args.problems or sorted((Path(__file__).resolve().parent.parent / "problems").glob("*.yaml"))
+    if args.problems:
+        problems = args.problems
+    else:
+        from ..data_files import data_file
+        problems = sorted(data_file("problems").glob("*.yaml"))
+    missing = [p for p in problems if not Path(p).is_file()]
+    if missing or not problems:
+        raise SceneError(f"{missing[0]}: no such problem file" if missing else
+                         "no problem files to benchmark (none given, none shipped)")
     command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
-    run_bench(problems, sizes, args.out, args.repeats, command)
+    quiet = (lambda msg: None) if getattr(args, "quiet", False) else None
+    run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet)
     return 0
 
 

@@ -25,6 +25,37 @@ from ..errors import HardwareError, PlushError, SceneError, SolverError
 log = logging.getLogger("plush_opt")
 
 EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERNAL, EXIT_INTERRUPT = 0, 2, 3, 4, 70, 130
+LENGTH_UNIT = "mm"     # the shipped problems' unit; summary lines carry it
+
+_output = {"quiet": False}   # set once by _configure_output: -q silences summaries and progress
+
+
+def say(text: str = "", err: bool = False) -> None:
+    """A summary or progress line, unless -q."""
+    if not _output["quiet"]:
+        print(text, file=sys.stderr if err else sys.stdout, flush=True)
+
+
+class _CliFormatter(logging.Formatter):
+    """Progress (INFO) as plain lines, warnings and errors named, debug with its source."""
+
+    def format(self, record):
+        msg = record.getMessage()
+        if record.levelno >= logging.WARNING:
+            return f"plush-opt: {record.levelname.lower()}: {msg}"
+        if record.levelno <= logging.DEBUG:
+            return f"debug {record.name}: {msg}"
+        return msg
+
+
+def _configure_output(args) -> None:
+    """-q: errors only; default: warnings; -v: progress and solver steps; -vv: debug."""
+    quiet, verbose = getattr(args, "quiet", False), getattr(args, "verbose", 0)
+    _output["quiet"] = bool(quiet)
+    level = logging.ERROR if quiet else [logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)]
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_CliFormatter())
+    logging.basicConfig(level=level, handlers=[handler], force=True)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -72,13 +103,24 @@ def _add_solve(sub):
                    help="equilibrium backend (default newton; ipopt for cross-checks)")
     p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
     p.add_argument("--plot", type=Path, help="write a PNG of the pose here")
+    _add_picture_flags(p)
     p.add_argument("--trace", type=Path, help="write the control iterate history (CSV) here")
     p.add_argument("--accuracy", type=float, default=None, metavar="TOL",
                    help="mesh no finer than needed: the coarsest mesh whose predicted pose at the "
                    "targets differs from the next finer one by less than TOL (length units)")
     p.add_argument("--max-iterations", type=int, default=None, help="control iterations at most")
     p.add_argument("--max-time", type=float, default=None, help="control seconds at most")
+    p.add_argument("--ipopt-print-level", type=int, default=None, metavar="N", choices=range(13),
+                   help="IPOPT's print_level, 0-12 (bilevel method, ipopt equilibrium backend); "
+                   "its output goes to stdout")
     p.set_defaults(func=cmd_solve)
+
+
+def _add_picture_flags(p, vtk_what="the pose (.vtu) and, for control, its iterates (.pvd)"):
+    p.add_argument("--tension-max", type=float, default=None, metavar="N",
+                   help="top of the tension colour scale of the pose picture (N); fixed, pictures compare")
+    p.add_argument("--vtk", type=Path, default=None, metavar="DIR",
+                   help=f"write {vtk_what} for ParaView into DIR")
 
 
 def _pairs(pairs, what: str = "--contraction") -> dict[str, float]:
@@ -109,7 +151,8 @@ def write_trace(path, model, targets, history) -> None:
 
 
 def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, equilibrium="newton",
-                  max_iterations=None, max_time=None, accuracy=None, direction="gauss-newton"):
+                  max_iterations=None, max_time=None, accuracy=None, direction="gauss-newton",
+                  ipopt_print_level=None):
     """Load and solve one problem; returns (problem, equilibrium, result document, history).
 
     The shared path of ``solve`` and ``demo``.
@@ -124,7 +167,10 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         raise SceneError(f"--max-iterations: expected >= 0, got {max_iterations}")
     if max_time is not None and not max_time > 0:
         raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
+    log.info("%s: meshing and building the model", Path(problem).name)
     p = load(problem, accuracy=accuracy)
+    log.debug("%s: %d nodes, %d elements, %d tendons, winches %s", p.source, p.mesh.n_nodes, p.mesh.n_elems,
+              p.model.n_tendons, ", ".join(p.winch_names))
     contraction = _pairs(contraction_pairs)
     p.contraction_vector(contraction, what="--contraction")   # names and bounds checked first
     p.frozen_vector(freeze, what="--freeze")           # names checked before any solve
@@ -133,17 +179,21 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     if method != "forward" and not p.targets.n_targets:
         raise SceneError(f"{p.source}: targets: --method {method} needs targets; the file has none")
     extra = {} if p.mesh_report is None else {"mesh_accuracy": p.mesh_report}
+    # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
+    eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
+    log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
     if method == "forward":
         t_solve = time.perf_counter()
-        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
+        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium, ipopt=eq_ipopt))
         t_end = time.perf_counter()
         doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
                           status=eq.status, total_s=t_end - t0, solve_s=t_end - t_solve,
                           iterations=eq.iterations, extra=extra)
         return p, eq, doc, ()
-    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False)
+    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False, ipopt=eq_ipopt)
     if method == "bilevel":
-        options = BilevelOptions(equilibrium=quiet)
+        options = BilevelOptions(equilibrium=quiet,
+                                 ipopt={} if ipopt_print_level is None else {"print_level": ipopt_print_level})
         if max_iterations is not None:
             options = dataclasses.replace(options, max_iter=max_iterations)
     else:
@@ -160,13 +210,19 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
 
 
+def _check_tension_max(value) -> None:
+    if value is not None and not (value > 0 and value != float("inf")):
+        raise SceneError(f"--tension-max: expected a tension > 0 (N), got {value:g}")
+
+
 def cmd_solve(args) -> int:
     from ..results import write_json_atomic
+    _check_tension_max(args.tension_max)
     p, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
-        args.max_iterations, args.max_time, args.accuracy, args.direction)
+        args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
     if "mesh_accuracy" in doc:
-        print(f"plush-opt: {doc['mesh_accuracy']['summary']}", file=sys.stderr)
+        say(f"plush-opt: {doc['mesh_accuracy']['summary']}", err=True)
     if args.trace and not history:
         raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
     if args.out:
@@ -174,18 +230,38 @@ def cmd_solve(args) -> int:
     if args.plot:
         from .plot import plot_pose
         _use_agg()
-        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
+        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
+                  tension_max=args.tension_max)
     if args.trace:
         write_trace(args.trace, p.model, p.targets, history)
-    cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
-    summary = (f"{doc['problem']}: {doc['method']}: {doc['status']}; {cs}; "
-               f"objective {doc['objective']:.6g}; residual {doc['residual_norm']:.3g}; "
-               f"{doc['timing']['total_s']:.3f} s")
-    print(summary)
+    if args.vtk:
+        from .export import write_control
+        write_control(args.vtk, p.model, eq, history)
+    say(summary_line(doc))
     if not doc["converged"]:
         print(f"plush-opt: not converged: {doc['status']}", file=sys.stderr)
         return EXIT_SOLVER
     return EXIT_OK
+
+
+def target_summary(errors) -> str:
+    """The targets' RMS error, for every summary line ('no targets' without any)."""
+    if not len(errors):
+        return "no targets"
+    rms = (sum(e * e for e in errors) / len(errors)) ** 0.5
+    return f"targets RMS error {rms:.3g} {LENGTH_UNIT} (worst {max(errors):.3g})"
+
+
+def summary_line(doc: dict) -> str:
+    """One line for a result document: verdict, contractions, how far from the targets."""
+    cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
+    parts = [f"{doc['problem']}: {doc['method']}: {doc['status']}", cs, target_summary(doc["target_error"])]
+    if doc["method"] != "forward":
+        parts.append(f"objective {doc['objective']:.6g}")
+    elif doc["target_error"]:   # a forward solve's O is 0 by the spec; the targets' is apart
+        parts.append(f"targets objective {doc['targets_objective']:.6g}")
+    parts += [f"residual {doc['residual_norm']:.3g}", f"{doc['timing']['total_s']:.3f} s"]
+    return "; ".join(parts)
 
 
 def _use_agg():
@@ -201,44 +277,62 @@ def _use_agg():
 def _add_demo(sub):
     p = sub.add_parser("demo", help="the main job on the default problem (what `make demo` runs)",
                        description="Solve the gripper's pose problem, then play the gripper run "
-                       "script on the board emulator.")
-    p.add_argument("--problem", type=Path, default=None, help="default: problems/gripper.yaml")
-    p.add_argument("--script", type=Path, default=None, help="default: examples/gripper_run.yaml")
+                       "script on the board emulator. Works from any folder: the shipped files "
+                       "come with the package.")
+    p.add_argument("--problem", type=Path, default=None, help="default: the shipped problems/gripper.yaml")
+    p.add_argument("--script", type=Path, default=None, help="default: the shipped examples/gripper_run.yaml")
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--no-board", action="store_true", help="skip playing the run on the emulator")
+    p.add_argument("--tension-max", type=float, default=None, metavar="N",
+                   help="top of the tension colour scale of the pose picture (N)")
     p.set_defaults(func=cmd_demo)
 
 
-def _repo_file(*parts) -> Path:
-    return Path(__file__).resolve().parents[2].joinpath(*parts)
+def _add_examples(sub):
+    p = sub.add_parser("examples", help="copy the shipped problems, run scripts and board files into a folder",
+                       description="Copy problems/, examples/ and hw/boards/ into DIR, laid out as in the "
+                       "source tree, so that the run scripts find their problem and board files.")
+    p.add_argument("dir", type=Path, metavar="DIR", help="destination folder (created; must not hold them yet)")
+    p.set_defaults(func=cmd_examples)
+
+
+def cmd_examples(args) -> int:
+    from ..data_files import copy_examples
+    for folder in copy_examples(args.dir):
+        say(f"examples: wrote {folder}")
+    say(f"examples: try `plush-opt solve {args.dir / 'problems' / 'gripper.yaml'}` or "
+        f"`plush-opt run {args.dir / 'examples' / 'gripper_run.yaml'} --emulator`")
+    return EXIT_OK
 
 
 def default_problem() -> Path:
-    return _repo_file("problems", "gripper.yaml")
+    from ..data_files import data_file
+    return data_file("problems", "gripper.yaml")
 
 
 def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
+    from ..data_files import data_file
     from ..results import write_json_atomic
+    _check_tension_max(args.tension_max)
     _use_agg()
     problem = args.problem or default_problem()
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
-    print(f"demo: solving {problem.name} (control to its targets)")
+    say(f"demo: solving {problem.name} (control to its targets)")
     p, eq, doc, history = solve_problem(problem, method="reparam")
     write_json_atomic(out / "result.json", doc)
-    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets)
+    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=args.tension_max)
     plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates")
     write_trace(out / "trace.csv", p.model, p.targets, history)
-    err = p.targets.errors(eq.x)
-    print(f"demo: {doc['status']}; {len(history) - 1} iterates, "
-          f"{doc['control']['equilibrium_solves']} equilibrium solves, {doc['timing']['total_s']:.2f} s")
-    print("demo: contractions " + ", ".join(f"{n} = {v:.3f} mm" for n, v in doc["contractions"].items()))
-    print(f"demo: target errors {', '.join(f'{e:.2f}' for e in err)} mm; "
-          f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
-    print(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
+    say(f"demo: {doc['status']}; {len(history) - 1} iterates, "
+        f"{doc['control']['equilibrium_solves']} equilibrium solves, {doc['timing']['total_s']:.2f} s")
+    say("demo: contractions " + ", ".join(f"{n} = {v:.3f} {LENGTH_UNIT}" for n, v in doc["contractions"].items()))
+    say(f"demo: {target_summary(doc['target_error'])}; "
+        f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
+    say(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
     if not args.no_board:
-        _demo_run(args.script or _repo_file("examples", "gripper_run.yaml"), out)
+        _demo_run(args.script or data_file("examples", "gripper_run.yaml"), out)
     return EXIT_OK if doc["converged"] else EXIT_SOLVER
 
 
@@ -248,17 +342,18 @@ def _demo_run(script: Path, out: Path) -> None:
     from types import SimpleNamespace
 
     from .plot import plot_run_log
-    print(f"demo: playing {script.name} on the board emulator")
+    say(f"demo: playing {script.name} on the board emulator")
     log_path = out / "run.jsonl"
-    args = SimpleNamespace(script=script, port=None, emulator=True, dry_run=False, log=log_path)
+    args = SimpleNamespace(script=script, port=None, emulator=True, dry_run=False, log=log_path,
+                           quiet=_output["quiet"], plot=None, vtk=None, progress=False)
     code = cmd_run(args)
     if code != EXIT_OK:
         raise SolverError(f"the demo run ended with status {code}")
     rows = [json.loads(line) for line in log_path.read_text().splitlines()]
     plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions")
     end = rows[-1]
-    print(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
-          f"wrote {log_path}, {out / 'run.png'}")
+    say(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
+        f"wrote {log_path}, {out / 'run.png'}")
 
 
 # --------------------------------------------------------------------------
@@ -271,13 +366,82 @@ def _add_run(sub):
                        description="Solve each step of a run script and stream the contractions "
                        "to the winch board. See docs/hardware.md.")
     add_run_arguments(p)
+    p.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="write a picture of the commanded and measured contractions here")
+    p.add_argument("--vtk", type=Path, default=None, metavar="DIR",
+                   help="write the run (the pose at every command) as a ParaView time series DIR/run.pvd")
     p.set_defaults(func=cmd_run)
 
 
 def cmd_run(args) -> int:
     from .planner import ControlPlanner
     from .runs import cli_run
-    return cli_run(args, ControlPlanner)
+    quiet, verbose = getattr(args, "quiet", False), getattr(args, "verbose", 0)
+    if not hasattr(args, "progress"):
+        # A terminal gets one updating line; a log or -v gets a line per step (and arrival).
+        args.progress = sys.stderr.isatty() and not quiet and not verbose
+        if not args.progress and not quiet:
+            logging.getLogger("plush_opt.apps.runs").setLevel(logging.INFO)
+    if (args.plot or args.vtk) and args.log is None:
+        from ..io.run_script import load_run_script
+        from .runs import _default_log_path
+        args.log = _default_log_path(load_run_script(args.script))
+    code = cli_run(args, ControlPlanner)
+    if code == EXIT_OK and args.plot:
+        _run_plot(args.plot, args.log, args.script)
+    if code == EXIT_OK and args.vtk:
+        say(f"run: writing the poses of the run to {args.vtk}", err=True)
+        export_run(args.vtk, args.log)
+    return code
+
+
+def _run_plot(png: Path, log_path: Path, script: Path) -> None:
+    import json
+
+    from .plot import plot_run_log
+    _use_agg()
+    rows = [json.loads(line) for line in Path(log_path).read_text().splitlines()]
+    plot_run_log(png, rows, title=f"{Path(script).stem}: commanded and measured contractions")
+
+
+def export_run(folder: Path, log_path: Path) -> Path:
+    """A run log replayed (the pose at each command) as folder/run.pvd."""
+    import json
+
+    from ..problem import load
+    from .export import write_run
+    first = json.loads(Path(log_path).read_text().splitlines()[0])
+    if first.get("kind") != "start" or not first.get("problem"):
+        raise SceneError(f"{log_path}: line 1: not the start line of a run log (no problem named)")
+    return write_run(folder, log_path, load(first["problem"]))
+
+
+# --------------------------------------------------------------------------
+# export
+# --------------------------------------------------------------------------
+
+def _add_export(sub):
+    p = sub.add_parser("export", help="write a run log or a problem's pose for ParaView (meshio)",
+                       description="A run log (JSON lines of plush-opt run) becomes DIR/run.pvd, the "
+                       "pose at every command; a problem file becomes DIR/pose.vtu, the equilibrium at "
+                       "its contractions (and -c), with displacement, J and tendon tensions.")
+    p.add_argument("source", type=Path, help="a run log (.jsonl) or a problem file (.yaml)")
+    p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="output folder")
+    p.add_argument("--contraction", "-c", action="append", type=_contraction_arg, default=[],
+                   metavar="NAME=VALUE", help="contraction of a winch (problem files); repeatable")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_export(args) -> int:
+    if args.source.suffix == ".jsonl":
+        if args.contraction:
+            raise SceneError("--contraction: only for a problem file; a run log has its own")
+        say(str(export_run(args.out, args.source)))
+        return EXIT_OK
+    from .export import write_pose
+    p, eq, doc, _ = solve_problem(args.source, args.contraction, method="forward")
+    say(str(write_pose(args.out / "pose.vtu", p.model, eq.x, eq.contraction)))
+    return EXIT_OK if doc["converged"] else EXIT_SOLVER
 
 
 # --------------------------------------------------------------------------
@@ -286,27 +450,40 @@ def build_parser() -> argparse.ArgumentParser:
     from .. import __version__
     parser = _Parser(prog="plush-opt", description="Optimisation-centric control of plush robots.")
     parser.add_argument("--version", action="version", version=f"plush-opt {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="log more (-vv: debug)")
+    _add_verbosity(parser, default=True)
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     _add_solve(sub)
     _add_run(sub)
     _add_demo(sub)
+    _add_examples(sub)
+    _add_export(sub)
     from .bench import add_bench_parser
     add_bench_parser(sub)
     from .gui import add_gui_parser
     add_gui_parser(sub)
     from .compare import add_compare_parser
     add_compare_parser(sub)
+    for command in sub.choices.values():   # -q/-v also after the command: `plush-opt solve -v ...`
+        _add_verbosity(command, default=False)
     return parser
+
+
+def _add_verbosity(parser, default: bool) -> None:
+    """-q/-v/-vv; a subcommand's copy leaves the top level's value alone unless given."""
+    keep = {} if default else {"default": argparse.SUPPRESS}
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("-v", "--verbose", action="count", help="say more: progress and solver steps "
+                       "(-vv: debug)", **({"default": 0} if default else keep))
+    group.add_argument("-q", "--quiet", action="store_true", help="print errors only",
+                       **({"default": False} if default else keep))
 
 
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
-                        format="%(levelname)s %(name)s: %(message)s")
+    _configure_output(args)
     try:
         return args.func(args)
     except KeyboardInterrupt:

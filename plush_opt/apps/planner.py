@@ -16,6 +16,10 @@ from plush_opt.control.gradient import ControlOptions, Controller
 from plush_opt.errors import SolverError
 from plush_opt.objective import Targets
 
+# A pose step that ends farther than this fraction of the body's size from
+# its targets (RMS) is reported as poor: a few percent is already visible.
+FAR_FROM_TARGETS = 0.02
+
 
 class ControlPlanner:
     """Implements :class:`plush_opt.apps.runs.Planner` on the real model.
@@ -64,4 +68,6 @@ class ControlPlanner:
                    "converged": False, "status": "running", "t": time.perf_counter() - t0}
         last = ctl.history[-1]
         yield {"contraction": self._named(last.contraction), "objective": last.objective,
-               "converged": ctl.converged, "status": ctl.status, "t": time.perf_counter() - t0}
+               "converged": ctl.converged, "status": ctl.status, "t": time.perf_counter() - t0,
+               "rms_error": goal.rms_error(last.x),
+               "far_error": FAR_FROM_TARGETS * self.problem.scene.diameter}

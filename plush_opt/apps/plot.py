@@ -5,6 +5,8 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
 
 REST_COLOR = "#b0b0b0"
 BODY_COLOR = "#f3d9b1"   # felt
@@ -12,13 +14,22 @@ EDGE_COLOR = "#8a6d4b"
 PIN_COLOR = "#222222"
 TARGET_COLOR = "#d62728"
 TENDON_CMAP = "viridis"
+LENGTH_UNIT = "mm"       # the shipped problems' unit (lengths in mm, forces in N)
+LABEL_FONT = 7           # tendon, winch and error labels: small, the pose stays readable
+LABEL_MERGE = 0.05       # stoppers closer than this fraction of the picture share a label (no overprint)
 
 
 def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=True,
-              tension_max=None, colorbar=True):
+              tension_max=None, colorbar=True, labels=False):
     """Draw rest pose (faint), deformed mesh, tendons coloured by tension,
     pins and targets on ``ax``. Returns the artists that change with x
-    (for interactive updates)."""
+    (for interactive updates).
+
+    ``tension_max`` fixes the top of the tension colour scale (N), so that
+    pictures of several poses compare; by default it is this pose's largest
+    tension. ``labels`` adds a legend, the tendon and winch names and each
+    target's error (static text: for pictures, not interactive updates).
+    """
     X = model.X.reshape(-1, 2)
     xn = np.asarray(x, dtype=np.float64).reshape(-1, 2)
     tri = model.mesh.triangles
@@ -33,7 +44,8 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
 
     state = model.tendon_state(xn.reshape(-1), contraction)
     tension = state["tension"]
-    vmax = tension_max if tension_max is not None else max(float(tension.max(initial=0.0)), 1e-9)
+    top = float(tension.max(initial=0.0))
+    vmax = tension_max if tension_max is not None else max(top, 1e-9)
     segs = [xn[p] for p in model.tendon_paths]
     tendons = LineCollection(segs, cmap=TENDON_CMAP, linewidths=2.2, zorder=4)
     tendons.set_array(tension)
@@ -41,7 +53,8 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     ax.add_collection(tendons)
     artists["tendons"] = tendons
     if colorbar and model.n_tendons:
-        cb = ax.figure.colorbar(tendons, ax=ax, fraction=0.04, pad=0.02)
+        cb = ax.figure.colorbar(tendons, ax=ax, fraction=0.04, pad=0.02,
+                                extend="max" if top > vmax else "neither")
         cb.set_label("tendon tension [N]")
         artists["colorbar"] = cb
     ends = np.array([xn[p[0]] for p in model.tendon_paths]) if model.n_tendons else np.zeros((0, 2))
@@ -60,30 +73,83 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
                                      zorder=7, label="targets")[0]
         artists["points"] = ax.plot(y[:, 0], y[:, 1], "o", mfc="white", mec=TARGET_COLOR, ms=5,
                                     zorder=7, label="target points")[0]
+    if labels:
+        _label_tendons(ax, model, xn, contraction)
+        if targets is not None and targets.n_targets:
+            _label_errors(ax, targets, xn)
+        _legend(ax, model, targets, show_rest)
     allpts = np.vstack([X, xn] + ([targets.to] if targets is not None and targets.n_targets else []))
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
     pad = 0.06 * (hi - lo).max()
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
+    ax.set_xlabel(f"x [{LENGTH_UNIT}]")
+    ax.set_ylabel(f"y [{LENGTH_UNIT}]")
     if title:
         ax.set_title(title, fontsize=10)
     return artists
+
+
+def _label_tendons(ax, model, xn, contraction):
+    """Each tendon's name and winch, ``name (winch)``, at its stopper end;
+    tendons whose stoppers nearly coincide share one label. The winches'
+    contractions are in the title."""
+    near = LABEL_MERGE * float(np.ptp(xn, axis=0).max())
+    groups: list[tuple[np.ndarray, list[str]]] = []
+    for tendon, path in zip(model.scene.tendons, model.tendon_paths):
+        at, text = xn[path[0]], f"{tendon.name} ({tendon.winch})"
+        for where, names in groups:
+            if np.linalg.norm(where - at) < near:
+                names.append(text)
+                break
+        else:
+            groups.append((at, [text]))
+    for at, names in groups:
+        ax.annotate(", ".join(names), at, xytext=(4, 4), textcoords="offset points", fontsize=LABEL_FONT,
+                    color="#1f3b73", zorder=8)
+
+
+def _label_errors(ax, targets, xn):
+    """Each target's distance from its point, beside the target."""
+    for q, e in zip(targets.to, targets.errors(xn.reshape(-1))):
+        ax.annotate(f"{e:.2f} {LENGTH_UNIT}", q, xytext=(6, -6), textcoords="offset points", va="top",
+                    fontsize=LABEL_FONT, color=TARGET_COLOR, zorder=8)
+
+
+def _legend(ax, model, targets, show_rest):
+    handles = [Patch(facecolor=BODY_COLOR, edgecolor=EDGE_COLOR, label="body (deformed)")]
+    if show_rest:
+        handles.append(Patch(facecolor="none", edgecolor=REST_COLOR, label="body at rest"))
+    if model.n_tendons:
+        handles += [Line2D([], [], color="#2a788e", lw=2.2, label="tendon (winch); colour: tension"),
+                    Line2D([], [], ls="", marker="o", ms=3.5, color="#444", label="tendon stopper")]
+    handles.append(Line2D([], [], ls="", marker="^", ms=5, color=PIN_COLOR, label="pins"))
+    if targets is not None and targets.n_targets:
+        handles += [Line2D([], [], ls="", marker="x", ms=8, mew=2, color=TARGET_COLOR, label="target"),
+                    Line2D([], [], ls="", marker="o", mfc="white", mec=TARGET_COLOR, ms=5,
+                           label="target point (error beside its target)")]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=LABEL_FONT,
+              frameon=False)
 
 
 def contraction_label(model, contraction) -> str:
     return ", ".join(f"{n} = {c:.2f} mm" for n, c in zip(model.winch_names, contraction))
 
 
-def plot_pose(path, model, x, contraction, targets=None, title=None):
-    """Write a PNG of one pose."""
-    fig, ax = plt.subplots(figsize=(7, 6), dpi=120)
-    draw_pose(ax, model, x, contraction, targets,
-              title=title or f"{model.scene.name}: {contraction_label(model, contraction)}")
+def plot_pose(path, model, x, contraction, targets=None, title=None, tension_max=None):
+    """Write a PNG of one pose, with its legend, names and target errors.
+
+    ``tension_max`` (N) fixes the tension colour scale (see :func:`draw_pose`).
+    """
+    fig, ax = plt.subplots(figsize=(7, 6.6), dpi=120)
+    if title is None:
+        title = f"{model.scene.name}: {contraction_label(model, contraction)}"
+        if targets is not None and targets.n_targets:
+            title += f"\nRMS target error {targets.rms_error(np.asarray(x).reshape(-1)):.3g} {LENGTH_UNIT}"
+    draw_pose(ax, model, x, contraction, targets, title=title, tension_max=tension_max, labels=True)
     fig.tight_layout()
-    fig.savefig(path)
+    fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
 
 

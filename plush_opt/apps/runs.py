@@ -75,9 +75,12 @@ class RunResult:
     commands: int                       # contraction commands sent (or, dry, that would be)
     contraction: dict                   # last commanded {name: mm}
     status: str = "completed"
+    pose_errors: tuple = ()             # RMS target error at the end of each pose step, mm
+    far_poses: tuple = ()               # indices of the pose steps that ended far from their targets
 
     def to_dict(self) -> dict:
         return {"script": self.script, "log": self.log_path, "dry_run": self.dry_run, "steps": self.steps,
+                "pose_errors": list(self.pose_errors), "far_poses": list(self.far_poses),
                 "commands": self.commands, "contraction": dict(self.contraction), "status": self.status}
 
 
@@ -156,6 +159,8 @@ class _Runner:
         self.steps_done = 0
         self.measured: dict[str, float] | None = None
         self._step = None   # (index, kind) for the progress line
+        self.pose_errors: list[float] = []
+        self.far_poses: list[int] = []
 
     # -- log lines ---------------------------------------------------------
     def _line(self, step, kind, event, *, commanded=None, ticks=None, acknowledged=None, info=None, **extra):
@@ -217,6 +222,7 @@ class _Runner:
             self._poll(i, kind, info)
             if not moving:
                 self._line(i, kind, "arrived", info=info)
+                log.info("step %d/%d %s: arrived", i + 1, len(self.script.steps), kind)
                 return
             if time.monotonic() >= deadline:
                 at = self.measured or {}
@@ -247,6 +253,7 @@ class _Runner:
 
     def run_step(self, i: int, step: Step):
         self._step = (i, step.kind)
+        log.info("step %d/%d %s: %s", i + 1, len(self.script.steps), step.kind, _describe_step(step))
         getattr(self, f"_step_{step.kind}")(i, step)
         self.steps_done += 1
 
@@ -344,7 +351,32 @@ class _Runner:
             self._line(i, "pose", "no-iterate", info={"status": "planner produced no iterate"})
             return
         self.planner_at = dict(self.commanded)  # the final iterate, where the planner stopped
+        self._pose_report(i, latest)
         self._settle(i, "pose", latest)
+
+    def _pose_report(self, i, result):
+        """Say how far the pose step ended from its targets; warn when far."""
+        err, far = result.get("rms_error"), result.get("far_error")
+        if err is None:
+            return
+        self.pose_errors.append(float(err))
+        n = len(self.script.steps)
+        if far is not None and err > far:
+            self.far_poses.append(i)
+            log.warning("%s: steps[%d].pose ended %.3g mm RMS from its targets (more than %.3g mm; %s)",
+                        self.script.path.name, i, err, far, result.get("status"))
+        else:
+            log.info("step %d/%d pose: %s; %.3g mm RMS from its targets", i + 1, n, result.get("status"), err)
+
+
+def _describe_step(step: Step) -> str:
+    if step.kind == "set":
+        return ", ".join(f"{n} {v:g} mm" for n, v in step.contraction.items())
+    if step.kind == "pose":
+        return f"solving for {len(step.targets)} target(s), at most {step.max_time:g} s"
+    if step.kind == "hold":
+        return f"{step.seconds:g} s"
+    return "every winch to its lower bound"
 
 
 def _default_log_path(script: RunScript) -> Path:
@@ -471,7 +503,8 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
                 runner.progress.finish()
             runlog.write(_end_line(runner, calibration, t0, status))
     return RunResult(script=str(script.path), log_path=str(path), dry_run=runner.dry, steps=runner.steps_done,
-                     commands=runner.commands, contraction=dict(runner.commanded))
+                     commands=runner.commands, contraction=dict(runner.commanded),
+                     pose_errors=tuple(runner.pose_errors), far_poses=tuple(runner.far_poses))
 
 
 # -------------------------------------------------------------------- CLI --
@@ -482,7 +515,7 @@ def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParse
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--port", help="serial port of the winch board (default: port.device of the board file)")
     where.add_argument("--emulator", action="store_true",
-                       help="run against the board emulator (build it with `make -C hw`)")
+                       help="run against the board emulator (compiled on first use when `make -C hw` has not built it)")
     where.add_argument("--simavr", action="store_true",
                        help="run against the firmware on a simulated AVR (simavr; see docs/hardware.md)")
     parser.add_argument("--dry-run", action="store_true",
@@ -505,11 +538,15 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
     simulator = "emulator" if args.emulator else ("simavr" if getattr(args, "simavr", False) else None)
     try:
         result = run_script(script, port=args.port, simulator=simulator, dry_run=args.dry_run, log_path=log_path,
-                            planner=planner)
+                            planner=planner, progress=getattr(args, "progress", None))
     except KeyboardInterrupt:
         sys.stderr.write(f"\ninterrupted: board stopped; log {log_path}\n")
         return 130
     where = "dry run" if result.dry_run else (simulator or "board")
-    sys.stderr.write(f"run {script.path.name} completed on {where}: {result.steps} steps, "
-                     f"{result.commands} commands, log {result.log_path}\n")
+    errors = (f", pose steps' RMS target error at most {max(result.pose_errors):.3g} mm"
+              if result.pose_errors else "")
+    far = f", {len(result.far_poses)} far from their targets" if result.far_poses else ""
+    if not getattr(args, "quiet", False) or result.far_poses:
+        sys.stderr.write(f"run {script.path.name} completed on {where}: {result.steps} steps, "
+                         f"{result.commands} commands{errors}{far}, log {result.log_path}\n")
     return 0

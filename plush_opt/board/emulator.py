@@ -1,5 +1,9 @@
 """Run the board emulator (hw/emulator, built by ``make -C hw``) as a subprocess.
 
+Outside a source checkout (an installed wheel) the emulator is compiled
+from the sources the wheel ships, once, into a user cache
+(:func:`emulator_binary`).
+
 The emulator serves the board protocol on a pseudo-terminal whose path it
 prints first; :class:`Emulator` starts it, returns that path (open it with
 :class:`~plush_opt.board.driver.Driver` like a real port) and reads the
@@ -9,10 +13,12 @@ emulator's state file, which holds the true motor positions.
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import json
 import logging
 import os
 import selectors
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from plush_opt.data_files import EMULATOR_SOURCES, data_root
 from plush_opt.errors import HardwareError
 
 log = logging.getLogger(__name__)
@@ -28,6 +35,16 @@ BINARY_ENV = "PLUSH_BOARD_EMU"
 """Environment variable that overrides the emulator binary's path."""
 
 _REPO_BINARY = Path(__file__).resolve().parents[2] / "hw" / "emulator" / "build" / "plush-board-emu"
+
+CACHE_ENV = "PLUSH_OPT_CACHE"
+"""Environment variable that overrides where built emulators are kept
+(default ``$XDG_CACHE_HOME/plush_opt``, else ``~/.cache/plush_opt``): the
+same cache as the compiled CasADi kernels (plush_opt/kernels.py)."""
+
+COMPILERS = ("c++", "g++", "clang++")   # tried in this order after $CXX
+# hw/Makefile's flags: what the emulator has been tested with
+CXX_FLAGS = ("-std=c++17", "-O2")
+BUILD_TIMEOUT = 300.0    # s; one file pair, a few seconds on a slow machine
 
 
 _PR_SET_PDEATHSIG = 1   # <sys/prctl.h>: the signal a process gets when its parent dies
@@ -67,22 +84,86 @@ def simulator_popen_options() -> dict:
     return options
 
 
-def emulator_binary(path: str | os.PathLike | None = None) -> Path:
+def emulator_binary(path: str | os.PathLike | None = None, *, build: bool = True) -> Path:
     """Path of the emulator binary: ``path``, else ``$PLUSH_BOARD_EMU``, else
-    ``hw/emulator/build/plush-board-emu`` in the source tree.
+    ``hw/emulator/build/plush-board-emu`` of the source tree when it is
+    built, else the one compiled into the user cache (compiled now, from
+    the shipped sources, when it is not there yet and ``build``).
 
-    Raises :class:`HardwareError` saying how to build it if it is missing.
+    Raises :class:`HardwareError` saying how to build it if it is missing
+    (and, building, when no C++ compiler is found or the build fails).
     """
     if path is not None:
         binary = Path(path)
     elif os.environ.get(BINARY_ENV):
         binary = Path(os.environ[BINARY_ENV])
+    elif _executable(_REPO_BINARY):
+        return _REPO_BINARY
     else:
-        binary = _REPO_BINARY
-    if not (binary.is_file() and os.access(binary, os.X_OK)):
+        binary = cached_emulator_path()
+        if not _executable(binary) and build:
+            build_emulator(binary)
+    if not _executable(binary):
         raise HardwareError(
             f"board emulator not built: {binary} does not exist or is not executable; build it with "
             f"`make -C hw` in the plush_opt source tree (needs g++ and make), or point {BINARY_ENV} at it")
+    return binary
+
+
+def _executable(path: Path) -> bool:
+    return path.is_file() and os.access(path, os.X_OK)
+
+
+def _cache_dir() -> Path:
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "plush_opt"
+
+
+def cached_emulator_path() -> Path:
+    """Where the emulator built from this package's sources is kept: one
+    folder per version of the sources, so that an upgrade builds anew."""
+    root = data_root()
+    digest = hashlib.sha256()
+    for rel in EMULATOR_SOURCES:
+        digest.update(rel.encode() + b"\0" + (root / rel).read_bytes())
+    return _cache_dir() / f"emulator-{digest.hexdigest()[:12]}" / "plush-board-emu"
+
+
+def _compiler() -> str:
+    for name in (os.environ.get("CXX"), *COMPILERS):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    tried = ", ".join(n for n in (os.environ.get("CXX"), *COMPILERS) if n)
+    raise HardwareError(f"the board emulator is compiled on first use and no C++ compiler was found "
+                        f"(tried {tried}); install one (Debian/Ubuntu: apt-get install g++) or point "
+                        f"{BINARY_ENV} at a built emulator")
+
+
+def build_emulator(binary: Path) -> Path:
+    """Compile the shipped emulator sources into ``binary`` (as hw/Makefile
+    does). The file appears whole or not at all, so two runs that build at
+    once do not see a half-written one."""
+    root = data_root()
+    sources = [root / rel for rel in EMULATOR_SOURCES if rel.endswith(".cpp")]
+    missing = [str(s) for s in sources if not s.is_file()]
+    if missing:
+        raise HardwareError(f"board emulator sources missing ({', '.join(missing)}); reinstall plush_opt")
+    compiler = _compiler()
+    binary.parent.mkdir(parents=True, exist_ok=True)
+    tmp = binary.with_name(f".{binary.name}.{os.getpid()}")
+    log.warning("compiling the board emulator (once) into %s", binary)
+    cmd = [compiler, *CXX_FLAGS, "-o", str(tmp), *map(str, sources)]
+    try:
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=BUILD_TIMEOUT)
+    except (OSError, subprocess.TimeoutExpired) as e:
+        raise HardwareError(f"could not compile the board emulator with {compiler}: {e}") from None
+    if done.returncode != 0:
+        tmp.unlink(missing_ok=True)
+        detail = (done.stderr.strip().splitlines() or ["no message"])[-1]
+        raise HardwareError(f"compiling the board emulator with {compiler} failed: {detail}")
+    os.replace(tmp, binary)
     return binary
 
 

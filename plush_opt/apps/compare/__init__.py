@@ -69,7 +69,8 @@ def cmd_compare(args) -> int:
     import sys
 
     def progress(line):
-        print(line, file=sys.stderr, flush=True)
+        if not getattr(args, "quiet", False):
+            print(line, file=sys.stderr, flush=True)
 
     res = run_compare(args.problem, args.out, coarse=args.coarse, progress=progress)
     for f in res["files"]:

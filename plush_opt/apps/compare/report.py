@@ -106,7 +106,7 @@ def plot_anytime(path: Path, problems, runs) -> Path:
                         ms=3.5, label=f"{r.method}: iterates (all dispatchable)")
         ax.set_yscale("log")
         ax.set_xlabel("wall time [s]")
-        ax.set_ylabel("objective O [length$^2$]")
+        ax.set_ylabel("objective O [mm$^2$]")
         nodes = [r.n_nodes for r in runs if r.problem == name and r.sweep == "main"]
         ax.set_title(f"{name} ({nodes[0]} nodes)" if nodes else name, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
@@ -116,9 +116,11 @@ def plot_anytime(path: Path, problems, runs) -> Path:
             if lab not in labels:
                 handles.append(h)
                 labels.append(lab)
-    fig.legend(handles, labels, loc="lower center", ncol=3, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
-    fig.savefig(path)
+    legend = fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=3, fontsize=8,
+                        frameon=False)
+    fig.tight_layout()
+    # The legend hangs below the axes; the tight box takes it in, however narrow the figure.
+    fig.savefig(path, bbox_inches="tight", bbox_extra_artists=[legend])
     return path
 
 
@@ -143,7 +145,7 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
         from matplotlib.ticker import NullFormatter
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("solve time [s]")
-        ax.set_ylabel("RMS target error, finest mesh [length]")
+        ax.set_ylabel("RMS target error, finest mesh [mm]")
         ax.set_title(p.scene.name, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
     from matplotlib.lines import Line2D
@@ -151,9 +153,10 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
     handles += [Line2D([], [], ls="", marker=mk, color="grey", label=f"{s} sweep") for s, mk in MARKERS.items()]
     handles += [Line2D([], [], ls="", marker="o", mfc="none", color="grey", label="not converged / unstable"),
                 Line2D([], [], color="black", label="Pareto front")]
-    fig.legend(handles=handles, loc="lower center", ncol=4, fontsize=8, frameon=False)
-    fig.tight_layout(rect=(0, 0.08, 1, 1))
-    fig.savefig(path)
+    legend = fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=4, fontsize=8,
+                        frameon=False)
+    fig.tight_layout()
+    fig.savefig(path, bbox_inches="tight", bbox_extra_artists=[legend])
     return path
 
 

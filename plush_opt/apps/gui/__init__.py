@@ -57,7 +57,7 @@ def add_gui_parser(subparsers) -> argparse.ArgumentParser:
     where.add_argument("--emulator", action="store_true",
                        help="attach the board emulator (build it with `make -C hw`)")
     p.add_argument("--board", type=Path, metavar="FILE",
-                   help="board calibration (default: hw/boards/<problem name>.yaml of the source tree)")
+                   help="board calibration (default: the shipped hw/boards/<problem name>.yaml)")
     p.add_argument("--out", type=Path, metavar="FILE.json",
                    help="where `s` saves the result (the PNG goes next to it); "
                         "default out/gui-<timestamp>.json")
@@ -80,7 +80,8 @@ def cmd_gui(args: argparse.Namespace) -> int:
 
 
 def _default_board_file(scene_name: str) -> Path:
-    return Path(__file__).resolve().parents[3] / "hw" / "boards" / f"{scene_name}.yaml"
+    from ...data_files import data_file
+    return data_file("hw", "boards", f"{scene_name}.yaml")
 
 
 def _open_board(problem, port, emulator: bool, board_file):
