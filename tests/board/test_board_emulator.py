@@ -130,6 +130,31 @@ def test_zero_limit_speed_and_busy(board, raw_port):
     assert port.ask("14 LIMIT 0 10 20") == "14 ERR 8 target outside new limits"
 
 
+def test_arrival_is_settled_not_passing_through(board, raw_port):
+    """Not moving means within the deadband AND at rest: once the firmware says
+    so, the motor has stopped and stays within the deadband (board time)."""
+    port = raw_port(board.port)
+    assert port.ask("1 LIMIT 0 -2000 2000") == "1 OK lo=-2000 hi=2000"
+    seq = 2
+    for speed, target in ((700, 600), (500, -200)):
+        assert port.ask(f"{seq} SPEED 0 {speed}") == f"{seq} OK speed={speed}"
+        assert port.ask(f"{seq + 1} SET 0 {target}") == f"{seq + 1} OK"
+        seq += 2
+        start = board.read_state()["time"]
+        while _get(port, seq).moving[0]:
+            seq += 1
+            assert board.read_state(fresh=False)["time"] - start < 6.0, "never arrived"
+        arrived = board.read_state()
+        assert abs(arrived["ticks"][0] - target) <= board.deadband, arrived
+        later = arrived["time"] + 0.3
+        assert wait_until(lambda: board.read_state(fresh=False)["time"] > later, timeout=5.0)
+        state = _get(port, seq + 1)
+        assert not state.moving[0] and state.position[0] == arrived["ticks"][0], state   # it had stopped
+        seq += 2
+    extremes = board.read_state()   # and it did not overshoot on the way
+    assert extremes["max_ticks"][0] <= 600 + board.deadband and extremes["min_ticks"][0] >= -200 - board.deadband
+
+
 def _stopped(board, axis):
     """The board's true state once ``axis`` is no longer driven, else None."""
     state = board.read_state(fresh=False)
