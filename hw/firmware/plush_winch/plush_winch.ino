@@ -158,9 +158,9 @@ static void control(float dt) {
     const float moved = static_cast<float>(pos - p.prev_pos) / dt;
     p.prev_pos = pos;
     p.speed += (moved - p.speed) * (dt / (SPEED_FILTER_S + dt));
-    // Arrived exactly when the core stops calling the axis moving
-    // (|target - position| <= deadband), so an axis the watchdog ignores
-    // is never driven by the full PID.
+    // Within the deadband the full PID stops. The core calls an axis not
+    // moving only inside it (|target - position| <= deadband, and at rest),
+    // so an axis the watchdog ignores is never driven by the full PID.
     if (err >= -DEADBAND && err <= DEADBAND && p.ref == goal) {
       // Arrived: hold with the integral only, no dithering around zero.
       p.prev_err = err;
