@@ -22,7 +22,7 @@
 
 namespace {
 
-const char kVersion[] = "1.0.0";
+const char kVersion[] = "1.1.0";
 
 volatile sig_atomic_t g_stop = 0;
 
@@ -35,6 +35,7 @@ struct Options {
   double step_ms = 1.0;    // simulation step
   long watchdog_ms = 1000;
   long deadband = 1;
+  long settle_ms = 50;     // the firmware's: at rest this long within the deadband = arrived
   const char* state_file = nullptr;
   long state_interval_ms = 20;
   const char* link = nullptr;
@@ -55,6 +56,7 @@ void usage(FILE* out) {
           "  --step-ms MS         simulation step (default 1)\n"
           "  --watchdog MS        watchdog timeout at power-up (default 1000)\n"
           "  --deadband TICKS     position error that counts as arrived (default 1)\n"
+          "  --settle-ms MS       ... once the position has not changed for this long (default 50)\n"
           "  --state-file PATH    write the true state as JSON to PATH (atomically)\n"
           "  --state-interval MS  how often to write it (default 20)\n"
           "  --link PATH          also make PATH a symlink to the terminal\n"
@@ -117,6 +119,8 @@ int parse_args(int argc, char** argv, Options* o) {
       ok = parse_long(v, plush::kMinWatchdogMs, plush::kMaxWatchdogMs, &o->watchdog_ms);
     } else if (a == "--deadband") {
       ok = parse_long(v, 0, 1000000, &o->deadband);
+    } else if (a == "--settle-ms") {
+      ok = parse_long(v, 0, 60000, &o->settle_ms);
     } else if (a == "--state-file") {
       o->state_file = v;
     } else if (a == "--state-interval") {
@@ -311,6 +315,7 @@ int main(int argc, char** argv) {
   cfg.firmware_version = kVersion;
   cfg.n_axes = static_cast<uint8_t>(o.winches);
   cfg.deadband = static_cast<int32_t>(o.deadband);
+  cfg.settle_ms = static_cast<uint32_t>(o.settle_ms);
   cfg.watchdog_ms = static_cast<uint32_t>(o.watchdog_ms);
   cfg.default_speed = static_cast<int32_t>(o.speed < plush::kMaxSpeed ? o.speed : plush::kMaxSpeed);
   plush::ProtocolCore core(cfg);

@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 PLANNER_GRACE = 10.0       # s beyond 2 * max_time before a silent planner is an error
 SETTLE_MARGIN = 2.0        # s added to twice the slowest move when waiting for arrival
+TOLERANCE_SLACK = 1e-9     # mm: float rounding of mm -> ticks -> mm, so a winch exactly at its tolerance passes
 
 
 class Planner(Protocol):
@@ -209,28 +210,36 @@ class _Runner:
         self._line(i, kind, "measure", info=info)
 
     def _settle(self, i, kind, info):
-        """Wait, polling, until every winch has arrived."""
+        """Wait, polling, until every winch has arrived: the board says none is
+        moving (each within its deadband and at rest) and every measured
+        contraction is within its calibrated ``tolerance`` of the command."""
         if self.dry:
             return
+        # A simulator's own clock: on a loaded machine it runs slower than the wall's, its motors with it.
+        clock = getattr(self.link, "clock", time.monotonic)
         measured = self.measured or {}
         slowest = max((abs(self.commanded[n] - measured.get(n, self.commanded[n])) / self.calibration.winch(n).max_speed
                        for n in self.names), default=0.0)
         timeout = SETTLE_FACTOR * slowest + SETTLE_MARGIN
-        deadline = time.monotonic() + timeout
+        deadline = clock() + timeout
+        tolerance = {n: self.calibration.winch(n).tolerance for n in self.names}
         while True:
             moving = self.link.moving()
             self._poll(i, kind, info)
-            if not moving:
-                self._line(i, kind, "arrived", info=info)
+            error = {n: self.measured[n] - self.commanded[n] for n in self.names} if self.measured else {}
+            off = [n for n, e in error.items() if abs(e) > tolerance[n] + TOLERANCE_SLACK]
+            if not moving and not off:
+                self._line(i, kind, "arrived", info=info, error=error, tolerance=tolerance)
                 log.info("step %d/%d %s: arrived", i + 1, len(self.script.steps), kind)
                 return
-            if time.monotonic() >= deadline:
+            if clock() >= deadline:
                 at = self.measured or {}
-                late = max(self.names, key=lambda n: abs(self.commanded[n] - at.get(n, self.commanded[n])))
-                where = f" (at {at[late]:.2f} mm)" if late in at else ""
-                raise HardwareError(
-                    f"{self.script.path}: steps[{i}].{kind}: winch {late!r} did not reach "
-                    f"{self.commanded[late]:.2f} mm within {timeout:.1f} s{where}: tendon jammed or motor stalled?")
+                late = max(off or self.names, key=lambda n: abs(self.commanded[n] - at.get(n, self.commanded[n])))
+                where = f" (at {at[late]:.3f} mm, tolerance {tolerance[late]:.3f} mm)" if late in at else ""
+                why = ("the board holds it there: tolerance below the board's deadband?" if not moving
+                       else "tendon jammed or motor stalled?")
+                raise HardwareError(f"{self.script.path}: steps[{i}].{kind}: winch {late!r} did not reach "
+                                    f"{self.commanded[late]:.3f} mm within {timeout:.1f} s{where}: {why}")
             time.sleep(self.poll_period)
 
     def _forward(self, contraction):

@@ -18,13 +18,18 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from plush_opt.board.protocol import DEFAULT_BAUDRATE, MAX_AXES, MAX_TICKS, MIN_WATCHDOG_MS, MAX_WATCHDOG_MS
 from plush_opt.io import Checker, read_yaml
 from plush_opt.io.checker import at_index, at_key, describe
 
 FORMAT = "plush-board/1"
+DEADBAND_TICKS = 3
+"""ticks: the board reports a winch arrived within this many ticks of its
+target (the firmware's DEADBAND, hw/firmware/plush_winch/plush_winch.ino)."""
+ROUNDING_TICKS = 0.5
+"""ticks: a contraction is sent as the nearest whole tick."""
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
 
 
@@ -60,6 +65,11 @@ class WinchCalibration:
     direction: int                 # +1: increasing ticks reel the tendon in
     limits: tuple[float, float]    # allowed contraction [lower, upper], mm
     max_speed: float               # mm/s
+    tolerance: float | None = None  # mm an arrived winch may be off; None: min_tolerance
+
+    def __post_init__(self):
+        if self.tolerance is None:
+            object.__setattr__(self, "tolerance", self.min_tolerance)
 
     @property
     def ticks_per_mm(self) -> float:
@@ -83,6 +93,12 @@ class WinchCalibration:
         """
         a, b = self.to_ticks(self.limits[0]), self.to_ticks(self.limits[1])
         return (min(a, b), max(a, b))
+
+    @property
+    def min_tolerance(self) -> float:
+        """The closest an arrived winch is sure to be to a commanded contraction,
+        mm: the board's deadband plus half a tick of rounding."""
+        return (DEADBAND_TICKS + ROUNDING_TICKS) / self.ticks_per_mm
 
     @property
     def speed_ticks(self) -> int:
@@ -132,7 +148,7 @@ class BoardCalibration:
 _TOP_KEYS = ("format", "name", "description", "port", "winches")
 _PORT_KEYS = ("device", "baudrate", "timeout", "retries", "watchdog_ms", "boot_time")
 _WINCH_KEYS = ("name", "axis", "spool_radius", "ticks_per_rev", "gear_ratio", "direction", "limits",
-               "max_speed")
+               "max_speed", "tolerance")
 _WINCH_REQUIRED = ("name", "spool_radius", "ticks_per_rev", "gear_ratio", "limits", "max_speed")
 
 
@@ -215,6 +231,12 @@ def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> 
         gear_ratio=c.number(w["gear_ratio"], at_key(key, "gear_ratio"), gt=0),
         direction=int(direction), limits=(lo, hi),
         max_speed=c.number(w["max_speed"], at_key(key, "max_speed"), gt=0))
+    if w.get("tolerance") is not None:
+        tolerance = c.number(w["tolerance"], at_key(key, "tolerance"), gt=0)
+        if tolerance < wc.min_tolerance:
+            c.fail(at_key(key, "tolerance"), f"must be >= {wc.min_tolerance:.4g} mm (the board's {DEADBAND_TICKS}-tick "
+                                             f"deadband plus half a tick of rounding), got {tolerance}")
+        wc = replace(wc, tolerance=tolerance)
     t_lo, t_hi = wc.tick_limits
     if max(abs(t_lo), abs(t_hi)) > MAX_TICKS:
         c.fail(at_key(key, "limits"), f"[{lo}, {hi}] is [{t_lo}, {t_hi}] ticks, beyond the board's +-{MAX_TICKS}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -111,6 +112,10 @@ class SerialLink:
         self.driver.halt()
         self._commanded.clear()
 
+    def clock(self) -> float:
+        """The board's time, s: what a wait for a move should be measured in."""
+        return time.monotonic()
+
     def close(self) -> None:
         self._commanded.clear()
         self.driver.close()
@@ -157,6 +162,11 @@ class SimulatorLink(SerialLink):
             self.simulator_process.close()
             raise
 
+    def clock(self) -> float:
+        """The simulator's own time, s: on a loaded machine simavr runs slower
+        than the wall clock, and its motors with it."""
+        return float(self.simulator_process.read_state(fresh=False)["time"])
+
     def close(self) -> None:
         try:
             super().close()
@@ -202,6 +212,9 @@ class DryRunLink:
 
     def stop(self) -> None:
         self.stops += 1
+
+    def clock(self) -> float:
+        return time.monotonic()
 
     def close(self) -> None:
         self.closed = True

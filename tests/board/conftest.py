@@ -105,11 +105,11 @@ class BoardUnderTest:
     def coast(self, speed: float) -> float:
         """Ticks the motor may run on past a target reached at ``speed`` ticks/s.
 
-        The emulator's axes never overshoot. The firmware declares arrival on
-        position alone and the simulated motor coasts for about its time
-        constant after the PID's lag, then rings on its minimum PWM: about three.
+        The emulator's axes never overshoot. The firmware's PID closes in on
+        the target without an integral wound up on the way, so the simulated
+        motor runs on by less than a time constant at that speed.
         """
-        return 0.0 if self.kind == "emulator" else 3 * speed * self.sim.tau_s
+        return 0.0 if self.kind == "emulator" else speed * self.sim.tau_s
 
     def read_state(self, fresh: bool = True) -> dict:
         return self.sim.read_state(fresh=fresh)

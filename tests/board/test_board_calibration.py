@@ -35,6 +35,19 @@ def test_gripper_numbers():
     assert left.tick_limits == (0, 796)
 
 
+def test_tolerance_defaults_to_the_deadband_and_may_be_wider():
+    cal = load_calibration(BOARDS / "gripper.yaml")
+    for w in cal.winches:   # no tolerance in the file: 3 ticks of deadband and half a tick of rounding
+        assert w.tolerance == w.min_tolerance == pytest.approx(3.5 / w.ticks_per_mm)
+    assert cal.winch("left").tolerance == pytest.approx(0.110, abs=1e-3)
+    d = fast_calibration_dict()
+    d["winches"][0]["tolerance"] = 0.5
+    d["winches"][1]["tolerance"] = None   # null: the default
+    wide = calibration_from_dict(d, source="wide.yaml")
+    assert wide.winch("left").tolerance == 0.5
+    assert wide.winch("right").tolerance == pytest.approx(wide.winch("right").min_tolerance)
+
+
 def test_direction_flips_ticks():
     right = load_calibration(BOARDS / "gripper.yaml").winch("right")
     assert right.direction == -1
@@ -69,6 +82,10 @@ def _bad(mutate):
     (lambda d: d["winches"][1].update(axis=8), r"winches\[1\]\.axis: must be in 0\.\.7"),
     (lambda d: d["winches"][0].pop("max_speed"), r"winches\[0\]\.max_speed: missing required key"),
     (lambda d: d["winches"][0].update(speed=3), r"winches\[0\]\.speed: unknown key"),
+    (lambda d: d["winches"][0].update(tolerance=0), r"winches\[0\]\.tolerance: must be > 0, got 0"),
+    (lambda d: d["winches"][1].update(tolerance="0.2"), r"winches\[1\]\.tolerance: expected a number, got string"),
+    (lambda d: d["winches"][2].update(tolerance=0.01),
+     r"winches\[2\]\.tolerance: must be >= 0\.0488[67] mm \(the board's 3-tick deadband plus half a tick"),
     (lambda d: d["port"].update(watchdog_ms=5), r"port\.watchdog_ms: must be in 20\.\.60000"),
     (lambda d: d["port"].update(retries=-1), r"port\.retries: must be >= 0"),
     (lambda d: d["port"].update(baud=9600), r"port\.baud: unknown key"),

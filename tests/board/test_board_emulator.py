@@ -22,21 +22,15 @@ def _get(port, seq):
     return P.parse_state(reply.payload, 4)
 
 
-def _settled(port, axis, seq=100, polls=6, interval=0.1):
-    """Wait until ``axis`` reads not moving in ``polls`` GETs in a row (a motor
-    may pass through its deadband and coast on); True once it does."""
-    def still():
-        for i in range(polls):
-            if _get(port, seq + i).moving[axis]:
-                return False
-            time.sleep(interval)
-        return True
-    return wait_until(still, timeout=6.0)
+def _settled(port, axis, seq=100):
+    """Wait until ``axis`` reads not moving (the board says so only once it is
+    within its deadband and at rest); True once it does."""
+    return wait_until(lambda: not _get(port, seq).moving[axis], timeout=6.0)
 
 
 def test_identify_and_initial_state(board, raw_port):
     port = raw_port(board.port)
-    assert port.ask("1 ID") == f"1 OK board={board.name} fw=1.0.0 proto=1 winches=4"
+    assert port.ask("1 ID") == f"1 OK board={board.name} fw=1.1.0 proto=1 winches=4"
     assert port.ask("2 GET") == "2 OK pos=0,0,0,0 tgt=0,0,0,0 mov=0,0,0,0 en=0,0,0,0 wd=0"
     assert port.ask("007 ping") == "7 OK"
     assert port.ask("3 LIMIT 1") == "3 OK lo=0 hi=0"      # nothing moves before limits are set
@@ -130,6 +124,35 @@ def test_zero_limit_speed_and_busy(board, raw_port):
     assert port.ask("14 LIMIT 0 10 20") == "14 ERR 8 target outside new limits"
 
 
+REST_CREEP = 1   # ticks: "at rest" is slower than 20 ticks/s, so the last edge of a coast may still come
+
+
+def test_arrival_is_settled_not_passing_through(board, raw_port):
+    """Not moving means within the deadband AND at rest: once the firmware says
+    so, the motor has stopped and stays within the deadband (board time)."""
+    port = raw_port(board.port)
+    assert port.ask("1 LIMIT 0 -2000 2000") == "1 OK lo=-2000 hi=2000"
+    seq = 2
+    for speed, target in ((700, 600), (500, -200)):
+        assert port.ask(f"{seq} SPEED 0 {speed}") == f"{seq} OK speed={speed}"
+        assert port.ask(f"{seq + 1} SET 0 {target}") == f"{seq + 1} OK"
+        seq += 2
+        start = board.read_state()["time"]
+        while _get(port, seq).moving[0]:
+            seq += 1
+            assert board.read_state(fresh=False)["time"] - start < 6.0, "never arrived"
+        arrived = board.read_state()
+        assert abs(arrived["ticks"][0] - target) <= board.deadband, arrived
+        later = arrived["time"] + 0.3
+        assert wait_until(lambda: board.read_state(fresh=False)["time"] > later, timeout=5.0)
+        state = _get(port, seq + 1)
+        assert not state.moving[0] and abs(state.position[0] - target) <= board.deadband, state
+        assert abs(state.position[0] - arrived["ticks"][0]) <= REST_CREEP, (arrived, state)   # it had stopped
+        seq += 2
+    extremes = board.read_state()   # and it did not overshoot on the way
+    assert extremes["max_ticks"][0] <= 600 + board.deadband and extremes["min_ticks"][0] >= -200 - board.deadband
+
+
 def _stopped(board, axis):
     """The board's true state once ``axis`` is no longer driven, else None."""
     state = board.read_state(fresh=False)
@@ -203,8 +226,13 @@ def test_host_closing_port_mid_move_stops_motors(board, raw_port):
     assert board.read_state()["ticks"][1] == stopped_at
     # The port can be opened again and the board answers.
     again = raw_port(board.port)
-    wd_trips = 0 if board.stops_on_hangup else 1
-    assert again.ask("5 GET") == f"5 OK pos=0,{stopped_at},0,0 tgt=0,{stopped_at},0,0 mov=0,0,0,0 en=0,0,0,0 wd={wd_trips}"
+    state = _get(again, 5)
+    assert state.position == (0, stopped_at, 0, 0)
+    assert not any(state.moving) and not any(state.enabled)
+    assert state.watchdog_trips == (0 if board.stops_on_hangup else 1)
+    # The stop takes the position as the target; a real motor may still turn
+    # by an encoder edge between that reading and the brake.
+    assert abs(state.target[1] - stopped_at) <= (0 if board.kind == "emulator" else 1), state
 
 
 def _fuzz_lines(rng: random.Random, n: int):
@@ -275,7 +303,7 @@ def test_fuzzing_never_crashes_nor_leaves_the_limits(make_emulator, raw_port):
     while port.ser.read(4096):  # replies still queued in the emulator: read until it is quiet
         pass
     port.ser.timeout = 1.0
-    assert port.ask("54321 ID") == "54321 OK board=plush-winch-emu fw=1.0.0 proto=1 winches=3"
+    assert port.ask("54321 ID") == "54321 OK board=plush-winch-emu fw=1.1.0 proto=1 winches=3"
     state = emu.read_state()
     assert state["lines"] > 3000 and state["errors"] > 1000
     for axis, (lo, hi) in enumerate(limits):

@@ -17,7 +17,7 @@ def test_sketch_compiles_and_answers():
                         pytrace=False)
     r = subprocess.run(["make", "-s", "-C", str(HW), "firmware-check"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
-    assert "1 OK board=plush-winch fw=1.0.0 proto=1 winches=4" in r.stdout
+    assert "1 OK board=plush-winch fw=1.1.0 proto=1 winches=4" in r.stdout
     assert "firmware-check: ok" in r.stdout
 
 

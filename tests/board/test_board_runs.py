@@ -17,7 +17,7 @@ from fake_planner import FakePlanner
 from plush_opt.io.run_script import FORMAT, RunScript, load_run_script
 from plush_opt.apps.runs import (add_run_arguments, check_run_script, cli_run,
                                  run_script)
-from plush_opt.board import SerialLink, calibration_from_dict
+from plush_opt.board import SerialLink, calibration_from_dict, load_calibration
 from plush_opt.errors import HardwareError, SceneError, SolverError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -196,6 +196,55 @@ def test_run_on_the_emulator(tmp_path, emulator):
     assert [r["kind"] for r in log if r["kind"] == "hold"] and log[-1]["status"] == "completed"
     state = emulator.read_state()
     assert state["enabled"] == [False] * 3 and not any(state["moving"])
+
+
+@pytest.mark.parametrize("kind", ["emulator", "simavr"])
+def test_gripper_run_arrives_within_tolerance(tmp_path, request, kind):
+    """The shipped run, as a user starts it: every arrival in its log has
+    every winch within the calibration's tolerance of its command."""
+    request.getfixturevalue("emu_binary" if kind == "emulator" else "sim_binaries")  # built, or fail saying how
+    log_path = tmp_path / "run.jsonl"
+    r = subprocess.run([sys.executable, "-m", "plush_opt", "run", "examples/gripper_run.yaml", f"--{kind}",
+                        "--log", str(log_path)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    log = read_log(log_path)
+    calibration = load_calibration(ROOT / "hw" / "boards" / "gripper.yaml")
+    arrived = [e for e in log if e["event"] == "arrived"]
+    script = load_run_script(ROOT / "examples" / "gripper_run.yaml")
+    assert len(arrived) == sum(step.kind in ("set", "pose", "release") for step in script.steps)
+    for e in arrived:
+        for name, commanded in e["commanded"].items():
+            tolerance = calibration.winch(name).tolerance
+            assert e["tolerance"][name] == pytest.approx(tolerance)
+            assert abs(e["measured"][name] - commanded) <= tolerance + 1e-9, (name, e)
+            assert e["error"][name] == pytest.approx(e["measured"][name] - commanded)
+    assert log[-1]["status"] == "completed"
+
+
+class OffsetLink(SerialLink):
+    """A board that says it has arrived but reads ``offset`` mm off every command."""
+
+    def __init__(self, port, calibration, offset):
+        super().__init__(port, calibration)
+        self.offset, self.now = offset, 0.0
+
+    def positions(self):
+        return {n: v + self.offset for n, v in super().positions().items()}
+
+    def clock(self):
+        self.now += 0.1  # each look at the clock 0.1 s later: the wait ends within a few dozen polls
+        return self.now
+
+
+def test_an_arrival_outside_the_tolerance_is_an_error(tmp_path, emulator, calibration):
+    tolerance = calibration.winch("left").tolerance
+    with OffsetLink(emulator.port, calibration, offset=3 * tolerance) as board:
+        with pytest.raises(HardwareError, match=r"steps\[0\]\.set: winch '\w+' did not reach .* tolerance "
+                                                r".*the board holds it there"):
+            run_script(write_script(tmp_path, [{"set": {"left": 3.0}}]), board=board, planner=FakePlanner(),
+                       log_path=tmp_path / "log.jsonl")
+    log = read_log(tmp_path / "log.jsonl")
+    assert not [e for e in log if e["event"] == "arrived"] and log[-1]["status"].startswith("error:")
 
 
 def test_run_with_an_open_link_keeps_it_open(tmp_path, emulator, calibration):

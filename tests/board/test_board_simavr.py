@@ -1,21 +1,18 @@
-"""The real firmware binary on simavr: its build, its motor loop, and a
-whole run's contractions played through the host driver.
+"""The real firmware binary on simavr: its build and its motor loop (the
+shared protocol cases are in test_board_emulator.py, whole runs in
+test_board_runs.py).
 
 These are real time (simavr keeps the simulated clock at the wall clock).
 """
 
-import json
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
 from board_helpers import wait_until
-from plush_opt.board.limits import check_contractions
-from plush_opt.board import Driver, load_calibration
 from plush_opt.board import protocol as P
 from plush_opt.board.simavr import DEADBAND, SimavrBoard
 from plush_opt.errors import HardwareError
@@ -88,46 +85,3 @@ def test_reference_moves_at_large_tick_counts(make_simavr, raw_port):
     assert port.ask(f"3 SET 0 {start + 300}") == "3 OK"
     assert wait_until(lambda: abs(_get(port, 4).position[0] - start - 300) <= DEADBAND, timeout=3.0)
     assert sim.read_state()["ticks"][0] > start + 250
-
-
-def _run_contractions(tmp_path):
-    """The contractions the gripper run commands, from a dry run of it."""
-    log = tmp_path / "run.jsonl"
-    r = subprocess.run([sys.executable, "-m", "plush_opt", "run", str(ROOT / "examples" / "gripper_run.yaml"),
-                        "--dry-run", "--log", str(log)], capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert r.returncode == 0, r.stdout + r.stderr
-    events = [json.loads(line) for line in log.read_text().splitlines()]
-    return [e["commanded"] for e in events if e["event"] == "command"]
-
-
-def _settled(driver, reads=4, interval=0.1):
-    """Not moving, and standing still, over a few reads (a motor can pass its deadband and coast on)."""
-    states = []
-    for _ in range(reads):
-        states.append(driver.read_state())
-        time.sleep(interval)
-    return not any(s.any_moving for s in states) and len({s.position for s in states}) == 1
-
-
-def test_gripper_run_contractions_are_reached_on_the_firmware(make_simavr, tmp_path):
-    calibration = load_calibration(HW / "boards" / "gripper.yaml")
-    # mm: the arrival deadband plus the half tick of rounding a contraction to ticks
-    tolerance = {w.name: (DEADBAND + 0.5) / w.ticks_per_mm for w in calibration.winches}
-    top = 2 * max(w.speed_ticks for w in calibration.winches)  # as plush-opt run starts its boards
-    sim = make_simavr(calibration.n_axes_required, speed=top)
-    played, last_ticks = 0, None
-    with Driver(sim.start(), calibration) as board:
-        for commanded in _run_contractions(tmp_path):
-            ticks = check_contractions(commanded, board.allowed, calibration)
-            if last_ticks is not None and all(abs(ticks[n] - last_ticks[n]) <= DEADBAND for n in ticks):
-                continue  # the same pose to within the deadband: nothing to see
-            last_ticks = ticks
-            board.set_contractions(commanded)
-            assert wait_until(lambda: _settled(board), timeout=10.0), commanded
-            measured = board.read_positions()
-            for name, c in commanded.items():
-                assert abs(measured[name] - c) <= tolerance[name] + 1e-9, (name, c, measured)
-            played += 1
-    assert played >= 8
-    state = sim.read_state()
-    assert state["enabled"] == [False] * 3  # the driver stopped the board on closing

@@ -21,7 +21,8 @@
 static const uint8_t N_AXES = 4;          // motors fitted (1..4)
 static const long BAUD = 115200;           // 8N1
 static const uint32_t CONTROL_PERIOD_US = 2000;  // 500 Hz control loop
-static const int32_t DEADBAND = 3;         // ticks: "arrived"
+static const int32_t DEADBAND = 3;         // ticks: "arrived" when within this ...
+static const uint32_t SETTLE_MS = 50;      // ... and the encoder has not changed for this long (< 20 ticks/s)
 static const uint32_t WATCHDOG_MS = 1000;  // at power-up; host sets WDOG
 static const int32_t DEFAULT_SPEED = 600;  // ticks/s at power-up; host sets SPEED
 
@@ -32,6 +33,8 @@ static const float KP = 2.0f;
 static const float KI = 4.0f;    // per second
 static const float KD = 0.04f;   // seconds
 static const float I_LIMIT = 80.0f;   // anti-windup clamp of the integral term, PWM counts
+static const float SPEED_FILTER_S = 0.02f;  // time constant of the measured-speed low-pass (ticks come in steps)
+static const float STILL_SPEED = 20.0f;     // ticks/s: slower than this the motor is held back by a load
 static const int16_t PWM_MIN = 25;    // below this the gearmotor does not turn: jump over it
 static const int16_t PWM_MAX = 255;
 
@@ -47,7 +50,7 @@ static const uint8_t PIN_LED = 13;   // lit while any axis is enabled
 // --------------------------------------------------------------- state --
 
 static const plush::CoreConfig CORE_CONFIG = {
-    "plush-winch", "1.0.0", N_AXES, DEADBAND, WATCHDOG_MS, DEFAULT_SPEED};
+    "plush-winch", "1.1.0", N_AXES, DEADBAND, SETTLE_MS, WATCHDOG_MS, DEFAULT_SPEED};
 static plush::ProtocolCore core(CORE_CONFIG);
 
 static volatile int32_t enc_count[4];
@@ -61,6 +64,8 @@ struct Pid {
   float ref_frac;  // 0 <= ref_frac < 1
   float integral;  // PWM counts
   float prev_err;
+  int32_t prev_pos;  // raw ticks, last cycle
+  float speed;       // measured, low-passed, ticks/s
   bool active;
 };
 static Pid pid[4];
@@ -130,6 +135,8 @@ static void control(float dt) {
       p.ref_frac = 0.0f;
       p.integral = 0.0f;
       p.prev_err = 0.0f;
+      p.prev_pos = pos;
+      p.speed = 0.0f;
       p.active = true;
     }
     // Speed limit: the reference walks towards the setpoint at most at
@@ -148,18 +155,28 @@ static void control(float dt) {
       p.ref = goal;
 
     const float err = static_cast<float>(p.ref - pos);
-    // Arrived exactly when the core stops calling the axis moving
-    // (|target - position| <= deadband), so an axis the watchdog ignores
-    // is never driven by the full PID.
+    const float moved = static_cast<float>(pos - p.prev_pos) / dt;
+    p.prev_pos = pos;
+    p.speed += (moved - p.speed) * (dt / (SPEED_FILTER_S + dt));
+    // Within the deadband the full PID stops. The core calls an axis not
+    // moving only inside it (|target - position| <= deadband, and at rest),
+    // so an axis the watchdog ignores is never driven by the full PID.
     if (err >= -DEADBAND && err <= DEADBAND && p.ref == goal) {
       // Arrived: hold with the integral only, no dithering around zero.
       p.prev_err = err;
       drive(a, static_cast<int16_t>(p.integral));
       continue;
     }
-    p.integral += KI * err * dt;
-    if (p.integral > I_LIMIT) p.integral = I_LIMIT;
-    if (p.integral < -I_LIMIT) p.integral = -I_LIMIT;
+    // Integrate only against a load: once the reference has stopped and
+    // the motor stands (nearly) still short of it. The lag behind a
+    // walking reference, or a motor still closing in on its target, is
+    // not a load, and an integral wound up on it would drive the motor on
+    // past the target.
+    if (p.ref == goal && p.speed < STILL_SPEED && p.speed > -STILL_SPEED) {
+      p.integral += KI * err * dt;
+      if (p.integral > I_LIMIT) p.integral = I_LIMIT;
+      if (p.integral < -I_LIMIT) p.integral = -I_LIMIT;
+    }
     const float deriv = (err - p.prev_err) / dt;
     p.prev_err = err;
     float u = KP * err + p.integral + KD * deriv;

@@ -77,6 +77,9 @@ ProtocolCore::ProtocolCore(const CoreConfig& config)
     ax.hi = 0;
     ax.speed = speed;
     ax.enabled = false;
+    ax.last_raw = 0;
+    ax.still_since_ms = 0;
+    ax.settled = false;
   }
   for (int r = 0; r < 3; ++r) stops_[r] = 0;
   line_[0] = '\0';
@@ -109,11 +112,22 @@ int32_t ProtocolCore::limit_hi(uint8_t axis) const { return axis < n_axes_ ? axe
 bool ProtocolCore::enabled(uint8_t axis) const { return axis < n_axes_ && axes_[axis].enabled; }
 int32_t ProtocolCore::speed_limit(uint8_t axis) const { return axis < n_axes_ ? axes_[axis].speed : 0; }
 
-bool ProtocolCore::moving(uint8_t axis) const {
-  if (axis >= n_axes_ || !axes_[axis].enabled) return false;
+bool ProtocolCore::within_deadband(uint8_t axis) const {
   int32_t err = static_cast<int32_t>(static_cast<uint32_t>(axes_[axis].target) -
                                      static_cast<uint32_t>(position(axis)));
-  return abs32(err) > config_.deadband;
+  return abs32(err) <= config_.deadband;
+}
+
+bool ProtocolCore::moving(uint8_t axis) const {
+  if (axis >= n_axes_ || !axes_[axis].enabled) return false;
+  // Outside the deadband is always moving (also between update() calls),
+  // so the watchdog covers every driven axis that has not arrived.
+  return !(axes_[axis].settled && within_deadband(axis));
+}
+
+void ProtocolCore::arm(uint8_t axis) {
+  axes_[axis].enabled = true;
+  axes_[axis].settled = false;
 }
 
 bool ProtocolCore::any_moving() const {
@@ -131,6 +145,17 @@ void ProtocolCore::stop_all(StopReason reason) {
 }
 
 void ProtocolCore::update(uint32_t now_ms) {
+  for (uint8_t a = 0; a < n_axes_; ++a) {
+    Axis& ax = axes_[a];
+    if (ax.raw != ax.last_raw) {
+      ax.last_raw = ax.raw;
+      ax.still_since_ms = now_ms;
+    }
+    if (!within_deadband(a))
+      ax.settled = false;
+    else if (ax.enabled && static_cast<uint32_t>(now_ms - ax.still_since_ms) >= config_.settle_ms)
+      ax.settled = true;
+  }
   // Unsigned difference: correct across the 49-day millis() wrap.
   if (any_moving() && static_cast<uint32_t>(now_ms - last_rx_ms_) > watchdog_ms_)
     stop_all(STOP_WATCHDOG);
@@ -289,7 +314,7 @@ const char* ProtocolCore::cmd_set(uint8_t nargs) {
   Axis& ax = axes_[axis];
   if (t < ax.lo || t > ax.hi) return error(E_OUT_OF_LIMITS, "target outside limits");
   ax.target = t;
-  ax.enabled = true;
+  arm(axis);
   begin_ok();
   return finish();
 }
@@ -309,7 +334,7 @@ const char* ProtocolCore::cmd_setall(uint8_t nargs) {
   for (uint8_t a = 0; a < n_axes_; ++a) {
     if (keep[a]) continue;
     axes_[a].target = t[a];
-    axes_[a].enabled = true;
+    arm(a);
   }
   begin_ok();
   return finish();

@@ -58,7 +58,8 @@ struct CoreConfig {
   const char* board_name;        // reported by ID, [a-z0-9-]+
   const char* firmware_version;  // reported by ID, e.g. "1.0.0"
   uint8_t n_axes;                // 1..kMaxAxes
-  int32_t deadband;              // |target - position| <= deadband: not moving
+  int32_t deadband;              // |target - position| <= deadband: may count as arrived
+  uint32_t settle_ms;            // ... once the position has not changed for this long
   uint32_t watchdog_ms;          // timeout at power-up
   int32_t default_speed;         // speed limit at power-up, ticks/s
 };
@@ -72,7 +73,8 @@ class ProtocolCore {
   // The pointer stays valid until the next call of feed().
   const char* feed(uint8_t byte, uint32_t now_ms);
 
-  // Run the watchdog. Call after set_position() in every control cycle.
+  // Track arrival and run the watchdog. Call after set_position() in
+  // every control cycle.
   void update(uint32_t now_ms);
 
   // The measured position of an axis, raw encoder counts.
@@ -111,7 +113,17 @@ class ProtocolCore {
     int32_t lo, hi;   // soft limits, zeroed ticks
     int32_t speed;    // ticks/s
     bool enabled;
+    // Arrival: within the deadband AND at rest. A motor passing through
+    // its deadband at speed has not arrived; it coasts on. Latched until
+    // the next SET/SETALL of the axis or until it leaves the deadband, so
+    // a held axis whose encoder flickers by a tick stays "not moving".
+    int32_t last_raw;        // raw count at the last update()
+    uint32_t still_since_ms; // when last_raw last changed
+    bool settled;
   };
+
+  bool within_deadband(uint8_t axis) const;
+  void arm(uint8_t axis);  // a new target: not arrived until settled again
 
   static const uint8_t kMaxTokens = 2 + kMaxAxes;  // seq, command, arguments
   static const size_t kReplySize = 320;
