@@ -215,8 +215,8 @@ class _Runner:
         contraction is within its calibrated ``tolerance`` of the command."""
         if self.dry:
             return
-        # A simulator's own clock: on a loaded machine it runs slower than the wall's, its motors with it.
-        clock = getattr(self.link, "clock", time.monotonic)
+        # the board's own clock: on a loaded machine a simulator runs slower than the wall's
+        clock = self.link.clock
         measured = self.measured or {}
         slowest = max((abs(self.commanded[n] - measured.get(n, self.commanded[n])) / self.calibration.winch(n).max_speed
                        for n in self.names), default=0.0)

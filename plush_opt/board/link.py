@@ -40,6 +40,10 @@ class BoardLink(Protocol):
     def moving(self) -> bool:
         """True while any winch is still on its way to its command."""
 
+    def clock(self) -> float:
+        """The board's time in seconds, what waits for a move are measured in
+        (a simulator's own clock runs slower than the wall's under load)."""
+
     def stop(self) -> None:
         """Stop every winch where it is."""
 
