@@ -16,11 +16,13 @@ import dataclasses
 import io
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
-from ..errors import HardwareError, PlushError, SceneError, SolverError
+from ..errors import HardwareError, PlushError, SceneError, SolverError, interrupt_status, one_line
 
 log = logging.getLogger("plush_opt")
 
@@ -150,7 +152,12 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
             options = dataclasses.replace(options, max_iterations=max_iterations)
         if max_time is not None:
             options = dataclasses.replace(options, max_time=max_time)
-    res = p.control(method, contraction, freeze, options=options)
+    try:
+        res = p.control(method, contraction, freeze, options=options)
+    except SolverError as exc:
+        # Control cannot start (the starting equilibrium is not certified):
+        # the result still says where the robot is, honestly not converged.
+        return _start_failed(p, contraction, method, equilibrium, exc, t0, extra)
     for it in res.history if method != "bilevel" else ():
         log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
                  ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
@@ -158,26 +165,59 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
 
 
+def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
+    """The result of a control run that could not start: the starting
+    equilibrium, ``converged: false``, the reason as its status."""
+    from ..equilibrium import EquilibriumOptions
+    from ..results import result_dict
+    t_solve = time.perf_counter()
+    eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
+    t_end = time.perf_counter()
+    doc = result_dict(p.model, p.targets, eq, method=method, converged=False,
+                      status="start_not_certified", total_s=t_end - t0, solve_s=t_end - t_solve,
+                      iterations=eq.iterations, extra={"reason": str(exc), **extra})
+    return p, eq, doc, ()
+
+
+def _check_solve_outputs(args) -> None:
+    """Every output path of ``solve`` refused before the solve, not after it."""
+    from ..results import check_output_path
+    for option, path in (("--out", args.out), ("--plot", args.plot), ("--trace", args.trace)):
+        if path is not None:
+            check_output_path(path, option)
+    if args.trace is not None and args.method in ("forward", "bilevel"):
+        raise SceneError(f"--trace: only a control run of the gradient loop has an iterate history "
+                         f"(not --method {args.method})")
+
+
+def _number(value, spec: str) -> str:
+    """A summary number; JSON's null (a non-finite value) shows as n/a."""
+    return "n/a" if value is None else format(value, spec)
+
+
 def cmd_solve(args) -> int:
     from ..results import write_json_atomic
+    _check_solve_outputs(args)
     p, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
         args.max_iterations, args.max_time, args.accuracy, args.direction)
     if "mesh_accuracy" in doc:
         print(f"plush-opt: {doc['mesh_accuracy']['summary']}", file=sys.stderr)
-    if args.trace and not history:
+    if args.trace and not history and doc["status"] != "start_not_certified":
         raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
+        from ..results import check_output_path
         from .plot import plot_pose
         _use_agg()
+        check_output_path(args.plot, "--plot").parent.mkdir(parents=True, exist_ok=True)
         plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
-    if args.trace:
+    if args.trace and history:
         write_trace(args.trace, p.model, p.targets, history)
     cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
     summary = (f"{doc['problem']}: {doc['method']}: {doc['status']}; {cs}; "
-               f"objective {doc['objective']:.6g}; residual {doc['residual_norm']:.3g}; "
+               f"objective {_number(doc['objective'], '.6g')}; residual {_number(doc['residual_norm'], '.3g')}; "
                f"{doc['timing']['total_s']:.3f} s")
     print(summary)
     if not doc["converged"]:
@@ -219,8 +259,9 @@ def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
     from ..results import write_json_atomic
     _use_agg()
+    from ..results import check_output_folder
     problem = args.problem or default_problem()
-    out = args.out
+    out = check_output_folder(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     print(f"demo: solving {problem.name} (control to its targets)")
     p, eq, doc, history = solve_problem(problem, method="reparam")
@@ -305,17 +346,71 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
                         format="%(levelname)s %(name)s: %(message)s")
+    previous = _handle_signals()
     try:
+        _check_output_folders(args)
         return args.func(args)
-    except KeyboardInterrupt:
-        print("plush-opt: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPT
+    except KeyboardInterrupt as exc:
+        status, code = interrupt_status(exc)
+        print(f"plush-opt: {status}", file=sys.stderr)
+        return code
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
         if args.debug:
             raise
         message, code = _describe_error(exc)
-        print(f"plush-opt: {message}", file=sys.stderr)
+        print(f"plush-opt: {one_line(message)}", file=sys.stderr)
         return code
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+#: Output folders checked before any work: command -> option of a folder.
+OUTPUT_FOLDERS = {"bench": "out", "compare": "out"}
+
+
+def _check_output_folders(args) -> None:
+    from ..results import check_output_folder
+    attr = OUTPUT_FOLDERS.get(args.command)
+    if attr is not None and getattr(args, attr, None) is not None:
+        check_output_folder(getattr(args, attr), f"--{attr}")
+
+
+#: Signals that end a command the way Ctrl-C does (the board stopped, the
+#: run log closed with its end line); their exit status is 128 + signum.
+TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+def _handle_signals() -> dict:
+    """SIGTERM and SIGHUP raise :class:`~plush_opt.errors.Interrupted` in the
+    main thread, once: a second signal during the cleanup is ignored, so the
+    cleanup (stop the board, end the log) is not cut short. Returns the
+    previous handlers."""
+    from ..errors import Interrupted
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    fired = []
+
+    def handler(signum, frame):
+        if fired:
+            return
+        fired.append(signum)
+        raise Interrupted(signum, signal.Signals(signum).name)
+
+    def sigint(signum, frame):
+        if fired:
+            return
+        fired.append(signum)
+        raise KeyboardInterrupt
+
+    previous = {}
+    for name in TERMINATING_SIGNALS:
+        signum = getattr(signal, name, None)
+        if signum is not None:
+            previous[signum] = signal.signal(signum, handler)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, sigint)
+    return previous
 
 
 def _describe_error(exc: Exception) -> tuple[str, int]:
@@ -327,7 +422,8 @@ def _describe_error(exc: Exception) -> tuple[str, int]:
     if isinstance(exc, (SolverError, PlushError)):
         return f"solver error: {exc}", EXIT_SOLVER
     if isinstance(exc, OSError):
-        return f"error: {exc.filename or ''}: {exc.strerror or exc}", EXIT_INPUT
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"error: {where}{exc.strerror or exc}", EXIT_INPUT
     return (f"internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback, "
             "and please report it)", EXIT_INTERNAL)
 
