@@ -75,7 +75,7 @@ class Interrupted(KeyboardInterrupt):
 
 
 def interrupt_status(exc: BaseException) -> tuple[str, int]:
-    """How an interruption is reported: (``"interrupted (SIGTERM)"``, exit status)."""
+    """Which signal interrupted (``"SIGTERM"``; Ctrl-C is ``"SIGINT"``) and the exit status."""
     if isinstance(exc, Interrupted):
-        return f"interrupted ({exc.name})", 128 + exc.signum
-    return "interrupted (SIGINT)", 130
+        return exc.name, 128 + exc.signum
+    return "SIGINT", 130

@@ -158,12 +158,13 @@ def _remove_stale_temps(path: Path) -> None:
             pass          # alive but not ours (EPERM): not stale
 
 
-def check_output_path(path, option: str) -> Path:
+def check_output_path(path, option: str, *, stream_ok: bool = False) -> Path:
     """Refuse an output path that cannot be written, before any work.
 
     ``option`` names it in the message (``--out``). The folder is created
     later, by the write, as ``--out`` always did; here only the nearest
-    existing folder must be writable. Raises :class:`SceneError`.
+    existing folder must be writable. ``stream_ok``: an existing pipe or
+    device (``/dev/null``) is fine too (a log). Raises :class:`SceneError`.
     """
     path = Path(path)
     where = f"{option} {one_line(path)}"
@@ -171,7 +172,7 @@ def check_output_path(path, option: str) -> Path:
         raise SceneError(f"{where}: not a file name")
     if path.is_dir():
         raise SceneError(f"{where}: is a directory, not a file")
-    if path.exists() and not path.is_file():
+    if path.exists() and not path.is_file() and not (stream_ok and os.access(path, os.W_OK)):
         raise SceneError(f"{where}: exists and is not a regular file")
     parent = path.parent
     while not parent.exists():
@@ -180,6 +181,8 @@ def check_output_path(path, option: str) -> Path:
         parent = parent.parent
     if parent.exists() and not parent.is_dir():
         raise SceneError(f"{where}: {one_line(parent)} is not a folder")
+    if path.exists() and not path.is_file():
+        return path          # a stream, writable
     _probe_folder(parent, where)
     if path.exists() and not os.access(path, os.W_OK):
         raise SceneError(f"{where}: the file is not writable")

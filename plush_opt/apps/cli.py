@@ -351,8 +351,8 @@ def main(argv=None) -> int:
         _check_output_folders(args)
         return args.func(args)
     except KeyboardInterrupt as exc:
-        status, code = interrupt_status(exc)
-        print(f"plush-opt: {status}", file=sys.stderr)
+        name, code = interrupt_status(exc)
+        print(f"plush-opt: interrupted ({name})", file=sys.stderr)
         return code
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
         if args.debug:
