@@ -5,7 +5,8 @@ exit status, never a traceback (``--debug`` shows it):
 
     0  success              2  bad input (file, option)
     3  solver did not converge (the result is still written, honestly)
-    4  hardware error       70  internal error (a bug)      130  interrupted
+    4  hardware error       70  internal error (a bug)      130  interrupted (Ctrl-C)
+    143, 129  ended by SIGTERM, SIGHUP (handled like Ctrl-C: the board stopped, the log ended)
 """
 
 from __future__ import annotations
