@@ -7,6 +7,7 @@ with numpy alone (tests/spec_checker.py does exactly that).
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import math
@@ -143,8 +144,8 @@ def _umask() -> int:
 def _remove_stale_temps(path: Path) -> None:
     """Temp files of earlier writes of ``path`` whose writer was killed
     (``kill -9``) mid-write: they are left behind only then."""
-    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.tmp"):
-        pid = tmp.name[len(path.name) + 2:-len(".tmp")].split(".")[0]
+    for tmp in path.parent.glob(f".{glob.escape(path.name)}.*.tmp*"):
+        pid = tmp.name[len(path.name) + 2:].split(".")[0]
         if not pid.isdigit() or int(pid) == os.getpid():
             continue
         try:
@@ -215,26 +216,24 @@ def _probe_folder(folder: Path, where: str) -> None:
         raise SceneError(f"{where}: cannot write in {one_line(folder)}: {exc.strerror or exc}") from None
 
 
-def write_text_atomic(path, text: str) -> Path:
-    """Write ``text`` to ``path`` so that a crash leaves either the old file
-    or the complete new one, never a partial file.
-
-    The file gets the usual permissions (0666 less the umask). A failure
-    (a full disk) raises :class:`OSError` whose ``filename`` is ``path``,
-    not the temp file's.
-    """
+@contextlib.contextmanager
+def atomic_path(path):
+    """A temp path beside ``path`` (same suffix) to write a file by any
+    means (``savefig``); renamed into place on success, removed on any
+    failure, so a full disk leaves no partial file. Errors name ``path``."""
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         _remove_stale_temps(path)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=f".tmp{path.suffix}",
+                                   dir=path.parent)
+        os.fchmod(fd, 0o666 & ~_umask())
+        os.close(fd)
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write: {exc.strerror or exc}", str(path)) from None
     try:
-        with os.fdopen(fd, "wb") as fh:
-            os.fchmod(fh.fileno(), 0o666 & ~_umask())
-            fh.write(text.encode("utf-8"))
-            fh.flush()
+        yield Path(tmp)
+        with open(tmp, "rb") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException as exc:
@@ -246,4 +245,16 @@ def write_text_atomic(path, text: str) -> Path:
             raise OSError(exc.errno, f"cannot write: {exc.strerror or exc}; nothing was written",
                           str(path)) from None
         raise
-    return path
+
+
+def write_text_atomic(path, text: str) -> Path:
+    """Write ``text`` to ``path`` so that a crash leaves either the old file
+    or the complete new one, never a partial file.
+
+    The file gets the usual permissions (0666 less the umask). A failure
+    (a full disk) raises :class:`OSError` whose ``filename`` is ``path``,
+    not the temp file's.
+    """
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(text.encode("utf-8"))
+    return Path(path)

@@ -254,6 +254,10 @@ def test_a_real_full_disk(tiny_disk, tmp_path):
     line = one_error_line(p)
     assert f"{out}: cannot write: No space left on device" in line, line
     assert sorted(x.name for x in tiny_disk.iterdir()) == ["filler"]
+    plot = tiny_disk / "pose.png"
+    p = cli("solve", finger(tmp_path), "--method", "forward", "--plot", plot)
+    assert f"{plot}: cannot write" in one_error_line(p)
+    assert sorted(x.name for x in tiny_disk.iterdir()) == ["filler"]
     log = tiny_disk / "run.jsonl"
     p = cli("run", ROOT / "examples" / "gripper_run.yaml", "--dry-run", "--log", log, timeout=600)
     assert p.returncode == 2 and f"{log}: cannot write the run log" in p.stderr, p.stderr
@@ -366,7 +370,7 @@ def test_a_temp_file_left_by_a_killed_writer_is_cleaned_up(tmp_path):
     from plush_opt.results import write_json_atomic
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
-    stale = tmp_path / f".out.json.{dead}.abc123.tmp"
+    stale = tmp_path / f".out.json.{dead}.abc123.tmp.json"
     stale.write_bytes(b"")
     write_json_atomic(tmp_path / "out.json", {"a": 1})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.json"]

@@ -212,8 +212,10 @@ def cmd_solve(args) -> int:
         from ..results import check_output_path
         from .plot import plot_pose
         _use_agg()
-        check_output_path(args.plot, "--plot").parent.mkdir(parents=True, exist_ok=True)
-        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
+        from ..results import atomic_path
+        check_output_path(args.plot, "--plot")
+        with atomic_path(args.plot) as tmp:
+            plot_pose(tmp, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
     if args.trace and history:
         write_trace(args.trace, p.model, p.targets, history)
     cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
@@ -380,6 +382,7 @@ def _check_output_folders(args) -> None:
 #: Signals that end a command the way Ctrl-C does (the board stopped, the
 #: run log closed with its end line); their exit status is 128 + signum.
 TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP")
+CLEANUP_GRACE = 10.0    # s after a first signal during which a repeated one does not cut the cleanup short
 
 
 def _handle_signals() -> dict:
@@ -392,17 +395,24 @@ def _handle_signals() -> dict:
         return {}
     fired = []
 
+    def again(signum) -> bool:
+        """A repeated signal: ignored during the cleanup; after it, the
+        default action (a command that swallowed the first still ends)."""
+        if not fired:
+            fired.append(time.monotonic())
+            return False
+        if time.monotonic() - fired[0] > CLEANUP_GRACE:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        return True
+
     def handler(signum, frame):
-        if fired:
-            return
-        fired.append(signum)
-        raise Interrupted(signum, signal.Signals(signum).name)
+        if not again(signum):
+            raise Interrupted(signum, signal.Signals(signum).name)
 
     def sigint(signum, frame):
-        if fired:
-            return
-        fired.append(signum)
-        raise KeyboardInterrupt
+        if not again(signum):
+            raise KeyboardInterrupt
 
     previous = {}
     for name in TERMINATING_SIGNALS:
