@@ -174,6 +174,8 @@ def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
     t_solve = time.perf_counter()
     eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
     t_end = time.perf_counter()
+    if eq.converged:
+        raise exc            # the start is fine: the error is another one
     doc = result_dict(p.model, p.targets, eq, method=method, converged=False,
                       status="start_not_certified", total_s=t_end - t0, solve_s=t_end - t_solve,
                       iterations=eq.iterations, extra={"reason": str(exc), **extra})
@@ -209,11 +211,10 @@ def cmd_solve(args) -> int:
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
-        from ..results import check_output_path
+        from ..results import atomic_path, check_output_path
         from .plot import plot_pose
         _use_agg()
-        from ..results import atomic_path
-        check_output_path(args.plot, "--plot")
+        check_output_path(args.plot, "--plot")     # still writable after the solve
         with atomic_path(args.plot) as tmp:
             plot_pose(tmp, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None)
     if args.trace and history:
@@ -260,9 +261,8 @@ def default_problem() -> Path:
 
 def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
-    from ..results import write_json_atomic
+    from ..results import check_output_folder, write_json_atomic
     _use_agg()
-    from ..results import check_output_folder
     problem = args.problem or default_problem()
     out = check_output_folder(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
