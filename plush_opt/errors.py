@@ -35,3 +35,47 @@ def format_number(x) -> str:
 def format_point(p) -> str:
     """A point as error messages write it: ``(81.0, 3.0)``."""
     return f"({format_number(p[0])}, {format_number(p[1])})"
+
+
+MESSAGE_MAX_CHARS = 2000     # a message is one terminal-readable line, not an echo of a hostile input
+MESSAGE_KEEP_TAIL = 200      # a cut message keeps its end too: it usually says what went wrong
+
+
+def one_line(text, max_chars: int = MESSAGE_MAX_CHARS) -> str:
+    """``text`` as one printable line of at most about ``max_chars`` characters.
+
+    Control characters (newlines, NUL, escape sequences) are written as
+    escapes (``\\n``, ``\\x00``) so that a hostile name cannot add lines or
+    drive the terminal; an overlong message keeps its start and its end.
+    """
+    text = str(text)
+    out = []
+    for ch in text:
+        code = ord(ch)
+        if code < 0x20 or code == 0x7f or 0x80 <= code < 0xa0 or ch in "\u2028\u2029":
+            out.append(ch.encode("unicode_escape").decode("ascii"))
+        else:
+            out.append(ch)
+    line = "".join(out)
+    if len(line) > max_chars:
+        head = max_chars - MESSAGE_KEEP_TAIL
+        line = (f"{line[:head]} ... ({len(line) - head - MESSAGE_KEEP_TAIL} characters left out) ... "
+                f"{line[-MESSAGE_KEEP_TAIL:]}")
+    return line
+
+
+class Interrupted(KeyboardInterrupt):
+    """A termination signal (SIGTERM, SIGHUP) handled like Ctrl-C: the run
+    stops the board, writes its log's last line and exits ``128 + signum``."""
+
+    def __init__(self, signum: int, name: str):
+        super().__init__(name)
+        self.signum = signum
+        self.name = name
+
+
+def interrupt_status(exc: BaseException) -> tuple[str, int]:
+    """Which signal interrupted (``"SIGTERM"``; Ctrl-C is ``"SIGINT"``) and the exit status."""
+    if isinstance(exc, Interrupted):
+        return exc.name, 128 + exc.signum
+    return "SIGINT", 130

@@ -15,7 +15,14 @@ from .geometry import diameter, distance_to_segments, locate_in_triangles, ring_
 from .scene import POINT_TOL, Scene
 
 DEFAULT_MIN_ANGLE = 20.0     # Triangle's own default for quality meshing, degrees
-MAX_ELEMS = 4_000_000        # refuse to start a mesh that would be larger than this
+MAX_ELEMS = 4_000_000        # refuse a mesh larger than this (the model would not fit in memory)
+# A quality mesh has more triangles than area / max_area (about 1.5 times at
+# 20 degrees). Near the cap, a trial mesh this many times coarser predicts
+# the count (it scales with 1/max_area) in a hundredth of the time, so a
+# mesh certain to be refused is not made; the real mesh is checked always.
+TRIAL_COARSENING = 64.0
+TRIAL_FROM = 0.25            # trial only when area / max_area exceeds this fraction of the cap
+TRIAL_MARGIN = 1.1           # refuse on the prediction only this far above the cap (it is within a few %)
 
 
 def _frozen(a, dtype) -> np.ndarray:
@@ -212,6 +219,22 @@ def _mesh_outline(scene: Scene, max_area, tol):
     return X, tris, node_of, keys
 
 
+def _refuse_large(scene: Scene, max_area: float, tol: float) -> None:
+    """Refuse up front a mesh certain to exceed :data:`MAX_ELEMS`: by area
+    alone (each triangle is at most ``max_area``), or by a coarser trial mesh."""
+    src = scene.source
+    body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+    if body / max_area > MAX_ELEMS:
+        raise SceneError(f"{src}: mesh.max_area: {max_area:g} would give more than "
+                         f"{body / max_area:.3g} triangles (limit {MAX_ELEMS}); use a larger max_area")
+    if body / max_area > TRIAL_FROM * MAX_ELEMS:
+        _, trial, _, _ = _mesh_outline(scene, max_area * TRIAL_COARSENING, tol)
+        predicted = len(trial) * TRIAL_COARSENING
+        if predicted > TRIAL_MARGIN * MAX_ELEMS:
+            raise SceneError(f"{src}: mesh.max_area: {max_area:g} would give about {predicted:.3g} "
+                             f"triangles (limit {MAX_ELEMS}); use a larger max_area")
+
+
 def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
     """Mesh a scene.
 
@@ -242,11 +265,11 @@ def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
         elif not (isinstance(max_area, (int, float)) and math.isfinite(max_area) and max_area > 0):
             raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
         if max_area is not None:
-            body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
-            if body / max_area > MAX_ELEMS:
-                raise SceneError(f"{src}: mesh.max_area: {max_area:g} would give more than "
-                                 f"{body / max_area:.3g} triangles (limit {MAX_ELEMS})")
+            _refuse_large(scene, max_area, tol)
         X, tris, node_of, keys = _mesh_outline(scene, max_area, tol)
+        if len(tris) > MAX_ELEMS:
+            raise SceneError(f"{src}: mesh.max_area: {max_area:g} gives {len(tris)} triangles "
+                             f"(limit {MAX_ELEMS}); use a larger max_area")
     else:
         X, tris = scene.nodes, scene.triangles
         keys, forced = _forced_points(scene)

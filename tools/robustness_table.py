@@ -266,7 +266,9 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
                "(zero-area triangle, node index out of range, via point or target outside the "
                "body, duplicate names, non-numeric, infinite, huge and negative values, empty "
                "lists, unknown keys, a wrong `format`, an anchor/alias pair, a pin box that "
-               "misses the mesh, a contraction outside its bounds). Each has an `# expect:` "
+               "misses the mesh, a contraction outside its bounds, bounds beyond the length "
+               "limit, outline or hole vertices closer than the point tolerance, a mesh over "
+               "the triangle cap). Each has an `# expect:` "
                "line; `tests/hard/test_hard_files.py` runs each through `plush-opt solve` "
                "and requires exit status 2, that one line on stderr (file, key, index), no "
                "traceback and no result file. The same test runs a 5 MB file, a nested alias "
@@ -284,6 +286,19 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
     return "\n".join(out)
 
 
+PROMISES = "## Promises of the command line and the runs\n"
+
+
+def keep_promises(text: str, old_path: Path) -> str:
+    """The hand-written promises section of the existing page, kept before
+    "## Regenerating" (it is not generated)."""
+    old = old_path.read_text() if old_path.exists() else ""
+    if PROMISES not in old:
+        return text
+    section = old[old.index(PROMISES):old.index("## Regenerating\n")]
+    return text.replace("## Regenerating\n", section + "## Regenerating\n")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "robustness.md")
@@ -299,7 +314,7 @@ def main(argv=None) -> int:
         mine = rows_for(path)
         rows += mine
         print(f"{path.stem}: {len(mine)} rows, {time.perf_counter() - t:.1f} s", flush=True)
-    text = render(rows, scenes)
+    text = keep_promises(render(rows, scenes), args.out)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(text)

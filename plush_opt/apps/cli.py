@@ -5,7 +5,8 @@ exit status, never a traceback (``--debug`` shows it):
 
     0  success              2  bad input (file, option)
     3  solver did not converge (the result is still written, honestly)
-    4  hardware error       70  internal error (a bug)      130  interrupted
+    4  hardware error       70  internal error (a bug)      130  interrupted (Ctrl-C)
+    143, 129  ended by SIGTERM, SIGHUP (handled like Ctrl-C: the board stopped, the log ended)
 """
 
 from __future__ import annotations
@@ -16,11 +17,13 @@ import dataclasses
 import io
 import logging
 import os
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
-from ..errors import HardwareError, PlushError, SceneError, SolverError
+from ..errors import HardwareError, PlushError, SceneError, SolverError, interrupt_status, one_line
 
 log = logging.getLogger("plush_opt")
 
@@ -202,7 +205,12 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
             options = dataclasses.replace(options, max_iterations=max_iterations)
     if max_time is not None:
         options = dataclasses.replace(options, max_time=max_time)
-    res = p.control(method, contraction, freeze, options=options)
+    try:
+        res = p.control(method, contraction, freeze, options=options)
+    except SolverError as exc:
+        # Control cannot start (the starting equilibrium is not certified):
+        # the result still says where the robot is, honestly not converged.
+        return _start_failed(p, contraction, method, equilibrium, exc, t0, extra)
     for it in res.history if method != "bilevel" else ():
         log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
                  ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
@@ -215,24 +223,60 @@ def _check_tension_max(value) -> None:
         raise SceneError(f"--tension-max: expected a tension > 0 (N), got {value:g}")
 
 
+def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
+    """The result of a control run that could not start: the starting
+    equilibrium, ``converged: false``, the reason as its status."""
+    from ..equilibrium import EquilibriumOptions
+    from ..results import result_dict
+    t_solve = time.perf_counter()
+    eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
+    t_end = time.perf_counter()
+    if eq.converged:
+        raise exc            # the start is fine: the error is another one
+    doc = result_dict(p.model, p.targets, eq, method=method, converged=False,
+                      status="start_not_certified", total_s=t_end - t0, solve_s=t_end - t_solve,
+                      iterations=eq.iterations, extra={"reason": str(exc), **extra})
+    return p, eq, doc, ()
+
+
+def _check_solve_outputs(args) -> None:
+    """Every output path of ``solve`` refused before the solve, not after it."""
+    from ..results import check_output_path
+    for option, path in (("--out", args.out), ("--plot", args.plot), ("--trace", args.trace)):
+        if path is not None:
+            check_output_path(path, option)
+    if args.trace is not None and args.method in ("forward", "bilevel"):
+        raise SceneError(f"--trace: only a control run of the gradient loop has an iterate history "
+                         f"(not --method {args.method})")
+
+
+def _number(value, spec: str) -> str:
+    """A summary number; JSON's null (a non-finite value) shows as n/a."""
+    return "n/a" if value is None else format(value, spec)
+
+
 def cmd_solve(args) -> int:
     from ..results import write_json_atomic
     _check_tension_max(args.tension_max)
+    _check_solve_outputs(args)
     p, eq, doc, history = solve_problem(
         args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
         args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
     if "mesh_accuracy" in doc:
         say(f"plush-opt: {doc['mesh_accuracy']['summary']}", err=True)
-    if args.trace and not history:
+    if args.trace and not history and doc["status"] != "start_not_certified":
         raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
+        from ..results import atomic_path, check_output_path
         from .plot import plot_pose
         _use_agg()
-        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
-                  tension_max=args.tension_max)
-    if args.trace:
+        check_output_path(args.plot, "--plot")     # still writable after the solve
+        with atomic_path(args.plot) as tmp:
+            plot_pose(tmp, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
+                      tension_max=args.tension_max)
+    if args.trace and history:
         write_trace(args.trace, p.model, p.targets, history)
     if args.vtk:
         from .export import write_control
@@ -257,10 +301,10 @@ def summary_line(doc: dict) -> str:
     cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
     parts = [f"{doc['problem']}: {doc['method']}: {doc['status']}", cs, target_summary(doc["target_error"])]
     if doc["method"] != "forward":
-        parts.append(f"objective {doc['objective']:.6g}")
+        parts.append(f"objective {_number(doc['objective'], '.6g')}")
     elif doc["target_error"]:   # a forward solve's O is 0 by the spec; the targets' is apart
-        parts.append(f"targets objective {doc['targets_objective']:.6g}")
-    parts += [f"residual {doc['residual_norm']:.3g}", f"{doc['timing']['total_s']:.3f} s"]
+        parts.append(f"targets objective {_number(doc['targets_objective'], '.6g')}")
+    parts += [f"residual {_number(doc['residual_norm'], '.3g')}", f"{doc['timing']['total_s']:.3f} s"]
     return "; ".join(parts)
 
 
@@ -313,11 +357,11 @@ def default_problem() -> Path:
 def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
     from ..data_files import data_file
-    from ..results import write_json_atomic
+    from ..results import check_output_folder, write_json_atomic
     _check_tension_max(args.tension_max)
     _use_agg()
     problem = args.problem or default_problem()
-    out = args.out
+    out = check_output_folder(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     say(f"demo: solving {problem.name} (control to its targets)")
     p, eq, doc, history = solve_problem(problem, method="reparam")
@@ -484,17 +528,79 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _configure_output(args)
+    previous = _handle_signals()
     try:
+        _check_output_folders(args)
         return args.func(args)
-    except KeyboardInterrupt:
-        print("plush-opt: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPT
+    except KeyboardInterrupt as exc:
+        name, code = interrupt_status(exc)
+        print(f"plush-opt: interrupted ({name})", file=sys.stderr)
+        return code
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
         if args.debug:
             raise
         message, code = _describe_error(exc)
-        print(f"plush-opt: {message}", file=sys.stderr)
+        print(f"plush-opt: {one_line(message)}", file=sys.stderr)
         return code
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+#: Output folders checked before any work: command -> option of a folder.
+OUTPUT_FOLDERS = {"bench": "out", "compare": "out"}
+
+
+def _check_output_folders(args) -> None:
+    from ..results import check_output_folder
+    attr = OUTPUT_FOLDERS.get(args.command)
+    if attr is not None and getattr(args, attr, None) is not None:
+        check_output_folder(getattr(args, attr), f"--{attr}")
+
+
+#: Signals that end a command the way Ctrl-C does (the board stopped, the
+#: run log closed with its end line); their exit status is 128 + signum.
+TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP")
+CLEANUP_GRACE = 10.0    # s after a first signal during which a repeated one does not cut the cleanup short
+
+
+def _handle_signals() -> dict:
+    """SIGTERM and SIGHUP raise :class:`~plush_opt.errors.Interrupted` in the
+    main thread, once: a second signal during the cleanup is ignored, so the
+    cleanup (stop the board, end the log) is not cut short. Returns the
+    previous handlers."""
+    from ..errors import Interrupted
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    fired = []
+
+    def again(signum) -> bool:
+        """A repeated signal: ignored during the cleanup; after it, the
+        default action (a command that swallowed the first still ends)."""
+        if not fired:
+            fired.append(time.monotonic())
+            return False
+        if time.monotonic() - fired[0] > CLEANUP_GRACE:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+        return True
+
+    def handler(signum, frame):
+        if not again(signum):
+            raise Interrupted(signum, signal.Signals(signum).name)
+
+    def sigint(signum, frame):
+        if not again(signum):
+            raise KeyboardInterrupt
+
+    previous = {}
+    for name in TERMINATING_SIGNALS:
+        signum = getattr(signal, name, None)
+        if signum is not None:
+            previous[signum] = signal.signal(signum, handler)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, sigint)
+    return previous
 
 
 def _describe_error(exc: Exception) -> tuple[str, int]:
@@ -506,7 +612,8 @@ def _describe_error(exc: Exception) -> tuple[str, int]:
     if isinstance(exc, (SolverError, PlushError)):
         return f"solver error: {exc}", EXIT_SOLVER
     if isinstance(exc, OSError):
-        return f"error: {exc.filename or ''}: {exc.strerror or exc}", EXIT_INPUT
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"error: {where}{exc.strerror or exc}", EXIT_INPUT
     return (f"internal error: {type(exc).__name__}: {exc} (rerun with --debug for the traceback, "
             "and please report it)", EXIT_INTERNAL)
 

@@ -55,6 +55,12 @@ class ControlPlanner:
         return {"contraction": self._named(c), "objective": 0.0, "converged": eq.converged,
                 "status": eq.status}
 
+    def check_targets(self, targets: list[dict]) -> None:
+        """Raise :class:`~plush_opt.errors.SceneError` (``targets[k].at: ...``)
+        for a target off the body: a run checks every pose step before it starts."""
+        Targets.at_points(self.problem.mesh, [t["at"] for t in targets], [t["to"] for t in targets],
+                          [t.get("weight", 1.0) for t in targets])
+
     def pose(self, targets: list[dict], freeze: list[str], max_time: float) -> Iterator[dict]:
         goal = Targets.at_points(self.problem.mesh, [t["at"] for t in targets], [t["to"] for t in targets],
                                  [t.get("weight", 1.0) for t in targets])

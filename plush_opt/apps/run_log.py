@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -33,27 +34,55 @@ def _jsonable(x):
 
 class RunLog:
     """JSON-lines file; every line is written whole, flushed and fsync'ed,
-    so a crash or Ctrl-C leaves only complete lines."""
+    so a crash or Ctrl-C leaves only complete lines.
+
+    A line that cannot be written whole (a full disk, a signal between two
+    partial writes) is cut off again: the file is truncated back to its
+    last complete line, and the error (an :class:`OSError` whose
+    ``filename`` is the log's path) or the interruption goes on.
+    """
 
     def __init__(self, path):
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "wb", buffering=0)
-        # A pipe or /dev/null cannot be fsync'ed, and needs not be.
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._f = open(self.path, "wb", buffering=0)
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write the run log: {exc.strerror or exc}", str(self.path)) from None
+        # A pipe or /dev/null cannot be fsync'ed (nor truncated), and needs not be.
         self._sync = stat.S_ISREG(os.fstat(self._f.fileno()).st_mode)
+        self._end = 0            # bytes of complete lines
         self.lines = 0
 
     def write(self, obj: dict) -> None:
         data = memoryview((json.dumps(_jsonable(obj), allow_nan=False, separators=(",", ":"))
                            + "\n").encode())
-        while data:   # an unbuffered write may take only part of the line
-            written = self._f.write(data)
-            if not written:
-                raise OSError(f"{self.path}: could not write the run log")
-            data = data[written:]
-        if self._sync:
-            os.fsync(self._f.fileno())
+        try:
+            while data:   # an unbuffered write may take only part of the line
+                written = os.write(self._f.fileno(), data)
+                if not written:
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                data = data[written:]
+            if self._sync:
+                os.fsync(self._f.fileno())
+        except BaseException as exc:
+            self._cut()
+            if isinstance(exc, OSError):
+                raise OSError(exc.errno, f"cannot write the run log: {exc.strerror or exc} "
+                              f"(it ends with its last complete line)", str(self.path)) from None
+            raise
+        self._end = os.lseek(self._f.fileno(), 0, os.SEEK_CUR) if self._sync else self._end
         self.lines += 1
+
+    def _cut(self) -> None:
+        """Truncate a partly written line (a regular file only)."""
+        if not self._sync:
+            return
+        try:
+            os.ftruncate(self._f.fileno(), self._end)
+            os.lseek(self._f.fileno(), self._end, os.SEEK_SET)
+        except OSError:
+            pass     # the error being raised says more than this one
 
     def close(self) -> None:
         if not self._f.closed:

@@ -34,7 +34,7 @@ import numpy as np
 from plush_opt.apps.run_log import ProgressLine, RunLog
 from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
 from plush_opt.board.limits import allowed_ranges, check_contractions
-from plush_opt.errors import HardwareError, SceneError, SolverError
+from plush_opt.errors import HardwareError, SceneError, SolverError, interrupt_status, one_line
 from plush_opt.io.run_script import RunScript, Step, load_run_script
 
 log = logging.getLogger(__name__)
@@ -63,6 +63,10 @@ class Planner(Protocol):
         """Control iterates towards ``targets`` (``{"at", "to", "weight"}`` dicts),
         starting from the last contraction solved for, keeping ``freeze`` winches;
         each a stable equilibrium within bounds."""
+
+    # Optional: ``check_targets(targets)`` raises SceneError (``targets[k].at: ...``)
+    # for a target the pose step could never reach (off the body); a run calls
+    # it for every pose step before the first command.
 
 
 @dataclass(frozen=True)
@@ -128,6 +132,12 @@ def check_run_script(script: RunScript, planner: Planner,
                 check_contractions({name: value}, allowed, calibration)
             except HardwareError as e:
                 _script_error(script, f"{key}.{name}", str(e))
+        check_targets = getattr(planner, "check_targets", None)
+        if step.kind == "pose" and check_targets is not None:
+            try:
+                check_targets([dict(t) for t in step.targets])
+            except SceneError as e:
+                _script_error(script, key, str(e))
     return allowed
 
 
@@ -441,6 +451,17 @@ def _end_line(runner: _Runner | None, calibration: BoardCalibration, t0: float, 
             "commands": runner.commands if runner is not None else 0}
 
 
+def _write_end(runlog: RunLog, line: dict, failing: bool) -> None:
+    """The log's last line. If it cannot be written (a full disk) while
+    another error ends the run, that error is the one reported."""
+    try:
+        runlog.write(line)
+    except OSError as e:
+        if not failing:
+            raise
+        log.error("%s", one_line(f"{e.filename}: could not write the run's end line: {e.strerror or e}"))
+
+
 def run_script(script_path, board: BoardLink | None = None, *, port: str | None = None,
                simulator: str | None = None, dry_run: bool = False, log_path=None, planner: Planner | None = None,
                progress: bool | None = None) -> RunResult:
@@ -492,7 +513,7 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
     if progress is None:
         progress = sys.stderr.isatty()
     path = Path(log_path) if log_path is not None else _default_log_path(script)
-    status, runner, t0 = "error", None, time.monotonic()
+    status, runner, t0, ended_by = "error", None, time.monotonic(), {}
     with RunLog(path) as runlog:
         try:
             link = open_board(calibration, bounds=allowed, **choice) if own else board
@@ -500,17 +521,18 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
                              ProgressLine(sys.stderr, progress), t0)
             _play(runner, own)
             status = "completed"
-        except KeyboardInterrupt:
-            status = "interrupted"
+        except KeyboardInterrupt as e:
+            status, ended_by = "interrupted", {"signal": interrupt_status(e)[0]}
             raise
         except BaseException as e:
-            status = f"error: {e}"
+            status = one_line(f"error: {e}")
             raise
         finally:
             # The board is stopped by now.
             if runner is not None:
                 runner.progress.finish()
-            runlog.write(_end_line(runner, calibration, t0, status))
+            _write_end(runlog, {**_end_line(runner, calibration, t0, status), **ended_by},
+                       failing=status != "completed")
     return RunResult(script=str(script.path), log_path=str(path), dry_run=runner.dry, steps=runner.steps_done,
                      commands=runner.commands, contraction=dict(runner.commanded),
                      pose_errors=tuple(runner.pose_errors), far_poses=tuple(runner.far_poses))
@@ -541,16 +563,19 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
     (the board has been stopped). Other errors propagate as
     :class:`~plush_opt.errors.PlushError`.
     """
+    from plush_opt.results import check_output_path
     script = load_run_script(args.script)
-    planner = planner_factory(script.problem)
     log_path = args.log if args.log is not None else _default_log_path(script)
+    check_output_path(log_path, "--log", stream_ok=True)      # before the planner's first (slow) solve
+    planner = planner_factory(script.problem)
     simulator = "emulator" if args.emulator else ("simavr" if getattr(args, "simavr", False) else None)
     try:
         result = run_script(script, port=args.port, simulator=simulator, dry_run=args.dry_run, log_path=log_path,
                             planner=planner, progress=getattr(args, "progress", None))
-    except KeyboardInterrupt:
-        sys.stderr.write(f"\ninterrupted: board stopped; log {log_path}\n")
-        return 130
+    except KeyboardInterrupt as e:
+        name, code = interrupt_status(e)
+        sys.stderr.write(f"\ninterrupted ({name}): board stopped; log {log_path}\n")
+        return code
     where = "dry run" if result.dry_run else (simulator or "board")
     errors = (f", pose steps' RMS target error at most {max(result.pose_errors):.3g} mm"
               if result.pose_errors else "")

@@ -59,8 +59,10 @@ class ControlOptions:
     ftol : stop when the relative decrease of O stays below ftol for
         ``patience`` consecutive iterates.
     gtol : stop when the projected gradient |P dO/dc| times the mean bound
-        range is below gtol * max(O, objective_floor).
-    objective_floor : O below this (length^2) counts as targets reached.
+        range is below gtol * max(O, floor), floor as below.
+    objective_floor : O below this times the mean target weight (length^2)
+        counts as targets reached: relative to the weights, so that tiny
+        weights do not make a far target look reached.
     patience : see ftol.
     blend : width of the reparametrisation's blend zone, as a fraction
         of each winch's range.
@@ -185,6 +187,12 @@ class Controller:
 
     # -- what a caller may change between iterates ------------------------
 
+    @property
+    def floor(self) -> float:
+        """The stopping floor in the objective's own scale (see ``objective_floor``)."""
+        weight = float(np.mean(self.targets.weight)) if self.targets.n_targets else 1.0
+        return self.options.objective_floor * weight
+
     def set_targets(self, targets: Targets) -> None:
         """New targets; the loop continues from the current pose."""
         self.targets = targets
@@ -306,7 +314,7 @@ class Controller:
 
     def _out_of_budget(self, steps: int, last: Iterate) -> bool:
         opts = self.options
-        return (steps >= opts.max_iterations or last.objective <= opts.objective_floor
+        return (steps >= opts.max_iterations or last.objective <= self.floor
                 or (opts.max_time is not None and last.t_wall >= opts.max_time))
 
     def _slack_winches(self, last: Iterate) -> list[int]:
@@ -435,7 +443,7 @@ def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
         return True, "targets_reached", "no targets"
     if not free.any():
         return True, "stationary", "every winch is frozen"
-    if last.objective <= opts.objective_floor:
+    if last.objective <= ctl.floor:
         return True, "targets_reached", "targets reached" + bound_note
     proj = last.gradient.copy()
     proj[[names.index(n) for n in last.active_bounds]] = 0.0
@@ -444,7 +452,7 @@ def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
         slack = [names[i] for i in np.flatnonzero(free)]
         return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
                        f"{', '.join(slack)} slack)")
-    if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, opts.objective_floor):
+    if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, ctl.floor):
         return True, "stationary", "stationary: projected gradient below tolerance" + bound_note
     if stall >= opts.patience:
         return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + bound_note

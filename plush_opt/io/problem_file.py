@@ -202,6 +202,7 @@ def _mesh_section(ck: Checker, mesh) -> dict:
                 _check_ring(ck, hole, hp)
                 holes.append(hole)
         out.update(outline=outline, holes=holes, diameter=diameter(outline))
+        _check_ring_vertices_apart(ck, outline, holes, POINT_TOL * out["diameter"])
         _check_ring_layout(ck, outline, holes, POINT_TOL * out["diameter"])
         if "max_area" in has:
             out["max_area"] = ck.number(mesh["max_area"], "mesh.max_area", gt=0)
@@ -364,8 +365,7 @@ def _winches_section(ck: Checker, raw) -> list[Winch]:
             b = list(b)
         if not isinstance(b, (list, tuple)) or len(b) != 2:
             ck.fail(at_key(path, "bounds"), f"expected [lower, upper], got {describe(b)}")
-        lo = ck.number(b[0], at_index(at_key(path, "bounds"), 0))
-        hi = ck.number(b[1], at_index(at_key(path, "bounds"), 1))
+        lo, hi = (_length(ck, b[k], at_index(at_key(path, "bounds"), k)) for k in (0, 1))
         if not lo < hi:
             ck.fail(at_key(path, "bounds"), f"lower {format_number(lo)} must be < upper {format_number(hi)}")
         c = _opt(w, "contraction")
@@ -438,6 +438,28 @@ def _check_ring(ck: Checker, ring: np.ndarray, path: str):
     area = abs(ring_area(ring))
     if not area > ZERO_AREA * float(np.sum(np.ptp(ring, axis=0) ** 2)):
         ck.fail(path, "polygon has zero area")
+
+
+def _length(ck: Checker, value, path: str) -> float:
+    """A finite length at most :data:`MAX_COORD` in magnitude, like a coordinate
+    (a bound of 1e300 overflows the tendon energy, whose terms are squared)."""
+    x = ck.number(value, path)
+    if abs(x) > MAX_COORD:
+        ck.fail(path, f"{format_number(x)} is too large (lengths are limited to {MAX_COORD:g} in magnitude)")
+    return x
+
+
+def _check_ring_vertices_apart(ck: Checker, outline: np.ndarray, holes: list, tol: float):
+    """Outline and hole vertices farther apart than the point tolerance:
+    closer ones would be one node, and meshed apart they make slivers."""
+    rings = [("mesh.outline", outline)] + [(at_index("mesh.holes", i), h) for i, h in enumerate(holes)]
+    keys = [at_index(key, j) for key, ring in rings for j in range(len(ring))]
+    pts = np.concatenate([ring for _, ring in rings])
+    pairs = sorted(tuple(sorted(p)) for p in cKDTree(pts).query_pairs(tol))
+    if pairs:
+        i, j = pairs[0]
+        ck.fail(keys[j], f"point {format_point(pts[j])} is within {tol:.3g} (1e-9 x body diameter) of "
+                f"{keys[i]} {format_point(pts[i])}: the same node; vertices must be distinct")
 
 
 def _check_ring_layout(ck: Checker, outline: np.ndarray, holes: list, tol: float):

@@ -40,3 +40,28 @@ def test_the_generator_renders_headers_tests_and_known_defects():
     mentions, defects = tool.test_index(ROOT / "tests" / "hard")
     assert all(reason for _, _, reason in defects)
     assert "test_near_inversion_never_returns_an_inverted_pose" in mentions
+
+
+def test_every_promise_names_tests_that_exist():
+    import re
+    text = DOC.read_text()
+    section = text[text.index("## Promises"):text.index("## Regenerating")]
+    files = {"faults": ROOT / "tests" / "test_faults.py",
+             "signals": ROOT / "tests" / "board" / "test_board_signals.py"}
+    names = re.findall(r"`(faults|signals)::(\w+)`", section)
+    assert len(names) >= 20
+    for short, name in names:
+        assert f"def {name}(" in files[short].read_text(), f"{short}::{name} does not exist"
+    for stem in re.findall(r"`invalid/(\w+)\.yaml`", section):
+        assert (HARD / "invalid" / f"{stem}.yaml").exists(), stem
+    assert tool_keeps(_tool(), text)
+
+
+def tool_keeps(tool, text) -> bool:
+    """Regenerating keeps the hand-written promises."""
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as tmp:
+        old = Path(tmp, "robustness.md")
+        old.write_text(text)
+        return "## Promises" in tool.keep_promises("# Robustness\n## Regenerating\n", old)

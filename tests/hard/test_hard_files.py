@@ -38,7 +38,8 @@ BAD_FILES = [BAD / f"{stem}.yaml" for stem in (
 GENERATED = {
     "five_megabytes": r"file larger than 1048576 bytes \(1 MiB\); not a problem file",
     "alias_bomb": r"line 1: anchor &a0 \(anchors and aliases are not allowed\)",
-    "random_bytes": r"not UTF-8 text \(byte \d+\)",
+    # random bytes hold a NUL (not text) or an invalid sequence (not UTF-8), whichever comes first
+    "random_bytes": r"not UTF-8 text \(byte \d+\)|not a text file \(NUL byte at byte \d+\)",
     "empty": r"the file is empty",
     "truncated": r"tendons\.list\[0\]",
     "no_such_file": r"no such file",
