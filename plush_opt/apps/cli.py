@@ -297,6 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_gui_parser(sub)
     from .compare import add_compare_parser
     add_compare_parser(sub)
+    from .calibrate import add_calibrate_parser; add_calibrate_parser(sub)  # noqa: E702
     return parser
 
 
