@@ -14,6 +14,9 @@ from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 MEASURED = "#222222"
 BEFORE = "#d62728"
 AFTER = "#1f77b4"
+#: residual arrows are magnified so the longest is drawn at least this
+#: fraction of the body's size (small residuals after a fit stay visible)
+ARROW_SHARE = 0.06
 
 
 def _panel(ax, pred, i, measured, seen, color, title):
@@ -29,10 +32,14 @@ def _panel(ax, pred, i, measured, seen, color, title):
             label="measured")
     ax.plot(y[:, 0], y[:, 1], "+", color=color, ms=8, mew=1.6, label="predicted")
     d = measured[seen] - y[seen]
-    ax.quiver(y[seen, 0], y[seen, 1], d[:, 0], d[:, 1], angles="xy", scale_units="xy", scale=1,
-              color=color, width=0.004, label="residual")
+    size = float(np.ptp(model.X.reshape(-1, 2), axis=0).max())
+    longest = float(np.max(np.hypot(d[:, 0], d[:, 1]), initial=0.0))
+    gain = max(1.0, ARROW_SHARE * size / longest) if longest > 0 else 1.0
+    ax.quiver(y[seen, 0], y[seen, 1], gain * d[:, 0], gain * d[:, 1], angles="xy",
+              scale_units="xy", scale=1, color=color, width=0.004,
+              label="residual" + (f" x{gain:.3g}" if gain > 1 else ""))
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1)))) if seen.any() else float("nan")
-    ax.set_title(f"{title}: RMS {rms:.3g}")
+    ax.set_title(f"{title}: RMS marker error {rms:.3g}")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.legend(loc="best", fontsize=7)
