@@ -22,13 +22,13 @@ READBACK_TOL = 1e-8
 
 
 def calibrate(meas: Measurements, fit_spec=None, options: FitOptions | None = None, *,
-              max_area: float | None = None,
+              max_area: float | None = None, mesh=None,
               equilibrium: EquilibriumOptions | None = None) -> FitResult:
     """Fit the parameters named by ``fit_spec`` (default: Young's modulus
     and every tendon's assembly offset) to ``meas``.
 
     Starts from the scene's values (winch zero offsets from 0), on the
-    scene's mesh (or one of triangles up to ``max_area``).
+    scene's mesh (or one of triangles up to ``max_area``, or ``mesh``).
     """
     options = options or FitOptions()
     for i in options.holdout:
@@ -40,7 +40,7 @@ def calibrate(meas: Measurements, fit_spec=None, options: FitOptions | None = No
     if options.huber is not None and not options.huber > 0:
         raise SceneError(f"--huber: expected a threshold > 0 (in sigma units), got {options.huber:g}")
     params = parse_fit(meas.scene, fit_spec)
-    mesh = build_mesh(meas.scene, max_area)
+    mesh = build_mesh(meas.scene, max_area) if mesh is None else mesh
     predictor = Predictor(meas, mesh, params, Values.of_scene(meas.scene), equilibrium)
     return fit(predictor, options)
 

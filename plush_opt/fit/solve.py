@@ -44,7 +44,8 @@ class FitOptions:
     max_iterations : accepted or rejected steps, at most.
     damping : initial Marquardt factor lambda (times diag(J^T J)).
     ftol : stop when a step lowers the cost by less than ftol * cost.
-    step_tol : stop when the step changes chi^2 (along J) by less than this.
+    step_tol : stop when the step changes chi^2 (along J) by less than this:
+        1e-4 moves theta by about 1 % of a standard error.
     max_damping : give up when lambda grows beyond this (no descent found).
     huber : Huber threshold in sigma units (None: least squares).
     holdout : pose indices predicted but not fitted.
@@ -53,7 +54,7 @@ class FitOptions:
     max_iterations: int = 40
     damping: float = 1e-3
     ftol: float = 1e-10
-    step_tol: float = 1e-8
+    step_tol: float = 1e-4
     max_damping: float = 1e10
     huber: float | None = None
     holdout: tuple[int, ...] = ()
@@ -168,32 +169,8 @@ def fit(predictor: Predictor, options: FitOptions | None = None) -> FitResult:
                          None, 0, predictor.solves, time.perf_counter() - t0, combination,
                          (f"not identifiable from these poses and markers (relative singular "
                           f"value {rcond:.2g}): {combination}; not fitted",), fitted)
-    current, lam, status, converged, it = before, options.damping, "iteration limit", False, 0
-    for it in range(1, options.max_iterations + 1):
-        A, g = J.T @ J, J.T @ r
-        d = np.maximum(np.diag(A), np.finfo(float).tiny)
-        step = np.linalg.solve(A + lam * np.diag(d), -g)
-        try:
-            trial = predictor(current.theta + step)
-            t_cost, t_r, t_J = res(trial)
-        except SolverError:
-            t_cost = np.inf
-        if t_cost < cost:
-            predictor.accept(trial)
-            small = (cost - t_cost) <= options.ftol * cost or float(step @ A @ step) <= options.step_tol
-            current, cost, r, J = trial, t_cost, t_r, t_J
-            lam = max(lam / 3, 1e-12)
-            if small:
-                status, converged = "converged", True
-                break
-        else:
-            lam *= 4
-            if float(step @ A @ step) <= options.step_tol:
-                status, converged = "converged (no further descent)", True
-                break
-            if lam > options.max_damping:
-                status = "stalled: no step lowers the cost"
-                break
+    current, cost, r, J, it, converged, status = _levenberg_marquardt(
+        predictor, res, before, cost, r, J, options)
     ok, combination, rcond = check_identifiable(J, params)
     warnings = []
     if not ok:
@@ -210,3 +187,40 @@ def fit(predictor: Predictor, options: FitOptions | None = None) -> FitResult:
     return FitResult(params, True, converged, status, before, current, cov, it,
                      predictor.solves, time.perf_counter() - t0,
                      combination if not ok else "", tuple(warnings), fitted)
+
+
+def _levenberg_marquardt(predictor: Predictor, res: _Residuals, current: Prediction, cost, r, J,
+                         options: FitOptions):
+    """Marquardt-scaled damping with Nielsen's update (the damping follows
+    how well the Gauss-Newton model predicted the decrease).
+
+    Returns (prediction, cost, r, J, iterations, converged, status)."""
+    lam, grow = options.damping, 2.0
+    for it in range(1, options.max_iterations + 1):
+        A, g = J.T @ J, J.T @ r
+        d = np.maximum(np.diag(A), np.finfo(float).tiny)
+        step = np.linalg.solve(A + lam * np.diag(d), -g)
+        length = float(step @ A @ step)
+        predicted = -float(g @ step) - 0.5 * length
+        try:
+            trial = predictor(current.theta + step)
+            t_cost, t_r, t_J = res(trial)
+        except SolverError:
+            t_cost = np.inf
+        if t_cost < cost:
+            predictor.accept(trial)
+            small = (cost - t_cost) <= options.ftol * cost or length <= options.step_tol
+            rho = (cost - t_cost) / predicted if predicted > 0 else 0.0
+            current, cost, r, J = trial, t_cost, t_r, t_J
+            lam *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
+            grow = 2.0
+            if small:
+                return current, cost, r, J, it, True, "converged"
+        else:
+            lam *= grow
+            grow *= 2
+            if length <= options.step_tol:
+                return current, cost, r, J, it, True, "converged (no step lowers the cost further)"
+            if lam > options.max_damping:
+                return current, cost, r, J, it, False, "stalled: no step lowers the cost"
+    return current, cost, r, J, options.max_iterations, False, "iteration limit"
