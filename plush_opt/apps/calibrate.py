@@ -17,6 +17,8 @@ from pathlib import Path
 
 from ..errors import SceneError
 
+EXIT_NOT_FITTED = 3               # the command line's "solver did not converge" status
+
 
 def _indices(text: str) -> tuple[int, ...]:
     try:
@@ -54,7 +56,6 @@ def cmd_calibrate(args) -> int:
     from ..fit.report import report_dict, summary_text
     from ..io.measurement import load_measurements
     from ..results import write_json_atomic, write_text_atomic
-    from .cli import EXIT_OK, EXIT_SOLVER
 
     if args.max_area is not None and not args.max_area > 0:
         raise SceneError(f"--max-area: expected an area > 0, got {args.max_area:g}")
@@ -69,14 +70,12 @@ def cmd_calibrate(args) -> int:
         write_json_atomic(args.report, doc)
     if args.plot:
         from .calibrate_plot import plot_poses
-        from .cli import _use_agg
-        _use_agg()
         plot_poses(args.plot, meas, result)
     print(summary_text(doc))
     if not result.identifiable:
         print(f"plush-opt: not fitted: {result.status}", file=sys.stderr)
-        return EXIT_SOLVER
+        return EXIT_NOT_FITTED
     if not result.converged:
         print(f"plush-opt: not converged: {result.status}", file=sys.stderr)
-        return EXIT_SOLVER
-    return EXIT_OK
+        return EXIT_NOT_FITTED
+    return 0

@@ -1,13 +1,16 @@
 """Calibration pictures: per pose, the measured markers against the model's
-prediction before and after the fit, with the residual arrows."""
+prediction before and after the fit, with the residual arrows.
+
+matplotlib's object API (no pyplot, no global backend), like the compare
+report's figures."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import PolyCollection
+from matplotlib.figure import Figure
 
 from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 
@@ -51,7 +54,8 @@ def plot_poses(directory, meas, result) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
     for i in range(meas.n_poses):
-        fig, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharex=True, sharey=True)
+        fig = Figure(figsize=(11, 4.5))
+        axes = fig.subplots(1, 2, sharex=True, sharey=True)
         seen = meas.seen[i]
         _panel(axes[0], result.before, i, meas.positions[i], seen, BEFORE, "before")
         _panel(axes[1], result.after, i, meas.positions[i], seen, AFTER, "after")
@@ -61,6 +65,5 @@ def plot_poses(directory, meas, result) -> list[Path]:
         fig.tight_layout()
         path = directory / f"pose_{i:02d}.png"
         fig.savefig(path, dpi=110)
-        plt.close(fig)
         paths.append(path)
     return paths
