@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import SceneError
 from ..model import Model
-from ..scene import Scene
+from ..scene import Material, Scene
 
 KINDS = ("youngs_modulus", "poisson_ratio", "tendon_stiffness", "assembly_offset", "winch_offset")
 DEFAULT_FIT = ("youngs_modulus", "assembly_offset")
@@ -149,9 +149,9 @@ def values_from_theta(base: Values, params, theta) -> Values:
 def scene_with(scene: Scene, values: Values) -> Scene:
     """The scene with these material, tendon stiffness and assembly offsets
     (winch offsets act on the contractions, not the scene)."""
-    from ..scene import Material
     mat = scene.material
-    tendons = tuple(replace(t, assembly_offset=float(d)) for t, d in zip(scene.tendons, values.assembly_offset))
+    tendons = tuple(replace(t, assembly_offset=float(d))
+                    for t, d in zip(scene.tendons, values.assembly_offset))
     return scene.replace(material=Material(values.mu, values.lam, mat.thickness, mat.density),
                          tendon_stiffness=values.tendon_stiffness, tendons=tendons)
 

@@ -92,10 +92,15 @@ def summary_text(doc: dict) -> str:
         tag = " (held out)" if pose["held_out"] else ""
         if pose["rms_before"] is None:
             continue
+        if not doc["identifiable"]:
+            lines.append(f"  pose {pose['index']}{tag}: RMS marker error {pose['rms_before']:.4g} "
+                         f"({pose['rms_sigma_before']:.2f} sigma per coordinate), not fitted")
+            continue
         lines.append(f"  pose {pose['index']}{tag}: RMS marker error {pose['rms_before']:.4g} -> "
                      f"{pose['rms_after']:.4g} ({pose['rms_sigma_after']:.2f} sigma per coordinate)")
     red = doc["reduced_chi2"]
-    lines.append(f"  chi^2 {doc['chi2_before']:.4g} -> {doc['chi2']:.4g} for {doc['dof']} degrees of "
-                 f"freedom" + (f" (reduced {red:.3g})" if red is not None else ""))
+    if doc["identifiable"]:
+        lines.append(f"  chi^2 {doc['chi2_before']:.4g} -> {doc['chi2']:.4g} for {doc['dof']} "
+                     "degrees of freedom" + (f" (reduced {red:.3g})" if red is not None else ""))
     lines += [f"  warning: {w}" for w in doc["warnings"]]
     return "\n".join(lines)

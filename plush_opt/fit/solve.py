@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import SolverError
-from .parameters import Parameter, Values, dvalue_dtheta, to_theta
+from .parameters import Parameter, dvalue_dtheta, to_theta
 from .predict import Prediction, Predictor
 
 #: scaled Jacobian with s_min / s_max below this: not identifiable (a
@@ -33,8 +33,6 @@ IDENTIFIABLE_RCOND = 1e-5
 COMBINATION_SHARE = 0.2
 #: fitted parameters correlated beyond this get a warning
 HIGH_CORRELATION = 0.995
-#: terms of a singular vector below this are dropped from the name
-_SHOWN = 1e-12
 
 
 @dataclass(frozen=True)
@@ -97,10 +95,12 @@ class FitResult:
 
     @property
     def correlation(self) -> np.ndarray | None:
-        if self.covariance is None:
-            return None
-        s = np.sqrt(np.maximum(np.diag(self.covariance), 1e-300))
-        return self.covariance / np.outer(s, s)
+        return None if self.covariance is None else _correlation(self.covariance)
+
+
+def _correlation(cov: np.ndarray) -> np.ndarray:
+    s = np.sqrt(np.maximum(np.diag(cov), np.finfo(float).tiny))
+    return cov / np.outer(s, s)
 
 
 class _Residuals:
@@ -142,7 +142,7 @@ def check_identifiable(J: np.ndarray, params) -> tuple[bool, str, float]:
     if v[np.argmax(np.abs(v))] < 0:
         v = -v
     terms = [f"{'+' if c > 0 else '-'} {abs(c):.3g} {p.name}"
-             for p, c in zip(params, v) if abs(c) >= COMBINATION_SHARE and abs(c) > _SHOWN]
+             for p, c in zip(params, v) if abs(c) >= COMBINATION_SHARE]
     text = " ".join(terms).lstrip("+ ")
     rcond = float(s[-1] / s[0])
     return rcond >= IDENTIFIABLE_RCOND, text, rcond
@@ -177,8 +177,7 @@ def fit(predictor: Predictor, options: FitOptions | None = None) -> FitResult:
         warnings.append(f"near-singular at the fit (relative singular value {rcond:.2g}): "
                         f"{combination}")
     cov = np.linalg.pinv(J.T @ J)
-    se = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-    corr = cov / np.outer(se, se)
+    corr = _correlation(cov)
     for a in range(len(params)):
         for b in range(a + 1, len(params)):
             if abs(corr[a, b]) > HIGH_CORRELATION:
