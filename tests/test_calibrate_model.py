@@ -225,3 +225,50 @@ def test_missing_problem_and_all_unseen_are_errors(tmp_path):
     path.write_text(GOOD + "extra: &a 1\n")
     with pytest.raises(SceneError, match=r"^m\.yaml: line \d+: anchor &a"):
         load_measurements(path)
+
+
+# -- the fitted file: a textual edit ------------------------------------------------
+
+def test_edit_replaces_values_in_place_and_adds_missing_keys_at_the_mapping_indent():
+    from plush_opt.fit.edit import edit_problem_text
+    text = textwrap.dedent("""\
+        a:
+          k: 1.0   # keep me
+          list:
+            - {name: x, path: [[0, 0], [1, 1]]}  # flow
+            - name: y
+              path:
+                - [0, 0]
+                - [1, 1]
+            - name: z
+        b: 1
+        """)
+    new = edit_problem_text(text, {("a", "k"): 2.5e-7, ("a", "list", 0, "d"): 2.0,
+                                   ("a", "list", 1, "d"): -3.0, ("a", "list", 2, "d"): 4.0})
+    assert new == textwrap.dedent("""\
+        a:
+          k: 2.5e-07   # keep me
+          list:
+            - {name: x, path: [[0, 0], [1, 1]], d: 2.0}  # flow
+            - name: y
+              path:
+                - [0, 0]
+                - [1, 1]
+              d: -3.0
+            - name: z
+              d: 4.0
+        b: 1
+        """)
+    assert yaml.safe_load(new)["a"]["k"] == 2.5e-7     # a float in YAML 1.1 too
+
+
+def test_fitted_lame_parameters_are_written_as_mu_and_lambda():
+    from plush_opt.fit.edit import fitted_changes
+    scene, _ = tentacle()
+    params = parse_fit(scene, "youngs_modulus")
+    doc = yaml.safe_load(TENTACLE.read_text())
+    v = Values.of_scene(scene)
+    del doc["material"]["youngs_modulus"], doc["material"]["poisson_ratio"]
+    doc["material"].update(mu=v.mu, **{"lambda": v.lam})
+    changes = fitted_changes(doc, v, v.assembly_offset, params)
+    assert changes == {("material", "mu"): v.mu, ("material", "lambda"): v.lam}
