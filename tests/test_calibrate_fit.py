@@ -191,12 +191,16 @@ def test_calibrate_command_draws_each_pose(tmp_path):
 
 def test_calibrate_command_refuses_a_non_identifiable_set(tmp_path):
     write_measurements(tmp_path / "m.yaml", 16.0, seed=3)
-    out = tmp_path / "fitted.yaml"
+    out, rep = tmp_path / "fitted.yaml", tmp_path / "rep.json"
     p = run("calibrate", str(tmp_path / "m.yaml"), "--out", str(out), "--max-area", "16",
-            "--fit", "assembly_offset:top,winch_offset:lift")
+            "--fit", "assembly_offset:top,winch_offset:lift", "--report", str(rep))
     assert p.returncode == 3
     assert "not identifiable" in p.stderr and "winch_offset:lift" in p.stderr
     assert not out.exists()
+    doc = json.loads(rep.read_text())
+    assert doc["identifiable"] is False and doc["fitted_file"] is None
+    assert [q["fitted"] for q in doc["parameters"]] == [None, None]
+    assert "winch_offset:lift" in doc["warnings"][0]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -63,7 +63,8 @@ def report_dict(meas, result: FitResult, *, fitted_file: str | None = None,
         "correlation": None if corr is None else np.round(corr, 6).tolist(),
         "assembly_offsets_written": {
             t.name: float(d) for t, d in zip(meas.scene.tendons,
-                                             effective_offsets(result.after.values, result.after.model))},
+                                             effective_offsets(result.after.values, result.after.model))
+        } if result.identifiable else None,
         "poses": [{"index": i, "held_out": bool(not fitted[i]),
                    "rms_before": b["rms"], "rms_after": a["rms"],
                    "rms_sigma_before": b["rms_sigma"], "rms_sigma_after": a["rms_sigma"],
