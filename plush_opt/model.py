@@ -307,10 +307,12 @@ class Model:
         self._seg_dofs = np.concatenate([_dofs(seg_a[:, None]), _dofs(seg_b[:, None])], axis=1) \
             if paths else np.zeros((0, 4), np.int64)
         self.n_segments = len(seg_a)
-        # assembly length a_t = l_t(X)
+        # assembly length a_t = l_t(X) + d_t (d_t the tendon's assembly_offset)
+        self.assembly_offset = np.array([t.assembly_offset for t in scene.tendons], dtype=np.float64)
         if self.has_tendons:
             seglen = np.linalg.norm(self.X[self._seg_dofs[:, 2:]] - self.X[self._seg_dofs[:, :2]], axis=1)
-            self.assembly_length = np.bincount(self._seg_tendon, weights=seglen, minlength=self.n_tendons)
+            self.assembly_length = np.bincount(self._seg_tendon, weights=seglen,
+                                               minlength=self.n_tendons) + self.assembly_offset
             kernels = _fast_kernels()
             self._seg = _Mapped(kernels["seg_derivs"], self.n_segments, {})
             self._U = _Mapped(kernels["U_derivs"], self.n_tendons,
@@ -553,6 +555,40 @@ class Model:
         for k in range(4):
             np.add.at(out, (self._seg_dofs[:, k], winch), weight[:, k])
         return out
+
+    def parameter_mixed(self, x, c) -> dict[str, np.ndarray]:
+        """d2E/dx dp for the scene parameters p, exact, at pose x, contraction c.
+
+        ``mu``, ``lambda`` (n_dofs,): E is linear in them, so each is the
+        elastic force with that parameter 1 and the other 0.
+        ``tendon_stiffness`` (n_dofs,): U is linear in K: the tendon force / K.
+        ``assembly_offset`` (n_dofs, n_tendons): G = l - (a + d) + c, so
+        column t is -U''(G_t) dl_t/dx (minus tendon t's share of d2E/dx dc).
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        xe, n = x[self._elem_dofs], self.n_dofs
+        out = {name: np.bincount(self._elem_dofs.ravel(), weights=fn(xe, 2)[1], minlength=n)
+               for name, fn in self._unit_material.items()}
+        out["tendon_stiffness"] = np.zeros((n, self.n_tendons))
+        out["assembly_offset"] = np.zeros((n, self.n_tendons))
+        if self.has_tendons:
+            ts = self.tendon_state(x, c)
+            for k in range(4):
+                np.add.at(out["tendon_stiffness"], (self._seg_dofs[:, k], self._seg_tendon),
+                          (ts["tension"][self._seg_tendon] / self.tendon_stiffness) * ts["seg_grad"][:, k])
+                np.add.at(out["assembly_offset"], (self._seg_dofs[:, k], self._seg_tendon),
+                          -ts["dtension"][self._seg_tendon] * ts["seg_grad"][:, k])
+        out["tendon_stiffness"] = out["tendon_stiffness"].sum(axis=1)
+        return out
+
+    @functools.cached_property
+    def _unit_material(self) -> dict[str, _Mapped]:
+        """The elastic kernels at (mu, lambda) = (1, 0) and (0, 1)."""
+        ones, zeros = np.ones(self.n_elems), np.zeros(self.n_elems)
+        base = {1: self._Dinv, 2: self._elem_weight}
+        fn = _fast_kernels()["psi_grad"]
+        return {"mu": _Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
+                "lambda": _Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
 
 
 def build_model(scene: Scene, mesh: Mesh) -> Model:

@@ -43,8 +43,10 @@ def model_dict(model: Model, targets: Targets) -> dict:
         "tendons": {
             "stiffness": scene.tendon_stiffness,
             "smoothing": scene.tendon_smoothing,
+            # assembly_length includes the tendon's assembly_offset (an extra
+            # key, so a reader can tell it from the rest path length)
             "list": [{"name": t.name, "winch": t.winch, "nodes": p.tolist(),
-                      "assembly_length": float(a)}
+                      "assembly_length": float(a), "assembly_offset": t.assembly_offset}
                      for t, p, a in zip(scene.tendons, model.tendon_paths, model.assembly_length)],
         },
         "winches": [{"name": w.name, "bounds": [float(w.bounds[0]), float(w.bounds[1])],

@@ -59,18 +59,24 @@ class Winch:
 
 @dataclass(frozen=True)
 class Tendon:
-    """A tendon routed through via points, stopper end first, winch end last."""
+    """A tendon routed through via points, stopper end first, winch end last.
+
+    ``assembly_offset`` d (length units) adds to the assembly length:
+    a = l(X) + d (negative: tied taut at rest; positive: slack).
+    """
 
     name: str
     winch: str
     path: np.ndarray  # (n_via, 2) rest coordinates
+    assembly_offset: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "path", _points(self.path))
 
     def __eq__(self, other):
         return (isinstance(other, Tendon) and self.name == other.name
-                and self.winch == other.winch and np.array_equal(self.path, other.path))
+                and self.winch == other.winch and np.array_equal(self.path, other.path)
+                and self.assembly_offset == other.assembly_offset)
 
     __hash__ = None
 

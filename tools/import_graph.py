@@ -25,7 +25,7 @@ LAYERS = [
     ("mesh", ("mesh",)),
     ("model", ("model", "objective")),
     ("solvers", ("equilibrium", "sensitivity", "accuracy")),
-    ("control", ("control", "results", "problem")),
+    ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),
     ("apps", ("apps", "__init__", "__main__")),
 ]

@@ -509,6 +509,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_gui_parser(sub)
     from .compare import add_compare_parser
     add_compare_parser(sub)
+    from .calibrate import add_calibrate_parser
+    add_calibrate_parser(sub)
     for command in sub.choices.values():   # -q/-v also after the command: `plush-opt solve -v ...`
         _add_verbosity(command, default=False)
     return parser

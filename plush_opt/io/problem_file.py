@@ -39,7 +39,7 @@ _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "t
 _PIN_KEYS = ("stiffness", "at", "box")
 _WINCH_KEYS = ("name", "bounds", "contraction", "frozen")
 _TENDONS_KEYS = ("stiffness", "smoothing", "list")
-_TENDON_KEYS = ("name", "winch", "path")
+_TENDON_KEYS = ("name", "winch", "path", "assembly_offset")
 _TARGET_KEYS = ("at", "to", "weight")
 
 
@@ -403,7 +403,16 @@ def _tendons_section(ck: Checker, raw, winches):
                     f"{', '.join(repr(w.name) for w in winches)})")
         used.add(winch)
         via = ck.points(t["path"], at_key(path, "path"), min_len=2)
-        tendons.append(Tendon(name=name, winch=winch, path=via))
+        offset = _opt(t, "assembly_offset")
+        offset = 0.0 if offset is None else ck.number(offset, at_key(path, "assembly_offset"))
+        if abs(offset) > MAX_COORD:
+            ck.fail(at_key(path, "assembly_offset"), f"{format_number(offset)} is too large "
+                    f"(lengths are limited to {MAX_COORD:g} in magnitude)")
+        rest = float(np.hypot(*np.diff(via, axis=0).T).sum())
+        if not rest + offset > 0:
+            ck.fail(at_key(path, "assembly_offset"), f"{format_number(offset)} leaves the tendon "
+                    f"no length (its path is {format_number(rest)} long)")
+        tendons.append(Tendon(name=name, winch=winch, path=via, assembly_offset=offset))
     for i, w in enumerate(winches):
         if w.name not in used:
             ck.fail(at_index("winches", i), f"winch {w.name!r} has no tendons")

@@ -1,0 +1,15 @@
+"""Calibration: fit scene parameters (Young's modulus, tendon assembly
+offsets, ...) to markers measured on a real robot (docs/calibration.md).
+
+``calibrate(meas)`` is the whole job; :mod:`.parameters` says how each
+parameter enters the energy, :mod:`.predict` gives the markers and their
+exact sensitivities, :mod:`.solve` is the Levenberg-Marquardt fit,
+:mod:`.report` the honest summary and :mod:`.edit` writes the fitted
+problem file.
+"""
+
+from .parameters import DEFAULT_FIT, KINDS, Parameter, Values, parse_fit
+from .solve import FitOptions, FitResult, fit
+
+__all__ = ["DEFAULT_FIT", "KINDS", "FitOptions", "FitResult", "Parameter", "Values", "fit",
+           "parse_fit"]
