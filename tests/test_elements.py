@@ -331,3 +331,10 @@ def test_p2_control_result_passes_the_spec_checker(tmp_path, method):
     assert doc["model"]["element"] == "P2"
     if method != "clip":         # the spec checker knows the spec's three method names
         check_result(doc)
+
+
+def test_transfer_pose_carries_a_quadratic_field_between_p2_meshes():
+    from plush_opt.accuracy import transfer_pose
+    coarse, fine = build_mesh(_square("P2", 2)), build_mesh(_square("P2", 5))
+    x = _quadratic_field(coarse.X).reshape(-1)
+    assert np.allclose(transfer_pose(coarse, x, fine), _quadratic_field(fine.X).reshape(-1), atol=1e-12)

@@ -28,6 +28,7 @@ DEFAULT_PROBLEM = Path(__file__).resolve().parents[2] / "problems" / "cantilever
 DEFAULT_AREAS = (64.0, 16.0, 8.0, 4.0, 2.0, 1.0, 0.5)
 SHEAR_CORRECTION = 5 / 6          # Timoshenko's kappa for a rectangular section
 NO_EIG = EquilibriumOptions(eigenvalue=False)   # timing the solve, not the check
+REPEATS = 5                       # solve times are medians: single runs of ~10 ms are noise
 
 
 def beam_deflection(scene) -> float:
@@ -47,7 +48,8 @@ def beam_deflection(scene) -> float:
 
 def deflection_rows(path=DEFAULT_PROBLEM, areas=DEFAULT_AREAS, elements=("P1", "P2")) -> list[dict]:
     """One row per element type and ``max_area``: nodes, tip deflection,
-    its relative error against :func:`beam_deflection`, solve time (s)."""
+    its relative error against :func:`beam_deflection`, median forward solve
+    time from rest (s)."""
     base = load_scene(Path(path))
     reference = beam_deflection(base)
     rows = []
@@ -57,9 +59,12 @@ def deflection_rows(path=DEFAULT_PROBLEM, areas=DEFAULT_AREAS, elements=("P1", "
             mesh = build_mesh(scene, max_area=area)
             model = build_model(scene, mesh)
             solve_equilibrium(model, scene.contraction, options=NO_EIG)   # warm the kernels
-            t0 = time.perf_counter()
-            eq = solve_equilibrium(model, scene.contraction, options=NO_EIG)
-            seconds = time.perf_counter() - t0
+            times = []
+            for _ in range(REPEATS):
+                t0 = time.perf_counter()
+                eq = solve_equilibrium(model, scene.contraction, options=NO_EIG)
+                times.append(time.perf_counter() - t0)
+            seconds = float(np.median(times))
             tip = int(mesh.point_nodes[0])
             deflection = -(eq.x[2 * tip + 1] - model.X[2 * tip + 1])
             rows.append({"element": element, "max_area": float(area), "nodes": mesh.n_nodes,
