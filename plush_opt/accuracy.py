@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from .elements import interpolation_weights
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .errors import SceneError
 from .geometry import ring_area
@@ -51,8 +52,9 @@ def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
     tri, beta = mesh_from.locate(mesh_to.X, tol=1e-6 * mesh_from.diameter)
     out = np.empty_like(mesh_to.X)
     inside = tri >= 0
-    nodes = mesh_from.triangles[tri[inside]]
-    out[inside] = np.einsum("kj,kjd->kd", beta[inside], u[nodes])
+    nodes = mesh_from.elements[tri[inside]]          # P2: through the six shape functions
+    weights = interpolation_weights(mesh_from.element, beta[inside])
+    out[inside] = np.einsum("kj,kjd->kd", weights, u[nodes])
     if not inside.all():
         from scipy.spatial import cKDTree
         _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])

@@ -2,7 +2,8 @@
 
 Each energy term is defined once, as a small CasADi kernel:
 
-* ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates;
+* ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates
+  (``psi2`` in plush_opt/elements.py: a 6-node P2 triangle, 12 coordinates);
 * ``seg``  length of one tendon segment from its 4 end coordinates;
 * ``U``    the C2 unilateral tendon energy of one tendon from its stretch.
 
@@ -31,6 +32,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from . import elements
 from .errors import SceneError
 from .kernels import compiled
 from .linalg import Factorizer
@@ -188,14 +190,18 @@ class Model:
 
         mat = scene.material
         self.mu, self.lam, self.thickness = mat.mu, mat.lam, mat.thickness
-        tri = mesh.triangles
+        self.element = mesh.element
+        tri = mesh.triangles                              # corner triangles
         XN = mesh.X
         Dm = np.stack([XN[tri[:, 1]] - XN[tri[:, 0]], XN[tri[:, 2]] - XN[tri[:, 0]]], axis=2)
         self.rest_area = np.linalg.det(Dm) / 2
         Dinv = np.linalg.inv(Dm)
         # column-major 2x2 per element, one element per row
         self._Dinv = np.ascontiguousarray(Dinv.transpose(0, 2, 1).reshape(-1, 4))
-        self._elem_dofs = _dofs(tri)                      # (n_elems, 6)
+        self._elem_dofs = _dofs(mesh.elements)            # (n_elems, 6 P1 | 12 P2)
+        self._n_elem_dofs = self._elem_dofs.shape[1]
+        if self.element == "P2":
+            self._quad_grads = elements.quadrature_gradients(Dinv)
         self._elem_weight = mat.thickness * self.rest_area
         # energy of a unit strain over the body: sets the absolute round-off
         # of E (the solvers compare energies against it)
@@ -204,7 +210,7 @@ class Model:
         # (n_elems, k) array is exactly that column-major (k, n_elems) buffer
         consts = {1: self._Dinv, 2: self._elem_weight,
                   3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
-        kernels = _fast_kernels()
+        kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
         self._psi = _Mapped(kernels["psi_derivs"], self.n_elems, consts)
         self._psi_energy = _Mapped(kernels["psi"], self.n_elems, consts)
         self._psi_grad = _Mapped(kernels["psi_grad"], self.n_elems, consts)
@@ -217,8 +223,13 @@ class Model:
         # gravity: E_grav = -f_grav . x with nodal weights m_i g
         self.has_gravity = scene.gravity is not None
         if self.has_gravity:
-            mass = mat.density * self._elem_weight / 3
-            nodal = np.bincount(tri.ravel(), weights=np.repeat(mass, 3), minlength=self.n_nodes)
+            if self.element == "P2":
+                mass = np.outer(mat.density * self._elem_weight, elements.GRAVITY_SHARE["P2"])
+                nodal = np.bincount(mesh.elements.ravel(), weights=mass.ravel(),
+                                    minlength=self.n_nodes)
+            else:
+                mass = mat.density * self._elem_weight / 3
+                nodal = np.bincount(tri.ravel(), weights=np.repeat(mass, 3), minlength=self.n_nodes)
             self.f_gravity = (nodal[:, None] * np.asarray(scene.gravity)[None, :]).reshape(-1)
         else:
             self.f_gravity = None
@@ -337,8 +348,9 @@ class Model:
         n = self.n_dofs
         rows, cols = [], []
         e = self._elem_dofs
-        rows.append(np.repeat(e, 6, axis=1).ravel())
-        cols.append(np.tile(e, (1, 6)).ravel())
+        k = self._n_elem_dofs
+        rows.append(np.repeat(e, k, axis=1).ravel())
+        cols.append(np.tile(e, (1, k)).ravel())
         rows.append(self._pin_dofs)
         cols.append(self._pin_dofs)
         if self.has_tendons:
@@ -360,7 +372,7 @@ class Model:
         self._indptr = indptr.astype(np.int32)
         self._indices = urows.astype(np.int32)
         self.hessian_nnz = len(unique_keys)
-        n_e = e.shape[0] * 36
+        n_e = e.shape[0] * k * k
         n_p = len(self._pin_dofs)
         self._slot_elem = slot[:n_e]
         self._slot_pin = slot[n_e:n_e + n_p]
@@ -378,8 +390,8 @@ class Model:
         (equilibrium cross-check, bilevel control) and the tests do."""
         x = ca.MX.sym("x", self.n_dofs)
         c = ca.MX.sym("c", self.n_winches)
-        xe = ca.reshape(x[self._elem_dofs.ravel().tolist()], 6, self.n_elems)
-        psi = _PSI.map(self.n_elems, "serial")(
+        xe = ca.reshape(x[self._elem_dofs.ravel().tolist()], self._n_elem_dofs, self.n_elems)
+        psi = (elements.P2_PSI if self.element == "P2" else _PSI).map(self.n_elems, "serial")(
             xe, ca.DM(self._Dinv.T), ca.DM(self._elem_weight).T,
             ca.DM.ones(1, self.n_elems) * self.mu, ca.DM.ones(1, self.n_elems) * self.lam)
         E = ca.sum2(psi)
@@ -428,8 +440,11 @@ class Model:
         return c
 
     def jacobians(self, x) -> np.ndarray:
-        """J = det F of every element at flat pose ``x``, (n_elems,)."""
+        """J = det F of every element at flat pose ``x``, (n_elems,); for P2
+        the smallest J over the element's quadrature points."""
         xe = np.asarray(x, dtype=np.float64).reshape(-1)[self._elem_dofs]
+        if self.element == "P2":
+            return elements.p2_jacobians(xe, self._quad_grads).min(axis=1)
         d1 = xe[:, 2:4] - xe[:, 0:2]
         d2 = xe[:, 4:6] - xe[:, 0:2]
         return (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / (2 * self.rest_area)
@@ -470,7 +485,7 @@ class Model:
         if not self.admissible(x):
             return Evaluation(np.inf, None, None, np.nan, False)
         n = self.n_dofs
-        xe = x[self._elem_dofs]                          # (n_elems, 6)
+        xe = x[self._elem_dofs]                          # (n_elems, 6 | 12)
         if order == 0:
             (psi,) = self._psi_energy(xe, 1)
             energy = psi.sum()
@@ -510,7 +525,7 @@ class Model:
         if order == 1:
             return Evaluation(energy, g, None, force_scale, True)
 
-        data = np.bincount(self._slot_elem, weights=He.reshape(self.n_elems, 36).ravel(),
+        data = np.bincount(self._slot_elem, weights=He.ravel(),
                            minlength=self.hessian_nnz)
         data += np.bincount(self._slot_pin, weights=np.full(len(self._pin_dofs), self.pin_stiffness),
                             minlength=self.hessian_nnz)

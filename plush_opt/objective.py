@@ -2,7 +2,8 @@
 
 A target is a body point given in rest coordinates: it lives in a rest
 triangle with barycentric weights beta, so y_k(x) = sum_i beta_k,i x_{e_k,i}
-does not depend on where the mesh happens to have nodes.
+does not depend on where the mesh happens to have nodes. On a P2 mesh the
+weights are the six quadratic shape functions at beta (plush_opt/elements.py).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from .elements import interpolation_weights
 from .errors import SceneError
 
 
@@ -22,8 +24,11 @@ class Targets:
     Attributes
     ----------
     triangles : (n_targets,) int, rest triangle of each target.
-    nodes : (n_targets, 3) int, that triangle's nodes.
-    beta : (n_targets, 3) barycentric weights (sum to 1).
+    nodes : (n_targets, 3) int, that triangle's nodes; (n_targets, 6) on a P2
+        mesh (the element's nodes, ``Mesh.elements``).
+    beta : (n_targets, 3) barycentric weights in the corner triangle (sum to 1).
+    weights : (n_targets, 3 or 6) the nodes' interpolation weights: beta
+        itself for P1, the shape functions at beta for P2 (derived).
     to : (n_targets, 2) where each point should go (length units).
     weight : (n_targets,) w_k > 0.
     """
@@ -35,7 +40,8 @@ class Targets:
     weight: np.ndarray
 
     def __post_init__(self):
-        for name, dtype, shape in (("triangles", np.int64, (-1,)), ("nodes", np.int64, (-1, 3)),
+        width = np.shape(self.nodes)[-1] if np.size(self.nodes) else 3
+        for name, dtype, shape in (("triangles", np.int64, (-1,)), ("nodes", np.int64, (-1, width)),
                                    ("beta", np.float64, (-1, 3)), ("to", np.float64, (-1, 2)),
                                    ("weight", np.float64, (-1,))):
             arr = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=dtype).reshape(shape))
@@ -43,6 +49,9 @@ class Targets:
             object.__setattr__(self, name, arr)
         if np.any(self.weight <= 0):
             raise SceneError("targets: every weight must be > 0")
+        weights = interpolation_weights("P2" if width == 6 else "P1", self.beta)
+        weights.setflags(write=False)
+        object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "_selections", {})   # B per n_dofs, built on first use
 
     @property
@@ -53,7 +62,7 @@ class Targets:
     def from_mesh(cls, mesh, scene) -> "Targets":
         """The scene's targets, located by the mesher."""
         tri = np.asarray(mesh.target_triangles, dtype=np.int64)
-        return cls(tri, mesh.triangles[tri], mesh.target_beta,
+        return cls(tri, mesh.elements[tri], mesh.target_beta,
                    [t.to for t in scene.targets] or np.zeros((0, 2)),
                    [t.weight for t in scene.targets])
 
@@ -68,7 +77,7 @@ class Targets:
             k = int(bad[0])
             raise SceneError(f"targets[{k}].at: point ({at[k, 0]:g}, {at[k, 1]:g}) lies outside the body")
         weight = np.ones(len(at)) if weight is None else weight
-        return cls(tri, mesh.triangles[tri], beta, to, weight)
+        return cls(tri, mesh.elements[tri], beta, to, weight)
 
     @classmethod
     def empty(cls) -> "Targets":
@@ -84,16 +93,17 @@ class Targets:
         return self._selections[n_dofs]
 
     def _build_selection(self, n_dofs: int) -> sp.csr_matrix:
-        k = self.n_targets
-        rows = np.stack([np.repeat(2 * np.arange(k), 3), np.repeat(2 * np.arange(k) + 1, 3)], 1)
+        k, width = self.nodes.shape
+        rows = np.stack([np.repeat(2 * np.arange(k), width),
+                         np.repeat(2 * np.arange(k) + 1, width)], 1)
         cols = np.stack([2 * self.nodes.ravel(), 2 * self.nodes.ravel() + 1], 1)
-        vals = np.stack([self.beta.ravel(), self.beta.ravel()], 1)
+        vals = np.stack([self.weights.ravel(), self.weights.ravel()], 1)
         return sp.csr_matrix((vals.ravel(), (rows.ravel(), cols.ravel())), shape=(2 * k, n_dofs))
 
     def y(self, x) -> np.ndarray:
         """Current positions of the target points, (n_targets, 2)."""
         nodes = np.asarray(x, dtype=np.float64).reshape(-1, 2)
-        return np.einsum("kj,kjd->kd", self.beta, nodes[self.nodes])
+        return np.einsum("kj,kjd->kd", self.weights, nodes[self.nodes])
 
     def residual(self, x) -> np.ndarray:
         """sqrt(w_k) (y_k - q_k), flat (2 n_targets,)."""
@@ -108,7 +118,7 @@ class Targets:
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         d = self.weight[:, None] * (self.y(x) - self.to)          # (k, 2)
         g = np.zeros(x.size)
-        contrib = self.beta[:, :, None] * d[:, None, :]            # (k, 3, 2)
+        contrib = self.weights[:, :, None] * d[:, None, :]         # (k, 3 | 6, 2)
         np.add.at(g.reshape(-1, 2), self.nodes, contrib)
         return g
 

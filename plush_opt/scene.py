@@ -17,6 +17,7 @@ import numpy as np
 from .geometry import diameter
 
 FORMAT = "plush-opt/1"
+ELEMENTS = ("P1", "P2")          # mesh.element: 3-node or 6-node (quadratic) triangles
 POINT_TOL = 1e-9                  # coincidence tolerance, relative to the body diameter
 
 
@@ -122,11 +123,12 @@ class Scene:
     max_area: float | None = None
     min_angle: float | None = None
     nodes: np.ndarray | None = None    # (n_nodes, 2) explicit mesh
-    triangles: np.ndarray | None = None  # (n_elems, 3) explicit mesh, as given
+    triangles: np.ndarray | None = None  # (n_elems, 3 or 6) explicit mesh, as given
     gravity: np.ndarray | None = None  # (2,)
     pin_box: np.ndarray | None = None  # (4,) xmin, ymin, xmax, ymax
     targets: tuple[Target, ...] = ()
     points: np.ndarray = field(default_factory=lambda: _points(np.zeros((0, 2))))
+    element: str = "P1"               # "P1" (3-node) or "P2" (6-node triangles)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
@@ -141,7 +143,8 @@ class Scene:
         if self.nodes is not None:
             set_("nodes", _points(self.nodes))
         if self.triangles is not None:
-            tri = np.ascontiguousarray(np.asarray(self.triangles, dtype=np.int64).reshape(-1, 3))
+            tri = np.ascontiguousarray(np.asarray(self.triangles, dtype=np.int64).reshape(
+                -1, 6 if self.element == "P2" else 3))
             tri.setflags(write=False)
             set_("triangles", tri)
         if self.gravity is not None:

@@ -16,8 +16,10 @@ REQUIRED = ("format", "problem", "method", "converged", "status", "contractions"
 
 
 def _elements(model):
+    """Rest nodes, element node lists (3 or 6 per row) and Dm of the corners."""
     X = np.asarray(model["rest_nodes"], float)
     tri = np.asarray(model["triangles"], int)
+    assert tri.shape[1] == (6 if model.get("element", "P1") == "P2" else 3), "triangle rows"
     Dm = np.stack([X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]]], axis=2)
     return X, tri, Dm
 
@@ -33,6 +35,41 @@ def tendon_tension(G, K, eps):
     return np.where(G <= -eps, 0.0, np.where(G < eps, K * (G + eps) ** 2 / (2 * eps), 2 * K * G))
 
 
+def _p2_shapes(l1, l2, l3):
+    """The six P2 shape functions and their l-derivatives (6 x 3) at a point."""
+    N = np.array([l1 * (2 * l1 - 1), l2 * (2 * l2 - 1), l3 * (2 * l3 - 1),
+                  4 * l1 * l2, 4 * l2 * l3, 4 * l3 * l1])
+    dN = np.array([[4 * l1 - 1, 0, 0], [0, 4 * l2 - 1, 0], [0, 0, 4 * l3 - 1],
+                   [4 * l2, 4 * l1, 0], [0, 4 * l3, 4 * l2], [4 * l3, 0, 4 * l1]])
+    return N, dN
+
+
+P2_POINTS = [(2 / 3, 1 / 6, 1 / 6), (1 / 6, 2 / 3, 1 / 6), (1 / 6, 1 / 6, 2 / 3)]
+
+
+def _psi_and_piola(F, mu, lam):
+    J = np.linalg.det(F)
+    lnJ = np.log(J)
+    psi = mu / 2 * (np.einsum("eij,eij->e", F, F) - 2) - mu * lnJ + lam / 2 * lnJ**2
+    FinvT = np.linalg.inv(F).transpose(0, 2, 1)
+    return psi, mu * (F - FinvT) + lam * lnJ[:, None, None] * FinvT
+
+
+def _p2_elastic(x, tri, A, Dinv, mu, lam, th):
+    """E_plush and its gradient for 6-node triangles, 3-point rule."""
+    gl = np.stack([-(Dinv[:, 0] + Dinv[:, 1]), Dinv[:, 0], Dinv[:, 1]], axis=1)   # grad l_j
+    E, g = 0.0, np.zeros_like(x)
+    for lq in P2_POINTS:
+        gradN = np.einsum("ij,ejd->eid", _p2_shapes(*lq)[1], gl)                   # (e, 6, 2)
+        F = np.einsum("eia,eib->eab", x[tri], gradN)
+        if np.any(np.linalg.det(F) <= 0):
+            return np.inf, None
+        psi, P = _psi_and_piola(F, mu, lam)
+        E += float(np.sum(th * A * psi / 3))
+        np.add.at(g, tri, (th * A / 3)[:, None, None] * np.einsum("eab,eib->eia", P, gradN))
+    return E, g
+
+
 def energy_and_gradient(doc, x):
     """E and grad_x E, (n_nodes, 2), from the spec's formulas."""
     m = doc["model"]
@@ -41,6 +78,11 @@ def energy_and_gradient(doc, x):
     mu, lam, th = mat["mu"], mat["lambda"], mat["thickness"]
     A = np.linalg.det(Dm) / 2
     Dinv = np.linalg.inv(Dm)
+    if tri.shape[1] == 6:
+        E, g = _p2_elastic(x, tri, A, Dinv, mu, lam, th)
+        if g is None:
+            return E, None
+        return _other_terms(doc, m, X, tri, A, x, E, g)
     ds = np.stack([x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]]], axis=2)
     F = ds @ Dinv
     J = np.linalg.det(F)
@@ -56,6 +98,13 @@ def energy_and_gradient(doc, x):
     np.add.at(g, tri[:, 1], Hm[:, :, 0])
     np.add.at(g, tri[:, 2], Hm[:, :, 1])
     np.add.at(g, tri[:, 0], -Hm[:, :, 0] - Hm[:, :, 1])
+    return _other_terms(doc, m, X, tri, A, x, E, g)
+
+
+def _other_terms(doc, m, X, tri, A, x, E, g):
+    """Pins, tendons and gravity added to the elastic E and g."""
+    mat = m["material"]
+    th = mat["thickness"]
     pins = m["pins"]
     kp = pins["stiffness"]
     pn = np.asarray(pins["nodes"], int)
@@ -75,8 +124,9 @@ def energy_and_gradient(doc, x):
     if m["gravity"] is not None:
         gv = np.asarray(m["gravity"], float)
         w = mat["density"] * th * A / 3
-        E -= float(np.sum(w[:, None] * (x[tri[:, 0]] + x[tri[:, 1]] + x[tri[:, 2]]) @ gv))
-        np.add.at(g, tri.ravel(), -np.repeat(w, 3)[:, None] * gv[None, :])
+        carry = tri[:, 3:] if tri.shape[1] == 6 else tri      # P2: the midside nodes carry it all
+        E -= float(np.sum(w[:, None] * x[carry].sum(axis=1) @ gv))
+        np.add.at(g, carry.ravel(), -np.repeat(w, 3)[:, None] * gv[None, :])
     return E, g
 
 
@@ -85,7 +135,9 @@ def objective(doc, x):
     tri = np.asarray(m["triangles"], int)
     O = 0.0
     for t in m["targets"]:
-        y = np.asarray(t["barycentric"], float) @ x[tri[t["triangle"]]]
+        b = np.asarray(t["barycentric"], float)
+        weights = _p2_shapes(*b)[0] if tri.shape[1] == 6 else b
+        y = weights @ x[tri[t["triangle"]]]
         O += 0.5 * t["weight"] * float(np.sum((y - np.asarray(t["to"], float)) ** 2))
     return O
 

@@ -23,7 +23,7 @@ LAYERS = [
     ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
-    ("model", ("model", "objective")),
+    ("model", ("model", "elements", "objective")),
     ("solvers", ("equilibrium", "sensitivity", "accuracy")),
     ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),

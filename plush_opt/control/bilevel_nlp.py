@@ -107,13 +107,14 @@ def gradient_expression(model: Model, store: dict) -> ca.MX:
 
 def _objective_expression(x: ca.MX, nodes: np.ndarray, beta: ca.MX, q: ca.MX, sqrt_w: ca.MX) -> ca.MX:
     """O(x) = 1/2 sum_k w_k |sum_j beta_kj x_{n_kj} - q_k|^2 with beta, q,
-    w symbolic (the same value as Targets.value)."""
+    w symbolic (the same value as Targets.value). ``beta`` holds the nodes'
+    interpolation weights (Targets.weights: 3 for P1, 6 for P2)."""
     k = nodes.shape[0]
     if k == 0:
         return ca.MX(0)
     yx = ca.MX.zeros(k, 1)
     yy = ca.MX.zeros(k, 1)
-    for j in range(3):
+    for j in range(nodes.shape[1]):
         yx += beta[:, j] * x[(2 * nodes[:, j]).tolist()]
         yy += beta[:, j] * x[(2 * nodes[:, j] + 1).tolist()]
     rx = sqrt_w * (yx - q[:, 0])
@@ -122,11 +123,28 @@ def _objective_expression(x: ca.MX, nodes: np.ndarray, beta: ca.MX, q: ca.MX, sq
 
 
 def _jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
-    """J = det F of every element, (n_elems,), as a CasADi expression."""
+    """J = det F of every element, (n_elems,), as a CasADi expression; for
+    P2, J at every quadrature point of every element, (3 n_elems,)."""
     e = model._elem_dofs
+    if model.element == "P2":
+        return _p2_jacobian_expression(model, x)
     xe = [x[e[:, i].tolist()] for i in range(6)]
     det = (xe[2] - xe[0]) * (xe[5] - xe[1]) - (xe[3] - xe[1]) * (xe[4] - xe[0])
     return det / ca.DM(2 * model.rest_area)
+
+
+def _p2_jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
+    """J at the three quadrature points of every P2 element: F = sum_i x_i
+    (dN_i/dX)(l_q), linear in x (elements.quadrature_gradients)."""
+    e = model._elem_dofs
+    grads = model._quad_grads                           # (n_elems, 3, 6, 2)
+    xe = [x[e[:, i].tolist()] for i in range(12)]
+    dets = []
+    for q in range(grads.shape[1]):
+        F = [[sum(xe[2 * i + a] * ca.DM(grads[:, q, i, b]) for i in range(6)) for b in range(2)]
+             for a in range(2)]
+        dets.append(F[0][0] * F[1][1] - F[0][1] * F[1][0])
+    return ca.vertcat(*dets)
 
 
 def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, store: dict) -> "NlpEntry":
@@ -141,7 +159,7 @@ def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, stor
     c_fixed = ca.MX.sym("c_frozen", n_fixed)
     q = ca.MX.sym("q", k, 2)
     sqrt_w = ca.MX.sym("sqrt_w", k)
-    beta = ca.MX.sym("beta", k, 3)
+    beta = ca.MX.sym("beta", k, nodes.shape[1])
     # c_full = P_free c_free + P_fixed c_fixed
     P_free = ca.DM.zeros(model.n_winches, n_free)
     for j, w in enumerate(free):
@@ -157,9 +175,10 @@ def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, stor
     lbg = [np.zeros(model.n_dofs)]
     ubg = [np.zeros(model.n_dofs)]
     if options.min_jacobian is not None:
-        g.append(_jacobian_expression(model, x))
-        lbg.append(np.full(model.n_elems, options.min_jacobian))
-        ubg.append(np.full(model.n_elems, np.inf))
+        jac = _jacobian_expression(model, x)
+        g.append(jac)
+        lbg.append(np.full(jac.shape[0], options.min_jacobian))
+        ubg.append(np.full(jac.shape[0], np.inf))
     z = ca.vertcat(x, c_free)
     p = ca.vertcat(c_fixed, ca.vec(q), sqrt_w, ca.vec(beta))
     f = _objective_expression(x, nodes, beta, q, sqrt_w)
@@ -185,7 +204,7 @@ def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, stor
 
 def parameters(entry: NlpEntry, c: np.ndarray, targets) -> np.ndarray:
     return np.concatenate([c[entry.frozen], targets.to.T.reshape(-1), np.sqrt(targets.weight),
-                           targets.beta.T.reshape(-1)])
+                           targets.weights.T.reshape(-1)])
 
 
 def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) -> dict:

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import format_number, format_point
 from ..geometry import classify_points, diameter, find_crossing, locate_in_triangles, ring_area
-from ..scene import FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
+from ..scene import ELEMENTS, FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, Checker, at_index, at_key, describe
 from .yaml_reader import read_yaml
 
@@ -33,7 +33,7 @@ _NAME = re.compile(r"[A-Za-z0-9_-]+")
 
 _TOP_KEYS = ("format", "name", "description", "mesh", "material", "gravity", "pins",
              "winches", "tendons", "targets", "points")
-_MESH_KEYS = ("outline", "holes", "max_area", "min_angle", "nodes", "triangles")
+_MESH_KEYS = ("outline", "holes", "max_area", "min_angle", "nodes", "triangles", "element")
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "thickness",
                   "density")
 _PIN_KEYS = ("stiffness", "at", "box")
@@ -117,6 +117,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
         tendons=tuple(tendons), targets=tuple(targets), points=points, gravity=gravity,
         outline=geo["outline"], holes=tuple(geo["holes"]), max_area=geo["max_area"],
         min_angle=geo["min_angle"], nodes=geo["nodes"], triangles=geo["triangles"],
+        element=geo["element"],
     )
 
 
@@ -165,7 +166,7 @@ def _check_points_in_body(ck: Checker, geo: dict, pin_points, tendons, targets, 
     at = np.array([t.at for t in targets]).reshape(-1, 2)
     if geo["nodes"] is not None:
         _check_points_are_nodes(ck, geo["nodes"], forced, tol)
-        tri, _ = locate_in_triangles(geo["nodes"][geo["triangles"]], at, tol)
+        tri, _ = locate_in_triangles(geo["nodes"][geo["triangles"][:, :3]], at, tol)
         bad = np.flatnonzero(tri < 0)
         if bad.size:
             j = int(bad[0])
@@ -186,7 +187,12 @@ def _mesh_section(ck: Checker, mesh) -> dict:
     ck.mapping(mesh, "mesh", _MESH_KEYS)
     has = {k for k in _MESH_KEYS if mesh.get(k) is not None}
     out = dict(outline=None, holes=[], max_area=None, min_angle=None, nodes=None,
-               triangles=None)
+               triangles=None, element="P1")
+    if "element" in has:
+        element = ck.string(mesh["element"], "mesh.element")
+        if element not in ELEMENTS:
+            ck.fail("mesh.element", f"must be one of {', '.join(ELEMENTS)}, got {element!r}")
+        out["element"] = element
     if "outline" in has:
         for k in ("nodes", "triangles"):
             if k in has:
@@ -224,20 +230,25 @@ def _mesh_section(ck: Checker, mesh) -> dict:
             ck.fail(at_key("mesh", k), "only allowed with mesh.outline")
     nodes = ck.points(mesh["nodes"], "mesh.nodes", min_len=3)
     raw = ck.seq(mesh["triangles"], "mesh.triangles", min_len=1, what="list of triangles")
-    tris = np.empty((len(raw), 3), dtype=np.int64)
+    width = 6 if out["element"] == "P2" else 3
+    tris = np.empty((len(raw), width), dtype=np.int64)
     n_nodes = len(nodes)
     for e, t in enumerate(raw):
         p = at_index("mesh.triangles", e)
         if isinstance(t, np.ndarray):
             t = list(t)
-        if not isinstance(t, (list, tuple)) or len(t) != 3:
-            ck.fail(p, f"expected three node indices [i, j, k], got {describe(t)}")
+        if not isinstance(t, (list, tuple)) or len(t) != width:
+            ck.fail(p, f"expected six node indices [a, b, c, ab, bc, ca] (mesh.element is P2), "
+                    f"got {describe(t)}" if width == 6 else
+                    f"expected three node indices [i, j, k], got {describe(t)}")
         for c, v in enumerate(t):
             iv = ck.integer(v, at_index(p, c))
             if not 0 <= iv < n_nodes:
                 ck.fail(at_index(p, c), f"node index {iv} out of range 0..{n_nodes - 1}")
             tris[e, c] = iv
     _check_explicit_mesh(ck, nodes, tris)
+    if width == 6:
+        _check_midside_nodes(ck, nodes, tris)
     out.update(nodes=nodes, triangles=tris, diameter=diameter(nodes))
     return out
 
@@ -270,6 +281,20 @@ def _check_explicit_mesh(ck: Checker, nodes: np.ndarray, tris: np.ndarray):
     if len(pairs):
         i, j = sorted(map(int, pairs[np.lexsort((pairs[:, 0], pairs[:, 1]))][0]))
         ck.fail(at_index("mesh.nodes", j), f"coincides with mesh.nodes[{i}]")
+
+
+def _check_midside_nodes(ck: Checker, nodes: np.ndarray, tris: np.ndarray):
+    """P2 geometry is straight-sided: each midside node sits at its edge's midpoint."""
+    tol = POINT_TOL * diameter(nodes)
+    for k, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):
+        gap = np.linalg.norm(nodes[tris[:, 3 + k]] - 0.5 * (nodes[tris[:, a]] + nodes[tris[:, b]]),
+                             axis=1)
+        bad = np.flatnonzero(gap > tol)
+        if bad.size:
+            e = int(bad[0])
+            ck.fail(at_index(at_index("mesh.triangles", e), 3 + k),
+                    f"midside node {int(tris[e, 3 + k])} is not at the midpoint of its edge "
+                    f"(off by {gap[e]:.3g}); P2 triangles are straight-sided")
 
 
 def _check_points_are_nodes(ck: Checker, nodes, forced, tol):

@@ -432,7 +432,7 @@ def iterate_rate(session: PosingSession) -> float:
 def with_target(targets: Targets, mesh, triangle: int, beta, to, weight: float) -> Targets:
     """``targets`` plus one for body point (triangle, beta) going to ``to``."""
     tri = np.append(targets.triangles, int(triangle))
-    return Targets(tri, mesh.triangles[tri], np.vstack([targets.beta, np.reshape(beta, (1, 3))]),
+    return Targets(tri, mesh.elements[tri], np.vstack([targets.beta, np.reshape(beta, (1, 3))]),
                    np.vstack([targets.to, np.reshape(to, (1, 2))]),
                    np.append(targets.weight, weight))
 
