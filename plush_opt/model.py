@@ -4,8 +4,9 @@ Each energy term is defined once, as a small CasADi kernel:
 
 * ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates
   (``psi2`` in plush_opt/elements.py: a 6-node P2 triangle, 12 coordinates);
-* ``seg``  length of one tendon segment from its 4 end coordinates;
-* ``U``    the C2 unilateral tendon energy of one tendon from its stretch.
+* ``seg``  length of one tendon segment from its 4 end coordinates, and
+* ``U``    the C2 unilateral tendon energy of one tendon from its stretch
+  (both in plush_opt/tendon_law.py).
 
 Two evaluators are built from those kernels, and tests check they agree:
 
@@ -38,6 +39,8 @@ from .kernels import compiled
 from .linalg import Factorizer
 from .mesh import Mesh
 from .scene import Scene
+from .tendon_law import SEG, SEG_DERIVS, U_DERIVS
+from .tendon_law import U as U_FN
 
 log = logging.getLogger(__name__)
 
@@ -71,38 +74,7 @@ def _neo_hookean_kernels():
     return energy, grad, derivs
 
 
-def _segment_kernels():
-    """seg(xs): length of the segment [xa, ya, xb, yb], and its derivatives."""
-    xs = ca.SX.sym("xs", 4)
-    length = ca.norm_2(xs[2:4] - xs[0:2])
-    g = ca.gradient(length, xs)
-    H = ca.densify(ca.hessian(length, xs)[0])
-    length_fn = ca.Function("seg", [xs], [length], ["xs"], ["length"])
-    derivs = ca.Function("seg_derivs", [xs], [length, g, H], ["xs"], ["length", "grad", "hess"])
-    return length_fn, derivs
-
-
-def _tendon_kernels():
-    """U(G, K, eps): C2 unilateral spring energy, tension U' and U''."""
-    G = ca.SX.sym("G")
-    K = ca.SX.sym("K")
-    eps = ca.SX.sym("eps")
-    U = ca.if_else(G <= -eps, 0,
-                   ca.if_else(G < eps, K * (G + eps) ** 3 / (6 * eps),
-                              K * G**2 + K * eps**2 / 3))
-    dU = ca.if_else(G <= -eps, 0,
-                    ca.if_else(G < eps, K * (G + eps) ** 2 / (2 * eps), 2 * K * G))
-    d2U = ca.if_else(G <= -eps, 0,
-                     ca.if_else(G < eps, K * (G + eps) / eps, 2 * K))
-    energy = ca.Function("U", [G, K, eps], [U], ["G", "K", "eps"], ["U"])
-    derivs = ca.Function("U_derivs", [G, K, eps], [U, dU, d2U],
-                         ["G", "K", "eps"], ["U", "tension", "dtension"])
-    return energy, derivs
-
-
 _PSI, _PSI_GRAD, _PSI_DERIVS = _neo_hookean_kernels()
-_SEG, _SEG_DERIVS = _segment_kernels()
-_U, _U_DERIVS = _tendon_kernels()
 
 
 @functools.lru_cache(maxsize=None)
@@ -110,7 +82,7 @@ def _fast_kernels() -> dict[str, ca.Function]:
     """The kernels the fast path evaluates, compiled (cached on disk) once
     per process. The CasADi expression keeps the symbolic kernels, which it
     differentiates."""
-    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_GRAD, _PSI_DERIVS, _SEG_DERIVS, _U_DERIVS)}
+    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_GRAD, _PSI_DERIVS, SEG_DERIVS, U_DERIVS)}
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:
@@ -399,7 +371,7 @@ class Model:
         E += self.pin_stiffness / 2 * ca.sumsqr(dp)
         if self.has_tendons:
             xs = ca.reshape(x[self._seg_dofs.ravel().tolist()], 4, self.n_segments)
-            seglen = _SEG.map(self.n_segments, "serial")(xs)
+            seglen = SEG.map(self.n_segments, "serial")(xs)
             S = ca.DM(sp.csr_matrix((np.ones(self.n_segments),
                                      (self._seg_tendon, np.arange(self.n_segments))),
                                     shape=(self.n_tendons, self.n_segments)))
@@ -408,7 +380,7 @@ class Model:
                                      (np.arange(self.n_tendons), self.tendon_winch)),
                                     shape=(self.n_tendons, self.n_winches)))
             G = length - ca.DM(self.assembly_length) + W @ c
-            U = _U.map(self.n_tendons, "serial")(G.T, self.tendon_stiffness, self.tendon_smoothing)
+            U = U_FN.map(self.n_tendons, "serial")(G.T, self.tendon_stiffness, self.tendon_smoothing)
             E += ca.sum2(U)
         if self.has_gravity:
             E -= ca.dot(ca.DM(self.f_gravity), x)

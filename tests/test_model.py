@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from plush_opt import model as model_mod
+from plush_opt import tendon_law
 from plush_opt.io import scene_from_dict
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
@@ -135,22 +136,22 @@ def test_element_kernel_alone():
 
 def test_segment_kernel_alone():
     xs = np.array([1.0, 2.0, 4.0, -2.0])
-    length, g, H = (np.array(v) for v in model_mod._SEG_DERIVS(xs))
+    length, g, H = (np.array(v) for v in tendon_law.SEG_DERIVS(xs))
     assert abs(length.item() - 5.0) < 1e-14
-    assert_close(g.ravel(), _fd_kernel(lambda x: model_mod._SEG(x), xs, ()), 1e-8, "segment gradient")
+    assert_close(g.ravel(), _fd_kernel(lambda x: tendon_law.SEG(x), xs, ()), 1e-8, "segment gradient")
     H_fd = np.empty((4, 4))
     for i in range(4):
         e = np.zeros(4)
         e[i] = 1e-6
-        H_fd[:, i] = (np.array(model_mod._SEG_DERIVS(xs + e)[1]).ravel()
-                      - np.array(model_mod._SEG_DERIVS(xs - e)[1]).ravel()) / 2e-6
+        H_fd[:, i] = (np.array(tendon_law.SEG_DERIVS(xs + e)[1]).ravel()
+                      - np.array(tendon_law.SEG_DERIVS(xs - e)[1]).ravel()) / 2e-6
     assert_close(H, H_fd, 1e-6, "segment Hessian")
 
 
 @pytest.mark.parametrize("G", [-0.2, -0.05, -0.03, 0.0, 0.02, 0.05, 0.3])
 def test_tendon_energy_at_below_and_above_epsilon(G):
     K, eps = 50.0, 0.05
-    U, dU, d2U = (float(v) for v in model_mod._U_DERIVS(G, K, eps))
+    U, dU, d2U = (float(v) for v in tendon_law.U_DERIVS(G, K, eps))
     # the spec's piecewise definition
     if G <= -eps:
         assert U == 0 and dU == 0 and d2U == 0
@@ -160,8 +161,8 @@ def test_tendon_energy_at_below_and_above_epsilon(G):
         assert U == pytest.approx(K * G**2 + K * eps**2 / 3, rel=1e-14)
     # derivatives against central differences, away from the joints
     h = 1e-7
-    f = lambda g: float(model_mod._U(g, K, eps))  # noqa: E731
-    df = lambda g: float(model_mod._U_DERIVS(g, K, eps)[1])  # noqa: E731
+    f = lambda g: float(tendon_law.U(g, K, eps))  # noqa: E731
+    df = lambda g: float(tendon_law.U_DERIVS(g, K, eps)[1])  # noqa: E731
     if abs(abs(G) - eps) > 2 * h:
         assert dU == pytest.approx((f(G + h) - f(G - h)) / (2 * h), rel=1e-6, abs=1e-9)
         assert d2U == pytest.approx((df(G + h) - df(G - h)) / (2 * h), rel=1e-6, abs=1e-7)
@@ -170,8 +171,8 @@ def test_tendon_energy_at_below_and_above_epsilon(G):
 @pytest.mark.parametrize("joint", [-0.05, 0.05])
 def test_tendon_energy_is_c2_at_the_joints(joint):
     K, eps = 50.0, 0.05
-    below = np.array([float(v) for v in model_mod._U_DERIVS(joint - 1e-12, K, eps)])
-    above = np.array([float(v) for v in model_mod._U_DERIVS(joint + 1e-12, K, eps)])
+    below = np.array([float(v) for v in tendon_law.U_DERIVS(joint - 1e-12, K, eps)])
+    above = np.array([float(v) for v in tendon_law.U_DERIVS(joint + 1e-12, K, eps)])
     assert np.allclose(below, above, rtol=1e-9, atol=1e-9)
 
 
