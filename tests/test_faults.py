@@ -244,9 +244,10 @@ def tiny_disk(tmp_path):
 def test_a_real_full_disk(tiny_disk, tmp_path):
     """Fill the disk, then solve with --out and run with --log on it."""
     filler = tiny_disk / "filler"
-    with open(filler, "wb") as fh:
+    with open(filler, "wb", buffering=0) as fh:     # every block taken, however small the log
         try:
-            fh.write(b"x" * (60 * 1024))
+            while True:
+                fh.write(b"x" * 512)
         except OSError:
             pass
     out = tiny_disk / "out.json"

@@ -19,11 +19,11 @@ import logging
 import os
 import signal
 import sys
-import threading
 import time
 from pathlib import Path
 
 from ..errors import HardwareError, PlushError, SceneError, SolverError, interrupt_status, one_line
+from .signals import handle_signals
 
 log = logging.getLogger("plush_opt")
 
@@ -530,7 +530,7 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _configure_output(args)
-    previous = _handle_signals()
+    previous = handle_signals()
     try:
         _check_output_folders(args)
         return args.func(args)
@@ -558,51 +558,6 @@ def _check_output_folders(args) -> None:
     attr = OUTPUT_FOLDERS.get(args.command)
     if attr is not None and getattr(args, attr, None) is not None:
         check_output_folder(getattr(args, attr), f"--{attr}")
-
-
-#: Signals that end a command the way Ctrl-C does (the board stopped, the
-#: run log closed with its end line); their exit status is 128 + signum.
-TERMINATING_SIGNALS = ("SIGTERM", "SIGHUP")
-CLEANUP_GRACE = 10.0    # s after a first signal during which a repeated one does not cut the cleanup short
-
-
-def _handle_signals() -> dict:
-    """SIGTERM and SIGHUP raise :class:`~plush_opt.errors.Interrupted` in the
-    main thread, once: a second signal during the cleanup is ignored, so the
-    cleanup (stop the board, end the log) is not cut short. Returns the
-    previous handlers."""
-    from ..errors import Interrupted
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-    fired = []
-
-    def again(signum) -> bool:
-        """A repeated signal: ignored during the cleanup; after it, the
-        default action (a command that swallowed the first still ends)."""
-        if not fired:
-            fired.append(time.monotonic())
-            return False
-        if time.monotonic() - fired[0] > CLEANUP_GRACE:
-            signal.signal(signum, signal.SIG_DFL)
-            os.kill(os.getpid(), signum)
-        return True
-
-    def handler(signum, frame):
-        if not again(signum):
-            raise Interrupted(signum, signal.Signals(signum).name)
-
-    def sigint(signum, frame):
-        if not again(signum):
-            raise KeyboardInterrupt
-
-    previous = {}
-    for name in TERMINATING_SIGNALS:
-        signum = getattr(signal, name, None)
-        if signum is not None:
-            previous[signum] = signal.signal(signum, handler)
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        previous[signal.SIGINT] = signal.signal(signal.SIGINT, sigint)
-    return previous
 
 
 def _describe_error(exc: Exception) -> tuple[str, int]:
