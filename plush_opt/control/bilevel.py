@@ -90,9 +90,10 @@ class BilevelOptions:
         moves where IPOPT stops with O above stuck_fraction x its start
         (the gradient loop's, docs/control.md).
     hessian_damping : (reduced) Levenberg-Marquardt damping added to the
-        Gauss-Newton Hessian, relative to its largest diagonal entry (the
-        gradient loop's initial damping): bounds the step of a winch whose
-        column is (nearly) zero.
+        Gauss-Newton Hessian on the winches whose tendons are all (nearly)
+        slack, relative to its largest diagonal entry (the gradient loop's
+        initial damping): bounds the step of a winch whose column is
+        (nearly) zero; the other winches get none.
     mu_init, bound_push : (reduced) IPOPT's ``mu_init`` and
         ``bound_push``/``bound_frac``: the start is a certified equilibrium
         already, so a small barrier and a small push off the bounds keep

@@ -56,6 +56,7 @@ class ReducedRun:
         self.rounds: list[dict] = []
         self.moves: list[str] = []
         self.stop = None                  # our own stop: 'max_time', 'targets_reached'
+        self.stationary = False           # the round ended by the projected-gradient test
         self.return_status = "not run"
         self.t_build = 0.0
         self.t_ipopt = 0.0
@@ -77,7 +78,21 @@ class ReducedRun:
             self.stop = "targets_reached"
         elif self.iterations >= opts.max_iter:
             self.stop = "max_iterations"
-        return self.stop is not None
+        elif point is not None and self._projected(point) <= opts.gtol * max(point.objective,
+                                                                              opts.objective_floor):
+            # the gradient loop's stationarity test, so both methods stop at
+            # the same accuracy (IPOPT's own tol is on its scaled KKT error,
+            # which the Newton tolerance of the evaluations can keep it from
+            # reaching: it then spends its line search on noise)
+            self.stationary = True
+        return self.stop is not None or self.stationary
+
+    def _projected(self, point: Point) -> float:
+        """|projected gradient| x the mean bound range (length^2, as O)."""
+        g = self.gradient(point)
+        g[self._held_mask(point.c, g)] = 0.0
+        g[self.frozen] = 0.0
+        return float(np.linalg.norm(g)) * float(np.mean(self.span))
 
     # -- the run ------------------------------------------------------------
 
@@ -94,8 +109,9 @@ class ReducedRun:
             if self.iterations >= self.options.max_iter:
                 self.stop = "max_iterations"
                 break
+            self.stationary = False
             point = self._round(solver, point, lbx, ubx)
-            if self.stop is not None or self.return_status not in KKT_STATUSES:
+            if self.stop is not None or not self._kkt():
                 break
             moved = self._look_further(point, tried)
             if moved is None:
@@ -115,6 +131,10 @@ class ReducedRun:
                             "iterations": int(stats.get("iter_count", 0))})
         end = self.ev.at(c)
         return end if end is not None else self._best(point)
+
+    def _kkt(self) -> bool:
+        """Did the last round end at a KKT point (IPOPT's or ours)?"""
+        return self.return_status in KKT_STATUSES or self.stationary
 
     def _best(self, fallback: Point) -> Point:
         """The lowest certified point IPOPT has seen (its last iterate is
@@ -191,10 +211,7 @@ class ReducedRun:
         end, opts = self.end, self.options
         head = f"ipopt (reduced): {self.return_status}"
         g = self.gradient(end)
-        proj = g.copy()
-        proj[self._held_mask(end.c, g)] = 0.0
-        proj[self.frozen] = 0.0
-        pg = float(np.linalg.norm(proj)) * float(np.mean(self.span))
+        pg = self._projected(end)
         at_start = bool(np.all(np.abs(end.c - self.start.c) <= START_FRACTION * self.span))
         note = self._notes(end, g)
         if self.stop == "targets_reached":
@@ -203,7 +220,7 @@ class ReducedRun:
             return False, "max_time", f"{head}; time limit ({opts.max_time:g} s) reached{note}"
         if self.stop == "max_iterations" or self.return_status == "Maximum_Iterations_Exceeded":
             return False, "max_iterations", f"{head}; iteration limit ({opts.max_iter}) reached{note}"
-        if self.return_status not in KKT_STATUSES:
+        if not self._kkt():
             return False, "solver_failed", (f"{head}; returned the best certified iterate "
                                             f"(projected gradient {pg:.3g}){note}")
         slack = slack_winches(self.model, end.eq.x, end.c, ~self.frozen, g)
@@ -214,7 +231,8 @@ class ReducedRun:
             # better, but nothing shows it is a minimum either
             return False, "no_decrease", (f"{head}; ended at its start (gradient {gn:.3g}, "
                                           f"projected {pg:.3g}); no move lowered O{note}")
-        return True, "stationary", f"{head}; certified{note}"
+        how = "; projected gradient below gtol" if self.stationary else ""
+        return True, "stationary", f"{head}{how}; certified{note}"
 
     def _notes(self, end: Point, g) -> str:
         names = self.model.winch_names

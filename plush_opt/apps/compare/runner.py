@@ -91,11 +91,7 @@ def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: st
             run.equilibrium_solves = res.stats.equilibrium_solves
             run.curve = [(h.t_wall, h.objective, True) for h in res.history]
         else:
-            kw = dict(BILEVEL_TOL[tol])
-            rel = kw.pop("pose_tol_rel", None)
-            if rel is not None:
-                kw["pose_tol"] = rel * mesh.diameter
-            opts = BilevelOptions(max_time=settings.max_time, **kw)
+            opts = BilevelOptions(max_time=settings.max_time, **BILEVEL_TOL[tol])
             res = run_control(model, targets, "bilevel", problem.start, problem.frozen,
                               options=opts, bilevel=p.bilevel_solver)
             eq = res.equilibrium
