@@ -153,11 +153,14 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     if max_time is not None:
         options = dataclasses.replace(options, max_time=max_time)
     res = p.control(method, contraction, freeze, options=options)
-    for it in res.history if method != "bilevel" else ():
+    # an iterate history is a trace only if every iterate is a certified
+    # equilibrium (the loop's and the reduced-space bilevel's are)
+    history = res.history if all(h.equilibrium is not None for h in res.history) else ()
+    for it in history:
         log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
                  ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
     doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
-    return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
+    return p, res.equilibrium, doc, history
 
 
 def cmd_solve(args) -> int:
@@ -168,7 +171,8 @@ def cmd_solve(args) -> int:
     if "mesh_accuracy" in doc:
         print(f"plush-opt: {doc['mesh_accuracy']['summary']}", file=sys.stderr)
     if args.trace and not history:
-        raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
+        raise SceneError("--trace: only a control run whose iterates are certified equilibria "
+                         "(the gradient loop, the reduced-space bilevel method) has an iterate history")
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
