@@ -224,7 +224,7 @@ def report_text(problems, runs, settings, t_total) -> str:
           "the same loop clipping c, **bilevel** = IPOPT on the contractions with the pose eliminated "
           "through the certified equilibrium (docs/bilevel.md). "
           "Times are solve times in seconds from the starting equilibrium; *setup* is building "
-          "IPOPT's solver (once per model, frozen set and options). *Eq. solves*: certified "
+          "IPOPT's problem (milliseconds in the reduced space). *Eq. solves*: certified "
           "equilibrium solves. Objective O in length^2, errors in length units.",
           "", "![objective against wall time](anytime.png)", "",
           "![speed against error](speed_error.png)", ""]
