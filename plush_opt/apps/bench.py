@@ -302,7 +302,11 @@ def cmd_bench(args) -> int:
         raise SceneError(f"--sizes: every size must be 'file' or at least 10 nodes, got {args.sizes!r}")
     if args.repeats < 1:
         raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
-    problems = args.problems or sorted((Path(__file__).resolve().parent.parent / "problems").glob("*.yaml"))
+    # the shipped problems, at the repository root (this file is plush_opt/apps/bench.py)
+    shipped = Path(__file__).resolve().parents[2] / "problems"
+    problems = args.problems or sorted(shipped.glob("*.yaml"))
+    if not problems:
+        raise SceneError(f"bench: no problem files given and none in {shipped}")
     command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
     run_bench(problems, sizes, args.out, args.repeats, command)
     return 0
