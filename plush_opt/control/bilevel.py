@@ -84,6 +84,9 @@ class BilevelOptions:
     gtol : (reduced) stop, certified, once the projected gradient times the
         mean bound range is below gtol * max(O, objective_floor) (the
         gradient loop's rule, so both stop at the same accuracy).
+    ftol, patience : (reduced) stop, certified, once O has decreased by
+        less than ftol (relative) over ``patience`` consecutive IPOPT
+        iterations (the gradient loop's rule and defaults).
     objective_floor : (reduced) O below this (length^2) counts as targets
         reached.
     stuck_fraction, probe_fractions, probe_gain : (reduced) the look-further
@@ -135,6 +138,8 @@ class BilevelOptions:
 
     formulation: str = "reduced"
     gtol: float = 1e-7
+    ftol: float = 1e-9
+    patience: int = 2
     objective_floor: float = 1e-14
     stuck_fraction: float = 0.5
     probe_fractions: tuple = (0.05, 0.15, 0.4)
@@ -162,7 +167,9 @@ class BilevelOptions:
             raise ValueError(f"formulation: expected one of {FORMULATIONS}, got {self.formulation!r}")
         if not (isinstance(self.hessian_damping, (int, float)) and self.hessian_damping >= 0):
             raise ValueError(f"hessian_damping: expected a number >= 0, got {self.hessian_damping!r}")
-        for name in ("gtol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
+        if not (isinstance(self.patience, int) and self.patience >= 1):
+            raise ValueError(f"patience: expected an integer >= 1, got {self.patience!r}")
+        for name in ("gtol", "ftol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
@@ -368,6 +375,7 @@ class BilevelSolver:
             calls={**run.calls, "equilibrium_solves": run.ev.solves,
                    "failed_equilibrium_solves": run.ev.failures},
             options={"ipopt": _jsonable(options.reduced_ipopt_options()), "gtol": options.gtol,
+                     "ftol": options.ftol, "patience": options.patience,
                      "objective_floor": options.objective_floor, "max_time": options.max_time},
             frozen=[names[i] for i in np.flatnonzero(frozen)],
             contraction_ipopt={names[i]: float(end.c[i]) for i in range(model.n_winches)},

@@ -14,6 +14,7 @@ its moves once per run, so the rounds end.
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
@@ -56,7 +57,8 @@ class ReducedRun:
         self.rounds: list[dict] = []
         self.moves: list[str] = []
         self.stop = None                  # our own stop: 'max_time', 'targets_reached'
-        self.stationary = False           # the round ended by the projected-gradient test
+        self.stationary = ""              # why the round ended by the loop's tests, if it did
+        self._stall, self._last = 0, math.inf
         self.return_status = "not run"
         self.t_build = 0.0
         self.t_ipopt = 0.0
@@ -78,14 +80,18 @@ class ReducedRun:
             self.stop = "targets_reached"
         elif self.iterations >= opts.max_iter:
             self.stop = "max_iterations"
-        elif point is not None and self._projected(point) <= opts.gtol * max(point.objective,
-                                                                              opts.objective_floor):
-            # the gradient loop's stationarity test, so both methods stop at
+        elif point is not None:
+            # the gradient loop's stationarity tests, so both methods stop at
             # the same accuracy (IPOPT's own tol is on its scaled KKT error,
             # which the Newton tolerance of the evaluations can keep it from
             # reaching: it then spends its line search on noise)
-            self.stationary = True
-        return self.stop is not None or self.stationary
+            self._stall = self._stall + 1 if point.objective > self._last * (1 - opts.ftol) else 0
+            self._last = min(self._last, point.objective)
+            if self._projected(point) <= opts.gtol * max(point.objective, opts.objective_floor):
+                self.stationary = "projected gradient below gtol"
+            elif self._stall >= opts.patience:
+                self.stationary = "objective stopped decreasing (relative decrease below ftol)"
+        return self.stop is not None or bool(self.stationary)
 
     def _projected(self, point: Point) -> float:
         """|projected gradient| x the mean bound range (length^2, as O)."""
@@ -109,7 +115,7 @@ class ReducedRun:
             if self.iterations >= self.options.max_iter:
                 self.stop = "max_iterations"
                 break
-            self.stationary = False
+            self.stationary, self._stall, self._last = "", 0, math.inf
             point = self._round(solver, point, lbx, ubx)
             if self.stop is not None or not self._kkt():
                 break
@@ -134,7 +140,7 @@ class ReducedRun:
 
     def _kkt(self) -> bool:
         """Did the last round end at a KKT point (IPOPT's or ours)?"""
-        return self.return_status in KKT_STATUSES or self.stationary
+        return self.return_status in KKT_STATUSES or bool(self.stationary)
 
     def _best(self, fallback: Point) -> Point:
         """The lowest certified point IPOPT has seen (its last iterate is
@@ -231,7 +237,7 @@ class ReducedRun:
             # better, but nothing shows it is a minimum either
             return False, "no_decrease", (f"{head}; ended at its start (gradient {gn:.3g}, "
                                           f"projected {pg:.3g}); no move lowered O{note}")
-        how = "; projected gradient below gtol" if self.stationary else ""
+        how = f"; {self.stationary}" if self.stationary else ""
         return True, "stationary", f"{head}{how}; certified{note}"
 
     def _notes(self, end: Point, g) -> str:
