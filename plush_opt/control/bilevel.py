@@ -195,7 +195,10 @@ class BilevelOptions:
                 "max_iter": int(self.max_iter), "mu_strategy": self.mu_strategy,
                 "mu_init": float(self.mu_init), "bound_push": float(self.bound_push),
                 "bound_frac": float(self.bound_push), "hessian_approximation": "exact",
-                "honor_original_bounds": "yes", "print_level": 0, "sb": "yes"}
+                "honor_original_bounds": "yes", "print_level": 0, "sb": "yes",
+                # only variable bounds, and the evaluator clips to them: a
+                # relaxed bound would only let IPOPT see a point it cannot reach
+                "bound_relax_factor": 0.0}
         opts.update(self.ipopt)
         return opts
 

@@ -109,7 +109,9 @@ class Evaluator:
     def contraction(self, c_free) -> np.ndarray:
         c = self.c_full.copy()
         c[self.free] = np.asarray(c_free, dtype=np.float64).reshape(-1)
-        return c
+        # IPOPT may relax the bounds by its bound_relax_factor (1e-8 x the
+        # bound): every point evaluated, kept and returned stays within them
+        return np.clip(c, self.model.lower, self.model.upper)
 
     def at(self, c_free) -> Point | None:
         c = self.contraction(c_free)
