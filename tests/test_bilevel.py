@@ -33,7 +33,12 @@ def test_shipped_problems_end_at_certified_stable_equilibria(name):
     _, _, model, targets = built(name)
     res = solve_bilevel(model, targets)
     assert res.converged, res.status
-    assert res.status.startswith("ipopt (reduced): Solve_Succeeded; certified")
+    # IPOPT's own KKT test or the loop's stationarity tests, whichever first
+    assert res.reason == "stationary" and res.status.startswith(
+        ("ipopt (reduced): Solve_Succeeded; certified",
+         "ipopt (reduced): User_Requested_Stop; projected gradient below gtol; certified",
+         "ipopt (reduced): User_Requested_Stop; objective stopped decreasing (relative decrease "
+         "below ftol); certified"))
     _certified(model, res)
     info = res.stats.details
     assert info.formulation == "reduced" and info.bound_violation == 0.0

@@ -56,6 +56,22 @@ def test_trace_is_written_for_control(tmp_path):
     assert 2 <= len(lines) <= 5
 
 
+@pytest.mark.parametrize("limit, status", [
+    (["--max-iterations", "3"], "iteration limit (3) reached"),
+    (["--max-time", "0.001"], "time limit (0.001 s) reached"),
+])
+def test_bilevel_respects_the_limits_and_writes_its_certified_trace(tmp_path, limit, status):
+    out, trace = tmp_path / "r.json", tmp_path / "t.csv"
+    p = run("solve", GRIPPER, "--method", "bilevel", *limit, "--out", str(out), "--trace", str(trace))
+    assert p.returncode == 3, p.stderr           # not converged: an honest stop, not a failure
+    doc = check_result(out)
+    assert doc["converged"] is False and status in doc["status"], doc["status"]
+    assert doc["reason"] == ("max_iterations" if "iteration" in status else "max_time")
+    lines = trace.read_text().splitlines()
+    assert lines[0].startswith("iteration,t_wall_s,objective")
+    assert 2 <= len(lines) <= 5                  # the start and at most 3 IPOPT iterates
+
+
 @pytest.mark.parametrize("args, message", [
     (["--contraction", "left=100"], "left=100: outside the winch's bounds"),
     (["--contraction", "middle=1"], "no winch named 'middle'"),

@@ -211,11 +211,14 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         # Control cannot start (the starting equilibrium is not certified):
         # the result still says where the robot is, honestly not converged.
         return _start_failed(p, contraction, method, equilibrium, exc, t0, extra)
-    for it in res.history if method != "bilevel" else ():
+    # an iterate history is a trace only if every iterate is a certified
+    # equilibrium (the loop's and the reduced-space bilevel's are)
+    history = res.history if all(h.equilibrium is not None for h in res.history) else ()
+    for it in history:
         log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
                  ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
     doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
-    return p, res.equilibrium, doc, res.history if method != "bilevel" else ()
+    return p, res.equilibrium, doc, history
 
 
 def _check_tension_max(value) -> None:
@@ -245,9 +248,8 @@ def _check_solve_outputs(args) -> None:
     for option, path in (("--out", args.out), ("--plot", args.plot), ("--trace", args.trace)):
         if path is not None:
             check_output_path(path, option)
-    if args.trace is not None and args.method in ("forward", "bilevel"):
-        raise SceneError(f"--trace: only a control run of the gradient loop has an iterate history "
-                         f"(not --method {args.method})")
+    if args.trace is not None and args.method == "forward":
+        raise SceneError("--trace: only a control run has an iterate history (not --method forward)")
 
 
 def _number(value, spec: str) -> str:
@@ -265,7 +267,8 @@ def cmd_solve(args) -> int:
     if "mesh_accuracy" in doc:
         say(f"plush-opt: {doc['mesh_accuracy']['summary']}", err=True)
     if args.trace and not history and doc["status"] != "start_not_certified":
-        raise SceneError("--trace: only a control run of the gradient loop has an iterate history")
+        raise SceneError("--trace: only a control run whose iterates are certified equilibria "
+                         "(the gradient loop, the reduced-space bilevel method) has an iterate history")
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:

@@ -84,15 +84,19 @@ class BilevelOptions:
     gtol : (reduced) stop, certified, once the projected gradient times the
         mean bound range is below gtol * max(O, objective_floor) (the
         gradient loop's rule, so both stop at the same accuracy).
+    ftol, patience : (reduced) stop, certified, once O has decreased by
+        less than ftol (relative) over ``patience`` consecutive IPOPT
+        iterations (the gradient loop's rule and defaults).
     objective_floor : (reduced) O below this (length^2) counts as targets
         reached.
     stuck_fraction, probe_fractions, probe_gain : (reduced) the look-further
         moves where IPOPT stops with O above stuck_fraction x its start
         (the gradient loop's, docs/control.md).
     hessian_damping : (reduced) Levenberg-Marquardt damping added to the
-        Gauss-Newton Hessian, relative to its largest diagonal entry (the
-        gradient loop's initial damping): bounds the step of a winch whose
-        column is (nearly) zero.
+        Gauss-Newton Hessian on the winches whose tendons are all (nearly)
+        slack, relative to its largest diagonal entry (the gradient loop's
+        initial damping): bounds the step of a winch whose column is
+        (nearly) zero; the other winches get none.
     mu_init, bound_push : (reduced) IPOPT's ``mu_init`` and
         ``bound_push``/``bound_frac``: the start is a certified equilibrium
         already, so a small barrier and a small push off the bounds keep
@@ -134,6 +138,8 @@ class BilevelOptions:
 
     formulation: str = "reduced"
     gtol: float = 1e-7
+    ftol: float = 1e-9
+    patience: int = 2
     objective_floor: float = 1e-14
     stuck_fraction: float = 0.5
     probe_fractions: tuple = (0.05, 0.15, 0.4)
@@ -161,7 +167,9 @@ class BilevelOptions:
             raise ValueError(f"formulation: expected one of {FORMULATIONS}, got {self.formulation!r}")
         if not (isinstance(self.hessian_damping, (int, float)) and self.hessian_damping >= 0):
             raise ValueError(f"hessian_damping: expected a number >= 0, got {self.hessian_damping!r}")
-        for name in ("gtol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
+        if not (isinstance(self.patience, int) and self.patience >= 1):
+            raise ValueError(f"patience: expected an integer >= 1, got {self.patience!r}")
+        for name in ("gtol", "ftol", "mu_init", "bound_push", "tol", "constr_viol_tol", "acceptable_tol", "residual_tol"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name}: expected a finite number > 0, got {v!r}")
@@ -187,7 +195,10 @@ class BilevelOptions:
                 "max_iter": int(self.max_iter), "mu_strategy": self.mu_strategy,
                 "mu_init": float(self.mu_init), "bound_push": float(self.bound_push),
                 "bound_frac": float(self.bound_push), "hessian_approximation": "exact",
-                "honor_original_bounds": "yes", "print_level": 0, "sb": "yes"}
+                "honor_original_bounds": "yes", "print_level": 0, "sb": "yes",
+                # only variable bounds, and the evaluator clips to them: a
+                # relaxed bound would only let IPOPT see a point it cannot reach
+                "bound_relax_factor": 0.0}
         opts.update(self.ipopt)
         return opts
 
@@ -367,6 +378,7 @@ class BilevelSolver:
             calls={**run.calls, "equilibrium_solves": run.ev.solves,
                    "failed_equilibrium_solves": run.ev.failures},
             options={"ipopt": _jsonable(options.reduced_ipopt_options()), "gtol": options.gtol,
+                     "ftol": options.ftol, "patience": options.patience,
                      "objective_floor": options.objective_floor, "max_time": options.max_time},
             frozen=[names[i] for i in np.flatnonzero(frozen)],
             contraction_ipopt={names[i]: float(end.c[i]) for i in range(model.n_winches)},

@@ -14,6 +14,7 @@ its moves once per run, so the rounds end.
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
@@ -56,6 +57,8 @@ class ReducedRun:
         self.rounds: list[dict] = []
         self.moves: list[str] = []
         self.stop = None                  # our own stop: 'max_time', 'targets_reached'
+        self.stationary = ""              # why the round ended by the loop's tests, if it did
+        self._stall, self._last = 0, math.inf
         self.return_status = "not run"
         self.t_build = 0.0
         self.t_ipopt = 0.0
@@ -77,7 +80,36 @@ class ReducedRun:
             self.stop = "targets_reached"
         elif self.iterations >= opts.max_iter:
             self.stop = "max_iterations"
-        return self.stop is not None
+        elif point is not None:
+            # the gradient loop's stationarity tests, so both methods stop at
+            # the same accuracy (IPOPT's own tol is on its scaled KKT error,
+            # which the Newton tolerance of the evaluations can keep it from
+            # reaching: it then spends its line search on noise)
+            self._stall = self._stall + 1 if point.objective > self._last * (1 - opts.ftol) else 0
+            self._last = min(self._last, point.objective)
+            if self._projected(point) <= opts.gtol * max(point.objective, opts.objective_floor):
+                self.stationary = "projected gradient below gtol"
+            elif self._stall >= opts.patience:
+                self.stationary = "objective stopped decreasing (relative decrease below ftol)"
+        return self.stop is not None or bool(self.stationary)
+
+    def _projected(self, point: Point) -> float:
+        """|projected gradient| x the mean bound range (length^2, as O).
+
+        A winch near a bound with its gradient pointing out counts as held
+        only if going the rest of the way would gain less than ftol x O:
+        IPOPT's barrier keeps it a little inside, and with a steep gradient
+        that little is not yet the answer (0.065 of O = 200 on the
+        finger with its optimum on a bound)."""
+        g = self.gradient(point)
+        lower, upper = self.model.lower, self.model.upper
+        scale = self.options.ftol * max(point.objective, self.options.objective_floor)
+        for w in self._held_mask(point.c, g):
+            gap = point.c[w] - lower[w] if g[w] > 0 else upper[w] - point.c[w]
+            if abs(g[w]) * gap <= scale:
+                g[w] = 0.0
+        g[self.frozen] = 0.0
+        return float(np.linalg.norm(g)) * float(np.mean(self.span))
 
     # -- the run ------------------------------------------------------------
 
@@ -94,8 +126,9 @@ class ReducedRun:
             if self.iterations >= self.options.max_iter:
                 self.stop = "max_iterations"
                 break
+            self.stationary, self._stall, self._last = "", 0, math.inf
             point = self._round(solver, point, lbx, ubx)
-            if self.stop is not None or self.return_status not in KKT_STATUSES:
+            if self.stop is not None or not self._kkt():
                 break
             moved = self._look_further(point, tried)
             if moved is None:
@@ -115,6 +148,10 @@ class ReducedRun:
                             "iterations": int(stats.get("iter_count", 0))})
         end = self.ev.at(c)
         return end if end is not None else self._best(point)
+
+    def _kkt(self) -> bool:
+        """Did the last round end at a KKT point (IPOPT's or ours)?"""
+        return self.return_status in KKT_STATUSES or bool(self.stationary)
 
     def _best(self, fallback: Point) -> Point:
         """The lowest certified point IPOPT has seen (its last iterate is
@@ -191,10 +228,7 @@ class ReducedRun:
         end, opts = self.end, self.options
         head = f"ipopt (reduced): {self.return_status}"
         g = self.gradient(end)
-        proj = g.copy()
-        proj[self._held_mask(end.c, g)] = 0.0
-        proj[self.frozen] = 0.0
-        pg = float(np.linalg.norm(proj)) * float(np.mean(self.span))
+        pg = self._projected(end)
         at_start = bool(np.all(np.abs(end.c - self.start.c) <= START_FRACTION * self.span))
         note = self._notes(end, g)
         if self.stop == "targets_reached":
@@ -203,7 +237,7 @@ class ReducedRun:
             return False, "max_time", f"{head}; time limit ({opts.max_time:g} s) reached{note}"
         if self.stop == "max_iterations" or self.return_status == "Maximum_Iterations_Exceeded":
             return False, "max_iterations", f"{head}; iteration limit ({opts.max_iter}) reached{note}"
-        if self.return_status not in KKT_STATUSES:
+        if not self._kkt():
             return False, "solver_failed", (f"{head}; returned the best certified iterate "
                                             f"(projected gradient {pg:.3g}){note}")
         slack = slack_winches(self.model, end.eq.x, end.c, ~self.frozen, g)
@@ -214,7 +248,8 @@ class ReducedRun:
             # better, but nothing shows it is a minimum either
             return False, "no_decrease", (f"{head}; ended at its start (gradient {gn:.3g}, "
                                           f"projected {pg:.3g}); no move lowered O{note}")
-        return True, "stationary", f"{head}; certified{note}"
+        how = f"; {self.stationary}" if self.stationary else ""
+        return True, "stationary", f"{head}{how}; certified{note}"
 
     def _notes(self, end: Point, g) -> str:
         names = self.model.winch_names

@@ -226,8 +226,9 @@ def report_text(problems, runs, settings, t_total) -> str:
           "Methods: **reparam** = gradient loop with reparametrised bounds (method 1), **clip** = "
           "the same loop clipping c, **bilevel** = IPOPT on the contractions with the pose eliminated "
           "through the certified equilibrium (docs/bilevel.md). "
-          "Times are solve times in seconds from the starting equilibrium; *setup* is building "
-          "IPOPT's solver (once per model, frozen set and options). *Eq. solves*: certified "
+          "Times are wall seconds of the whole control call (the starting equilibrium, the "
+          "iterations, the look-further moves and the final certification); *setup* is building "
+          "IPOPT's problem (milliseconds in the reduced space). *Eq. solves*: certified "
           "equilibrium solves. Objective O in length^2, errors in length units.",
           "", "![objective against wall time](anytime.png)", "",
           "![speed against error](speed_error.png)", ""]
