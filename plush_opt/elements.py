@@ -81,6 +81,19 @@ def p2_jacobians(xe: np.ndarray, grads: np.ndarray) -> np.ndarray:
     return F[..., 0, 0] * F[..., 1, 1] - F[..., 0, 1] * F[..., 1, 0]
 
 
+def element_functions(name: str, psi, args) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """An element energy ``psi`` of (xe, Dinv, w, mu, lam) as three named
+    Functions: the energy, energy and gradient, energy, gradient and Hessian
+    (the fast path asks each evaluation order for only what it needs)."""
+    xe = args[0]
+    g = ca.gradient(psi, xe)
+    H = ca.densify(ca.hessian(psi, xe)[0])
+    names = ["xe", "Dinv", "w", "mu", "lam"]
+    return (ca.Function(name, args, [psi], names, ["psi"]),
+            ca.Function(f"{name}_grad", args, [psi, g], names, ["psi", "grad"]),
+            ca.Function(f"{name}_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"]))
+
+
 def _p2_kernels():
     """psi2(xe, Dinv, w, mu, lam): w * sum_q (1/3) Psi(F(l_q)) of one P2
     element, and its derivatives. Same inputs as the P1 kernel except
@@ -100,13 +113,7 @@ def _p2_kernels():
         logJ = ca.log(ca.det(F))
         psi += wq * (mu / 2 * (ca.sumsqr(F) - 2) - mu * logJ + lam / 2 * logJ**2)
     psi = w * psi
-    g = ca.gradient(psi, xe)
-    H = ca.densify(ca.hessian(psi, xe)[0])
-    args, names = [xe, Dinv, w, mu, lam], ["xe", "Dinv", "w", "mu", "lam"]
-    energy = ca.Function("psi2", args, [psi], names, ["psi"])
-    grad = ca.Function("psi2_grad", args, [psi, g], names, ["psi", "grad"])
-    derivs = ca.Function("psi2_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"])
-    return energy, grad, derivs
+    return element_functions("psi2", psi, [xe, Dinv, w, mu, lam])
 
 
 P2_PSI, P2_PSI_GRAD, P2_PSI_DERIVS = _p2_kernels()

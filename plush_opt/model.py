@@ -65,13 +65,7 @@ def _neo_hookean_kernels():
     J = ca.det(F)
     logJ = ca.log(J)
     psi = w * (mu / 2 * (ca.sumsqr(F) - 2) - mu * logJ + lam / 2 * logJ**2)
-    g = ca.gradient(psi, xe)
-    H = ca.densify(ca.hessian(psi, xe)[0])
-    args, names = [xe, Dinv, w, mu, lam], ["xe", "Dinv", "w", "mu", "lam"]
-    energy = ca.Function("psi", args, [psi], names, ["psi"])
-    grad = ca.Function("psi_grad", args, [psi, g], names, ["psi", "grad"])
-    derivs = ca.Function("psi_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"])
-    return energy, grad, derivs
+    return elements.element_functions("psi", psi, [xe, Dinv, w, mu, lam])
 
 
 _PSI, _PSI_GRAD, _PSI_DERIVS = _neo_hookean_kernels()
