@@ -191,7 +191,14 @@ def test_pose_picture_with_fixed_tension_scale_and_vtk_export(tmp_path):
 
 def test_run_shows_its_steps_warns_when_far_and_plots_and_exports(tmp_path):
     pytest.importorskip("meshio")
-    script = ROOT / "examples" / "gripper_run.yaml"
+    shipped = ROOT / "examples" / "gripper_run.yaml"
+    # the shipped carry step, with its second target 28 mm below where the
+    # bar's end can go with the hand frozen
+    text = shipped.read_text().replace("to: [-45, 123]", "to: [-45, 95]")
+    text = text.replace("../problems/", f"{ROOT}/problems/").replace("../hw/", f"{ROOT}/hw/")
+    assert "to: [-45, 95]" in text
+    script = tmp_path / "far.yaml"
+    script.write_text(text)
     log, png, vtk = tmp_path / "run.jsonl", tmp_path / "run.png", tmp_path / "vtk"
     p = run("run", str(script), "--dry-run", "--log", str(log), "--plot", str(png), "--vtk", str(vtk))
     assert p.returncode == 0, p.stderr
@@ -203,6 +210,9 @@ def test_run_shows_its_steps_warns_when_far_and_plots_and_exports(tmp_path):
     assert (vtk / "run.pvd").read_text().count("<DataSet") >= 5
     quiet = run("-q", "run", str(script), "--dry-run", "--log", str(tmp_path / "q.jsonl"))
     assert "step 1/7" not in quiet.stderr
+    # the shipped script itself reaches its targets: no warning
+    ok = run("run", str(shipped), "--dry-run", "--log", str(tmp_path / "ok.jsonl"))
+    assert ok.returncode == 0 and "warning" not in ok.stderr, ok.stderr
     again = run("export", str(log), "--out", str(tmp_path / "again"))
     assert again.returncode == 0, again.stderr
     assert (tmp_path / "again" / "run.pvd").is_file()
