@@ -22,20 +22,11 @@ from .result import ControlIterate
 # stability: an indefinite Hessian there is reported as a saddle.
 SADDLE_RESIDUAL = 1e-6
 
-class Recorder(ca.Callback):
-    """IPOPT iteration callback: records (t, O, violation, c) and stops
-    IPOPT (by returning 1) once the time limit has passed."""
+class IterationCallback(ca.Callback):
+    """An IPOPT iteration callback: nlpsol's outputs in (those named in
+    ``sizes``, the others empty), one flag out (1 stops IPOPT)."""
 
-    def __init__(self, name: str, n_z: int, n_g: int, n_p: int):
-        ca.Callback.__init__(self)
-        self._n = {"x": n_z, "lam_x": n_z, "g": n_g, "lam_g": n_g, "p": n_p, "lam_p": n_p, "f": 1}
-        self.reset(None)
-        self.construct(name, {})
-
-    def reset(self, run: dict | None):
-        self.run = run
-        self.points: list[ControlIterate] = []
-        self.stopped = False
+    sizes: dict = {}
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -50,8 +41,25 @@ class Recorder(ca.Callback):
         return "ret"
 
     def get_sparsity_in(self, i):
-        n = self._n.get(ca.nlpsol_out(i), 0)
+        n = self.sizes.get(ca.nlpsol_out(i), 0)
         return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
+
+
+class Recorder(IterationCallback):
+    """IPOPT iteration callback: records (t, O, violation, c) and stops
+    IPOPT (by returning 1) once the time limit has passed."""
+
+    def __init__(self, name: str, n_z: int, n_g: int, n_p: int):
+        ca.Callback.__init__(self)
+        self.sizes = {"x": n_z, "lam_x": n_z, "g": n_g, "lam_g": n_g, "p": n_p, "lam_p": n_p, "f": 1}
+        self.reset(None)
+        self.construct(name, {})
+
+    def reset(self, run: dict | None):
+        self.run = run
+        self.points: list[ControlIterate] = []
+        self.stopped = False
+
 
     def eval(self, arg):
         run = self.run

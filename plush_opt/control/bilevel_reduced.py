@@ -43,6 +43,7 @@ from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..model import Model
 from ..objective import Targets
 from ..sensitivity import state_sensitivity
+from .bilevel_nlp import IterationCallback
 from .result import ControlIterate
 
 # Equilibria kept for warm starts and for IPOPT's repeated calls at the
@@ -263,7 +264,7 @@ class ResidualCallback(ca.Callback):
         return ca.Function(name, [c, r], [self.jac(c, r)], inames, onames)
 
 
-class IterationRecorder(ca.Callback):
+class IterationRecorder(IterationCallback):
     """IPOPT's iteration callback: one dispatchable iterate per IPOPT
     iteration (each is a certified equilibrium here), and the stop rules
     IPOPT does not have (time limit, objective floor, stall)."""
@@ -271,24 +272,8 @@ class IterationRecorder(ca.Callback):
     def __init__(self, name: str, n: int, rules):
         ca.Callback.__init__(self)
         self.n, self.rules = n, rules
+        self.sizes = {"x": n, "lam_x": n, "f": 1}
         self.construct(name, {})
-
-    def get_n_in(self):
-        return ca.nlpsol_n_out()
-
-    def get_n_out(self):
-        return 1
-
-    def get_name_in(self, i):
-        return ca.nlpsol_out(i)
-
-    def get_name_out(self, i):
-        return "ret"
-
-    def get_sparsity_in(self, i):
-        name = ca.nlpsol_out(i)
-        n = {"x": self.n, "lam_x": self.n, "f": 1}.get(name, 0)
-        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
 
     def eval(self, arg):
         return [1 if self.rules(np.asarray(arg[0], dtype=np.float64).reshape(-1)) else 0]
