@@ -263,3 +263,55 @@ def test_bad_inputs_raise_solver_errors():
         solve_bilevel(model, targets, [30.0, 0.0, 0.0])
     with pytest.raises(SolverError, match="contraction"):
         solve_bilevel(model, targets, [0.0, 0.0])
+
+
+def _slack_start_run():
+    """A reduced-space run on the slack-start finger, from its flat start."""
+    import time as _time
+    from plush_opt.control.bilevel_search import ReducedRun
+    from plush_opt.equilibrium import EquilibriumOptions
+    scene = load_scene(ROOT / "problems" / "compare" / "finger_slack_start.yaml")
+    mesh = build_mesh(scene, max_area=40.0)
+    model = build_model(scene, mesh)
+    targets = Targets.from_mesh(mesh, scene)
+    start = solve_equilibrium(model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
+    return model, ReducedRun(model, targets, BilevelOptions(), scene.frozen.copy(), start,
+                             _time.perf_counter())
+
+
+def test_a_slack_winch_is_tried_again_once_the_objective_has_dropped():
+    """A winch whose look-further moves found nothing is tried again from a
+    point whose O is lower by probe_gain (a later round may have made its
+    slack matter: the 3,303-node tentacle's left_tip), never from the same O."""
+    model, run = _slack_start_run()
+    point = run.start
+    flex, extend = model.winch_names.index("flex"), model.winch_names.index("extend")
+    o = point.objective
+    assert run._look_further(point, {flex: o, extend: o}) is None
+    tried = {flex: o * (1 + 2 * run.options.probe_gain), extend: o}
+    moved = run._look_further(point, tried)
+    assert moved is not None and run.moves == ["took up the slack of flex"]
+    assert tried[flex] == o          # and it is not tried again from this O
+    assert moved.eq.converged and moved.objective <= o * (1 + 1e-9)
+
+
+def test_an_error_inside_an_ipopt_callback_is_raised_as_itself(monkeypatch):
+    """An exception in a reduced-space callback (here the sensitivity of
+    the third point) stops IPOPT and is re-raised: it does not come back as
+    IPOPT's Invalid_Number_Detected and a solver_failed result."""
+    from plush_opt.control import bilevel_reduced
+    _, _, model, targets = built("gripper")
+    real, calls = bilevel_reduced.state_sensitivity, []
+
+    def failing(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise ArithmeticError("sensitivity failed on purpose")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(bilevel_reduced, "state_sensitivity", failing)
+    with pytest.raises(ArithmeticError, match="on purpose"):
+        solve_bilevel(model, targets)
+    assert len(calls) == 3           # IPOPT was stopped: nothing evaluated after it
+    monkeypatch.setattr(bilevel_reduced, "state_sensitivity", real)
+    assert solve_bilevel(model, targets).converged

@@ -95,7 +95,27 @@ class Evaluator:
         self.newton_iterations = 0
         self.failures = 0
         self.t_evaluations = 0.0
+        self.error: BaseException | None = None
         self.add(start)
+
+    def guarded(self, fn, *args):
+        """fn(*args) inside IPOPT's callbacks: the first exception is kept
+        (CasADi would turn it into an invalid number, IPOPT's
+        Invalid_Number_Detected) and None returned, so that the run stops
+        IPOPT and re-raises it; after one, every call returns None."""
+        if self.error is not None:
+            return None
+        try:
+            return fn(*args)
+        except (Exception, KeyboardInterrupt) as err:   # noqa: BLE001 - re-raised by raise_error
+            self.error = err
+            return None
+
+    def raise_error(self) -> None:
+        """Re-raise the exception a callback kept, if any."""
+        err, self.error = self.error, None
+        if err is not None:
+            raise err
 
     def add(self, eq: Equilibrium) -> Point:
         point = Point(eq.contraction.copy(), eq, self.targets.residual(eq.x), None, None)
@@ -216,10 +236,12 @@ class _JacobianCallback(ca.Callback):
         return ca.Sparsity.dense(self.m, self.n)
 
     def eval(self, arg):
-        p = self.ev.at(arg[0])
-        if p is None:
-            return [ca.DM(np.full((self.m, self.n), np.nan))]
-        return [ca.DM(self.ev.jacobian_rows(p))]
+        rows = self.ev.guarded(self._rows, arg[0])
+        return [ca.DM(np.full((self.m, self.n), np.nan) if rows is None else rows)]
+
+    def _rows(self, c):
+        p = self.ev.at(c)
+        return None if p is None else self.ev.jacobian_rows(p)
 
     def has_jacobian(self):
         return True
@@ -251,8 +273,12 @@ class ResidualCallback(ca.Callback):
         return ca.Sparsity.dense(self.m, 1)
 
     def eval(self, arg):
-        p = self.ev.at(arg[0])
-        return [ca.DM(np.full(self.m, np.nan)) if p is None else ca.DM(self.ev.rows(p))]
+        rows = self.ev.guarded(self._rows, arg[0])
+        return [ca.DM(np.full(self.m, np.nan) if rows is None else rows)]
+
+    def _rows(self, c):
+        p = self.ev.at(c)
+        return None if p is None else self.ev.rows(p)
 
     def has_jacobian(self):
         return True
@@ -269,14 +295,16 @@ class IterationRecorder(IterationCallback):
     iteration (each is a certified equilibrium here), and the stop rules
     IPOPT does not have (time limit, objective floor, stall)."""
 
-    def __init__(self, name: str, n: int, rules):
+    def __init__(self, name: str, n: int, rules, evaluator: "Evaluator"):
         ca.Callback.__init__(self)
-        self.n, self.rules = n, rules
+        self.n, self.rules, self.ev = n, rules, evaluator
         self.sizes = {"x": n, "lam_x": n, "f": 1}
         self.construct(name, {})
 
     def eval(self, arg):
-        return [1 if self.rules(np.asarray(arg[0], dtype=np.float64).reshape(-1)) else 0]
+        stop = self.ev.guarded(self.rules, np.asarray(arg[0], dtype=np.float64).reshape(-1))
+        # an error in any callback stops IPOPT at once (the run re-raises it)
+        return [1 if stop or self.ev.error is not None else 0]
 
 
 def build_solver(evaluator: Evaluator, n: int, m: int, ipopt: dict, rules):
@@ -284,7 +312,7 @@ def build_solver(evaluator: Evaluator, n: int, m: int, ipopt: dict, rules):
 
     The callbacks must outlive the solver (CasADi holds them by reference)."""
     residual = ResidualCallback("reduced_residual", evaluator, n, m)
-    recorder = IterationRecorder("reduced_iterations", n, rules)
+    recorder = IterationRecorder("reduced_iterations", n, rules, evaluator)
     c = ca.MX.sym("c", n)
     r = residual(c)
     nlp = {"x": c, "f": 0.5 * ca.dot(r, r)}

@@ -7,8 +7,10 @@ judge (a winch whose tendons are all slack has a zero gradient; a winch
 held at a bound may only see the first millimetres of a pull that engage
 the "wrong" tendon first), the same look-further moves as the gradient
 loop (docs/control.md): reel the slack in, probe inwards from the bound;
-a move that lowers O starts a new IPOPT round from there. Each winch gets
-its moves once per run, so the rounds end.
+a move that lowers O starts a new IPOPT round from there. A winch whose
+moves found nothing is tried again only once O has dropped by probe_gain
+since (a later round may have moved the others so that its slack now
+matters: the 3,303-node tentacle's left_tip), so the rounds end.
 """
 
 from __future__ import annotations
@@ -121,7 +123,7 @@ class ReducedRun:
             self.ev, n, m, self.options.reduced_ipopt_options(), self._rules)
         self.t_build = time.perf_counter() - t0
         lbx, ubx = self.model.lower[self.free], self.model.upper[self.free]
-        point, tried = self.start, set()
+        point, tried = self.start, {}
         while True:
             if self.iterations >= self.options.max_iter:
                 self.stop = "max_iterations"
@@ -138,8 +140,15 @@ class ReducedRun:
 
     def _round(self, solver, point: Point, lbx, ubx) -> Point:
         t0 = time.perf_counter()
-        sol = solver(x0=point.c[self.free], lbx=lbx, ubx=ubx)
-        self.t_ipopt += time.perf_counter() - t0
+        try:
+            sol = solver(x0=point.c[self.free], lbx=lbx, ubx=ubx)
+        except RuntimeError:
+            self.ev.raise_error()          # the callback's own error, if it was one
+            raise
+        finally:
+            self.t_ipopt += time.perf_counter() - t0
+        # an exception inside a callback stopped IPOPT: it is the real error
+        self.ev.raise_error()
         stats = solver.stats()
         self.calls["ipopt_rounds"] += 1
         self.return_status = str(stats.get("return_status", "unknown"))
@@ -182,15 +191,20 @@ class ReducedRun:
         g[self.free] = self.ev.derivatives(point).gradient()
         return g
 
-    def _look_further(self, point: Point, tried: set) -> Point | None:
-        """The gradient loop's restart moves (docs/control.md), from ``point``."""
+    def _look_further(self, point: Point, tried: dict) -> Point | None:
+        """The gradient loop's restart moves (docs/control.md), from ``point``.
+
+        ``tried`` maps a winch to O where its moves were last tried: it is
+        tried again only from a point lower by probe_gain (each later round
+        lowers O, so this ends)."""
         model, opts = self.model, self.options
         g = self.gradient(point)
         slack = slack_winches(model, point.eq.x, point.c, ~self.frozen, g)
         stuck = point.objective > opts.stuck_fraction * self.o_start
         held = self._held_mask(point.c, g) if stuck else []
-        for w in [w for w in dict.fromkeys(slack + held) if w not in tried]:
-            tried.add(w)
+        again = point.objective * (1 + opts.probe_gain)
+        for w in [w for w in dict.fromkeys(slack + held) if tried.get(w, math.inf) > again]:
+            tried[w] = point.objective
             for frac in (0.0, *opts.probe_fractions):
                 c = point.c.copy()
                 if w in slack:
