@@ -97,6 +97,10 @@ class BilevelOptions:
         slack, relative to its largest diagonal entry (the gradient loop's
         initial damping): bounds the step of a winch whose column is
         (nearly) zero; the other winches get none.
+    hessian_secant : (reduced) add to the Gauss-Newton Hessian a secant
+        (structured BFGS) estimate of the term it drops, r . d2r/dc2, from
+        the accepted iterates: a winch that moves the targets little has a
+        Gauss-Newton curvature far below its true one (docs/bilevel.md).
     mu_init, bound_push : (reduced) IPOPT's ``mu_init`` and
         ``bound_push``/``bound_frac``: the start is a certified equilibrium
         already, so a small barrier and a small push off the bounds keep
@@ -145,6 +149,7 @@ class BilevelOptions:
     probe_fractions: tuple = (0.05, 0.15, 0.4)
     probe_gain: float = 1e-3
     hessian_damping: float = 1e-3
+    hessian_secant: bool = True
     mu_init: float = 1e-4
     bound_push: float = 1e-6
     tol: float = 1e-8

@@ -54,6 +54,9 @@ CACHE_SIZE = 8
 # force: a winch whose tendons all are there has a (nearly) zero column in
 # dr/dc and gets the absolute damping floor.
 NEAR_SLACK = 0.5
+# A secant pair (s, y) updates the second-order estimate only if its
+# curvature s.y is at least this fraction of |s| |y| (BFGS's safeguard).
+SECANT_CURVATURE = 1e-8
 
 
 @dataclass
@@ -83,9 +86,13 @@ class Evaluator:
     its step back."""
 
     def __init__(self, model: Model, targets: Targets, c_full: np.ndarray, free: np.ndarray,
-                 start: Equilibrium, options: EquilibriumOptions, damping: float = 0.0):
+                 start: Equilibrium, options: EquilibriumOptions, damping: float = 0.0,
+                 secant: bool = False):
         self.model, self.targets = model, targets
         self.damping = damping
+        self.secant = secant
+        self.S = np.zeros((len(free), len(free)))   # the secant estimate of r . d2r/dc2
+        self.accepted: Point | None = None
         self.c_full, self.free = c_full.copy(), free
         self.options = options
         self.B = targets.selection(model.n_dofs)
@@ -179,7 +186,44 @@ class Evaluator:
         curv = np.sum(J * J, axis=0)
         lam = max(float(np.max(curv, initial=0.0)), np.finfo(float).tiny)
         d = np.where(self._near_slack(point), lam, 0.0)
-        return np.vstack([J, np.diag(np.sqrt(self.damping * d))])
+        if not self.S.any():
+            return np.vstack([J, np.diag(np.sqrt(self.damping * d))])
+        # rows L with L^T L = D + S (both positive semidefinite)
+        vals, vecs = np.linalg.eigh(np.diag(self.damping * d) + self.S)
+        return np.vstack([J, np.sqrt(np.maximum(vals, 0.0))[:, None] * vecs.T])
+
+    def accept(self, point: Point) -> None:
+        """An iterate IPOPT accepted: update the secant estimate S of the
+        second-order term r . d2r/dc2 the Gauss-Newton Hessian drops
+        (structured BFGS: S s = (J_new - J_old)^T r_new, kept positive
+        definite by skipping a pair with no positive curvature). Where a
+        winch moves the targets far less than another (the 3,008-node
+        hexapod: 1e-5) its Gauss-Newton curvature is far below the true
+        one, and IPOPT's steps along it overshoot and backtrack."""
+        prev, self.accepted = self.accepted, self.derivatives(point)
+        if not self.secant or prev is None:
+            return
+        step = point.c[self.free] - prev.c[self.free]
+        y = (point.J - prev.J).T @ point.r
+        sy = float(step @ y)
+        if (not sy > SECANT_CURVATURE * float(np.linalg.norm(step) * np.linalg.norm(y))
+                or not np.array_equal(self._near_slack(point), self._near_slack(prev))):
+            # no positive curvature along the step, or a step across the
+            # tendon law's kink (a winch went slack or taut: the finger with
+            # antagonists then crawled, 89 iterations instead of 16): back
+            # to Gauss-Newton until the next good pair
+            self.S = np.zeros_like(self.S)
+            return
+        Ss = self.S @ step
+        sSs = float(step @ Ss)
+        S = self.S
+        if sSs > 0:
+            # NL2SOL's sizing: shrink S as the residual (hence the term) does,
+            # so that near a zero-residual answer the Hessian is Gauss-Newton's
+            tau = min(1.0, sy / sSs)
+            S, Ss, sSs = tau * S, tau * Ss, tau * sSs
+            S = S - np.outer(Ss, Ss) / sSs
+        self.S = S + np.outer(y, y) / sy
 
     def _near_slack(self, point: Point) -> np.ndarray:
         """Free winches (positions in ``free``) whose every tendon has its

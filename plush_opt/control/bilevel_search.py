@@ -50,7 +50,7 @@ class ReducedRun:
         eq_opts = options.equilibrium
         self.ev = Evaluator(model, targets, start.contraction, self.free, start,
                             eq_opts if not eq_opts.eigenvalue else _no_eigenvalue(eq_opts),
-                            options.hessian_damping)
+                            options.hessian_damping, options.hessian_secant)
         self.start = self.ev.derivatives(self.ev.points[-1])
         self.history = [history_point(self.start, self.ev, 0, time.perf_counter() - t_start,
                                       self._held(self.start))]
@@ -72,7 +72,7 @@ class ReducedRun:
         t = time.perf_counter() - self.t_start
         point = self.ev.at(c_free)
         if point is not None:
-            self.ev.derivatives(point)
+            self.ev.accept(point)
             self.history.append(history_point(point, self.ev, len(self.history), t, self._held(point)))
         self.iterations += 1
         opts = self.options
@@ -129,6 +129,7 @@ class ReducedRun:
                 self.stop = "max_iterations"
                 break
             self.stationary, self._stall, self._last = "", 0, math.inf
+            self.ev.accepted = None        # no secant pair across a look-further jump
             point = self._round(solver, point, lbx, ubx)
             if self.stop is not None or not self._kkt():
                 break
