@@ -315,3 +315,36 @@ def test_an_error_inside_an_ipopt_callback_is_raised_as_itself(monkeypatch):
     assert len(calls) == 3           # IPOPT was stopped: nothing evaluated after it
     monkeypatch.setattr(bilevel_reduced, "state_sensitivity", real)
     assert solve_bilevel(model, targets).converged
+
+
+def test_secant_correction_meets_the_secant_condition_and_resets_at_a_kink():
+    """The structured secant term S: after a pair (s, y) with y = (J_new -
+    J_old)^T r_new it satisfies S s = y and enters the Hessian rows
+    (L^T L = S on winches that are not slack); a pair across the tendon
+    law's kink (a winch going slack or taut) drops it (Gauss-Newton)."""
+    from plush_opt.control.bilevel_reduced import Evaluator
+    from plush_opt.equilibrium import EquilibriumOptions
+    _, _, model, targets = built("hexapod")
+    quick = EquilibriumOptions(eigenvalue=False)
+    free = np.arange(model.n_winches)
+    c0 = np.full(model.n_winches, 5.0)
+    ev = Evaluator(model, targets, c0, free, solve_equilibrium(model, c0, options=quick), quick,
+                   damping=1e-3, secant=True)
+    a, b = ev.points[-1], ev.at(c0 + [1.0, 0.5])
+    ev.accept(a)
+    ev.accept(b)
+    s = b.c - a.c
+    y = (b.J - a.J).T @ b.r
+    assert s @ y > 0 and not ev._near_slack(a).any() and not ev._near_slack(b).any()
+    np.testing.assert_allclose(ev.S @ s, y, rtol=1e-10, atol=1e-14)
+    rows = ev.jacobian_rows(b)[-len(free):]
+    np.testing.assert_allclose(rows.T @ rows, ev.S, rtol=1e-8, atol=1e-12 * np.abs(ev.S).max())
+    # a pair with a winch slack at one end and taut at the other
+    slack = ev.at(np.array([5.0, 0.0]))
+    assert ev._near_slack(slack).any() != ev._near_slack(b).any()
+    ev.accept(slack)
+    assert not ev.S.any()
+    off = Evaluator(model, targets, c0, free, a.eq, quick, secant=False)
+    off.accept(off.points[-1])
+    off.accept(off.at(c0 + [1.0, 0.5]))
+    assert not off.S.any()
