@@ -44,7 +44,7 @@ from ..errors import SolverError
 from ..model import Model
 from ..objective import Targets
 from .bilevel_nlp import (NlpEntry, build_nlp, describe_pose as _describe_pose, force_reference,
-                          kkt as _kkt, parameters as _parameters, pose_check as _pose_check)
+                          jsonable as _jsonable, kkt as _kkt, parameters as _parameters, pose_check as _pose_check)
 from .bilevel_search import ReducedRun
 from .result import ControlResult, ControlStats
 from .slack import slack_winches, take_up
@@ -591,14 +591,3 @@ class _IpoptRun:
             slack_winches=self.slack, equilibrium_solves=2 + (1 if self.taken else 0),
             history_points=len(self.history))
 
-
-def _jsonable(d: dict) -> dict:
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, (bool, int, str)) or v is None:
-            out[k] = v
-        elif isinstance(v, float):
-            out[k] = v if math.isfinite(v) else str(v)
-        else:
-            out[k] = repr(v)
-    return out

@@ -269,3 +269,16 @@ def kkt(model: Model, entry: NlpEntry, sol, z, p, options) -> dict:
     return {"stationarity": float(np.max(np.abs(gl), initial=0.0)),
             "feasibility": float(np.max(feas, initial=0.0)),
             "complementarity": comp}
+
+
+def jsonable(d: dict) -> dict:
+    """IPOPT options as JSON values (non-finite floats and objects as text)."""
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, (bool, int, str)) or v is None:
+            out[k] = v
+        elif isinstance(v, float):
+            out[k] = v if math.isfinite(v) else str(v)
+        else:
+            out[k] = repr(v)
+    return out
