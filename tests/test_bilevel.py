@@ -348,3 +348,29 @@ def test_secant_correction_meets_the_secant_condition_and_resets_at_a_kink():
     off.accept(off.points[-1])
     off.accept(off.at(c0 + [1.0, 0.5]))
     assert not off.S.any()
+
+
+def test_a_run_whose_every_trial_point_fails_is_an_honest_solver_failure(monkeypatch):
+    """Newton certifies nothing but the start: IPOPT cannot take a step. The
+    result is not converged, its reason is solver_failed, its status names
+    IPOPT's own return status and why (the failed solves, counted), and the
+    pose returned is the certified start."""
+    from dataclasses import replace as _replace
+    from plush_opt.control import bilevel_reduced
+    _, _, model, targets = built("gripper")
+    real = bilevel_reduced.solve_equilibrium
+
+    def refusing(model_, c, x0=None, options=None):
+        eq = real(model_, c, x0, options)
+        return _replace(eq, converged=False, status="refused on purpose")
+
+    monkeypatch.setattr(bilevel_reduced, "solve_equilibrium", refusing)
+    res = solve_bilevel(model, targets)
+    assert not res.converged and res.reason == "solver_failed", res.status
+    assert res.status.startswith("ipopt (reduced): ")
+    assert res.status.split(";")[0].split(": ")[1] not in ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+    # IPOPT sees NaN residuals there; the status says what they were
+    assert "; no certified equilibrium at " in res.status, res.status
+    assert res.stats.details.calls["failed_equilibrium_solves"] > 0
+    assert np.array_equal(res.contraction, model.scene.contraction)
+    _certified(model, res)

@@ -253,7 +253,11 @@ class ReducedRun:
         if self.stop == "max_iterations" or self.return_status == "Maximum_Iterations_Exceeded":
             return False, "max_iterations", f"{head}; iteration limit ({opts.max_iter}) reached{note}"
         if not self._kkt():
-            return False, "solver_failed", (f"{head}; returned the best certified iterate "
+            # NaN residuals are how a point with no certified equilibrium
+            # reaches IPOPT: say so, or Invalid_Number_Detected reads as a bug
+            failed = (f"; no certified equilibrium at {self.ev.failures} of the "
+                      f"{self.ev.solves} points tried" if self.ev.failures else "")
+            return False, "solver_failed", (f"{head}{failed}; returned the best certified iterate "
                                             f"(projected gradient {pg:.3g}){note}")
         slack = slack_winches(self.model, end.eq.x, end.c, ~self.frozen, g)
         gn = float(np.linalg.norm(g)) * float(np.mean(self.span))
