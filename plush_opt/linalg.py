@@ -54,10 +54,10 @@ BACKEND = _default_backend()
 
 # Above this many unknowns CHOLMOD's supernodal LL^T (dense BLAS on the
 # supernodes) beats its simplicial LDL^T on these meshes when the BLAS is an
-# optimised one (OpenBLAS, which `make` installs): measured 2x at 60,000
-# dofs, break-even near 25,000, and slower below (docs/benchmarks.md,
-# "Large meshes"). With the reference BLAS supernodal never wins by much.
-SUPERNODAL_MIN_DOFS = 30_000
+# optimised one (OpenBLAS, which `make` installs): break-even near 20,000
+# unknowns, 1.2x at 30,000, 1.3-1.4x at 40,000-60,000, slower below
+# (docs/benchmarks.md, "Large meshes"). With the reference BLAS it wins less.
+SUPERNODAL_MIN_DOFS = 25_000
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 
