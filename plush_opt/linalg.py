@@ -52,6 +52,15 @@ def _default_backend() -> str:
 BACKEND = _default_backend()
 
 
+# Above this many unknowns CHOLMOD's supernodal LL^T (dense BLAS on the
+# supernodes) beats its simplicial LDL^T on these meshes when the BLAS is an
+# optimised one (OpenBLAS, which `make` installs): break-even near 20,000
+# unknowns, 1.2x at 30,000, 1.3-1.4x at 40,000-60,000, slower below
+# (docs/benchmarks.md, "Large meshes"). With the reference BLAS it wins less.
+SUPERNODAL_MIN_DOFS = 25_000
+#: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
+CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
+
 # Relative pivot margin: round-off in a factorisation is ~1e-16 |H|; a
 # thousand times that is still far below the softest physical mode of the
 # shipped robots (lambda_min / |H| ~ 1e-8).
@@ -82,18 +91,27 @@ class Factorizer:
 
     The fill-reducing ordering (AMD) and symbolic analysis are computed on
     the first call and reused for every later matrix with the same pattern.
-    Both backends factor without pivoting, as a simplicial LDL^T (with
-    CHOLMOD, about twice as fast as its supernodal LL^T on these meshes).
+    Both backends factor without pivoting. QDLDL is a simplicial LDL^T;
+    CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_DOFS`
+    unknowns (about twice as fast there as its supernodal LL^T) and a
+    supernodal LL^T above (BLAS-3 on dense supernodes wins on large meshes).
     The matrix counts as positive definite when every pivot of D exceeds
     ``PIVOT_MARGIN`` times the largest: a matrix singular to round-off (a
     free rigid mode, a bifurcation point) can factor with tiny positive
     pivots, and must not be certified.
 
     ``backend``: one of :data:`BACKENDS`; default :data:`BACKEND`.
+    ``mode``: CHOLMOD's factorisation, one of :data:`CHOLMOD_MODES`
+    (ignored by QDLDL); :attr:`mode_used` says which one the last
+    factorisation took.
     """
 
-    def __init__(self, backend: str | None = None):
+    def __init__(self, backend: str | None = None, mode: str = "auto"):
         self.backend = _checked_backend(BACKEND if backend is None else backend)
+        if mode not in CHOLMOD_MODES:
+            raise SolverError(f"factorisation mode {mode!r}: expected one of {', '.join(CHOLMOD_MODES)}")
+        self.mode = mode
+        self.mode_used = None
         self._symbolic = None
         self._pattern = None
         self._spare: list = []      # qdldl: solvers of this pattern no live Factor holds
@@ -107,16 +125,22 @@ class Factorizer:
             self._pattern = pattern
         if self.backend == "cholmod":
             return self._factor_cholmod(H, shift)
+        self.mode_used = "simplicial"
         return self._factor_qdldl(H, shift)
 
     def _factor_cholmod(self, H, shift) -> "Factor":
         from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
         if self._symbolic is None:
-            self._symbolic = analyze(H, mode="simplicial", ordering_method="amd")
+            self.mode_used = self.mode
+            if self.mode == "auto":
+                self.mode_used = "supernodal" if H.shape[0] >= SUPERNODAL_MIN_DOFS else "simplicial"
+            self._symbolic = analyze(H, mode=self.mode_used, ordering_method="amd")
         try:
             f = self._symbolic.cholesky(H, beta=shift)
         except CholmodNotPositiveDefiniteError as exc:
-            raise NotPositiveDefinite(str(exc)) from None
+            raise NotPositiveDefinite(f"non-positive pivot ({exc})") from None
+        # D of a supernodal LL^T is diag(L)^2 (read off a simplicial copy of
+        # the factor: a few ms at 60,000 dofs against ~200 ms to factor)
         _check_pivots(f.D())
         return Factor(f, H, shift)
 

@@ -5,6 +5,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from shipped import ROOT
 
 
@@ -22,6 +24,35 @@ def test_bench_writes_markdown_and_json(tmp_path):
     md = (tmp_path / "bench.md").read_text()
     assert "| hexapod_leg |" in md and "Inverse control" in md
     assert "bench:" in p.stderr            # progress shown
+
+
+def test_bench_runs_both_elements_and_skips_large_inverse_solves(tmp_path):
+    """``--elements P1,P2`` benches each size with both elements; the
+    factorisation table compares CHOLMOD's two modes where installed;
+    ``--inverse-max-nodes`` skips the inverse solves and says so."""
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench",
+                        str(ROOT / "problems" / "hexapod_leg.yaml"), "--sizes", "150",
+                        "--elements", "P1,P2", "--inverse-max-nodes", "10",
+                        "--repeats", "1", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    rows = json.loads((tmp_path / "bench.json").read_text())["rows"]
+    assert [r["element"] for r in rows] == ["P1", "P2"]
+    assert all(r["forward_certified"] and "inverse_reparam_s" not in r for r in rows)
+    assert all(r["inverse_skipped"] == "above --inverse-max-nodes 10" for r in rows)
+    md = (tmp_path / "bench.md").read_text()
+    assert "| hexapod_leg | P2 |" in md and "inverse solves skipped" in md
+    if rows[0]["factor_mode"].startswith("cholmod"):
+        assert "simplicial against supernodal" in md
+
+
+@pytest.mark.parametrize("args, key", [(["--sizes", "a,b"], "--sizes"), (["--sizes", "accuracy=-1"], "--sizes"),
+                                       (["--elements", "P3"], "--elements"),
+                                       (["--inverse-max-nodes", "-1"], "--inverse-max-nodes")])
+def test_bench_rejects_bad_options(tmp_path, args, key):
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", *args,
+                        "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and key in p.stderr and "Traceback" not in p.stderr
 
 
 def test_bench_rejects_bad_sizes(tmp_path):

@@ -19,6 +19,9 @@ from plush_opt.problem import load
 
 GRIPPER = Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"
 INSTALLED = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
+# (backend, CHOLMOD mode): every factorisation the package can take
+FACTORIZATIONS = [("qdldl", "auto")] + ([("cholmod", "simplicial"), ("cholmod", "supernodal")]
+                                       if "cholmod" in INSTALLED else [])
 needs_both = pytest.mark.skipif(len(INSTALLED) < 2, reason="CHOLMOD (the [cholmod] extra) not installed")
 
 # the two backends factor the same matrix in different orders of operations
@@ -41,11 +44,11 @@ def _dense_min_eig(H):
     return float(np.linalg.eigvalsh(H.toarray())[0])
 
 
-@pytest.mark.parametrize("backend", INSTALLED)
-def test_backend_matches_dense_linear_algebra(hessian, backend):
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_backend_matches_dense_linear_algebra(hessian, backend, mode):
     H = hessian
     b = np.random.default_rng(3).standard_normal(H.shape[0])
-    f = Factorizer(backend).factor(H)
+    f = Factorizer(backend, mode).factor(H)
     x = f.solve(b)
     assert np.linalg.norm(H @ x - b) <= 1e-10 * np.linalg.norm(b)
     X = f.solve(np.column_stack([b, 2 * b]))
@@ -53,11 +56,11 @@ def test_backend_matches_dense_linear_algebra(hessian, backend):
     assert f.min_eigenvalue() == pytest.approx(_dense_min_eig(H), rel=1e-6)
 
 
-@pytest.mark.parametrize("backend", INSTALLED)
-def test_backend_refuses_an_indefinite_matrix_and_shifts_it(hessian, backend):
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_backend_refuses_an_indefinite_matrix_and_shifts_it(hessian, backend, mode):
     H = hessian
     lam = _dense_min_eig(H)
-    fz = Factorizer(backend)
+    fz = Factorizer(backend, mode)
     indefinite = (H - 2 * lam * sp.identity(H.shape[0], format="csc")).tocsc()
     with pytest.raises(NotPositiveDefinite, match="pivot"):
         fz.factor(indefinite)
@@ -69,8 +72,8 @@ def test_backend_refuses_an_indefinite_matrix_and_shifts_it(hessian, backend):
     assert np.linalg.norm(indefinite @ vector - value * vector) <= 1e-6 * abs(value)
 
 
-@pytest.mark.parametrize("backend", INSTALLED)
-def test_backend_refuses_a_matrix_singular_to_round_off(backend):
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_backend_refuses_a_matrix_singular_to_round_off(backend, mode):
     """Positive pivots, one of them below PIVOT_MARGIN x the largest (in
     either elimination order the pivots multiply to the 2x2 block's
     determinant, 1e-14)."""
@@ -78,7 +81,24 @@ def test_backend_refuses_a_matrix_singular_to_round_off(backend):
     singular = sp.block_diag([block, sp.identity(8)], format="csc")
     assert np.all(np.linalg.eigvalsh(singular.toarray()) > 0)
     with pytest.raises(NotPositiveDefinite, match=f"not above {PIVOT_MARGIN:g}"):
-        Factorizer(backend).factor(singular)
+        Factorizer(backend, mode).factor(singular)
+
+
+@needs_both
+def test_cholmod_takes_supernodal_above_its_size(hessian, monkeypatch):
+    """``auto`` is simplicial below SUPERNODAL_MIN_DOFS unknowns and
+    supernodal from it on; both solve alike (to round-off)."""
+    b = np.ones(hessian.shape[0])
+    small = Factorizer("cholmod")
+    x_small = small.factor(hessian).solve(b)
+    assert small.mode_used == "simplicial"
+    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DOFS", hessian.shape[0])
+    large = Factorizer("cholmod")
+    x_large = large.factor(hessian).solve(b)
+    assert large.mode_used == "supernodal"
+    assert np.linalg.norm(x_large - x_small) <= AGREE * np.linalg.norm(x_small)
+    with pytest.raises(SolverError, match="factorisation mode 'dense'"):
+        Factorizer("cholmod", "dense")
 
 
 def test_a_factor_stays_valid_after_later_factorisations(hessian):

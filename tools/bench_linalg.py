@@ -3,6 +3,10 @@ Hessians, with the symbolic analysis reused across refactorisations (as
 Newton does).
 
     python tools/bench_linalg.py [--nodes 1000 2000 3000] [--repeats 30]
+    python tools/bench_linalg.py --modes --element P1 P2 --nodes 5000 10000 15000 20000 --repeats 12
+
+``--modes`` compares CHOLMOD's simplicial LDL^T and supernodal LL^T instead
+(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``).
 
 For each problem and node count: the Hessian at the equilibrium of a
 mid-range contraction, then the time of ``factor(H)`` +
@@ -53,8 +57,8 @@ def _best_seconds(fns: dict, repeats: int) -> dict:
     return best
 
 
-def _hessian(name: str, nodes: int):
-    scene = load_scene(ROOT / "problems" / f"{name}.yaml")
+def _hessian(name: str, nodes: int, element: str = "P1"):
+    scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
     mesh = mesh_for_nodes(scene, nodes)
     model = build_model(scene, mesh)
     c = model.lower + CONTRACTION_FRACTION * (model.upper - model.lower)
@@ -99,12 +103,37 @@ def bench(name: str, nodes: int, repeats: int, backends) -> dict:
     return {"problem": name, "nodes": n_nodes, "nnz": H.nnz, **_best_seconds(fns, repeats)}
 
 
+def bench_modes(name: str, nodes: int, element: str, repeats: int) -> dict:
+    n_nodes, H = _hessian(name, nodes, element)
+    b = np.random.default_rng(0).standard_normal(H.shape[0])
+    fns = {mode: (lambda fz: lambda: fz.factor(H).solve(b))(linalg.Factorizer("cholmod", mode))
+           for mode in ("simplicial", "supernodal")}
+    return {"problem": name, "element": element, "nodes": n_nodes, "dofs": H.shape[0], "nnz": H.nnz,
+            **_best_seconds(fns, repeats)}
+
+
+def main_modes(args):
+    print("| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
+          "simplicial / supernodal |\n|---|---|---|---|---|---|---|---|")
+    for name in args.problems:
+        for element in args.element:
+            for nodes in args.nodes:
+                r = bench_modes(name, nodes, element, args.repeats)
+                print(f"| {name} | {element} | {r['nodes']} | {r['dofs']} | {r['nnz']} | "
+                      f"{1e3 * r['simplicial']:.1f} | {1e3 * r['supernodal']:.1f} | "
+                      f"{r['simplicial'] / r['supernodal']:.2f} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--nodes", type=int, nargs="+", default=[1000, 2000, 3000])
     ap.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=PROBLEMS)
     ap.add_argument("--repeats", type=int, default=40)
+    ap.add_argument("--modes", action="store_true", help="CHOLMOD simplicial against supernodal")
+    ap.add_argument("--element", nargs="+", default=["P1"], choices=("P1", "P2"))
     args = ap.parse_args(argv)
+    if args.modes:
+        return main_modes(args)
     backends = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
     print(f"Python {platform.python_version()}, scipy {_version('scipy')}, "
           f"scikit-sparse {_version('scikit-sparse')}, qdldl {_version('qdldl')}; "

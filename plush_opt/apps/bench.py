@@ -24,6 +24,7 @@ import numpy as np
 
 from ..control import BilevelOptions, BilevelSolver, run_control
 from ..equilibrium import EquilibriumOptions, solve_equilibrium
+from ..linalg import Factorizer
 from ..mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
 from ..results import write_json_atomic, write_text_atomic
@@ -72,15 +73,15 @@ import sys, time, json
 from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh, mesh_for_nodes
 from plush_opt.model import build_model
-scene = load_scene(sys.argv[1])
+scene = load_scene(sys.argv[1]).replace(element=sys.argv[3])
 mesh = build_mesh(scene) if sys.argv[2] == "0" else mesh_for_nodes(scene, int(sys.argv[2]))
 t = time.perf_counter(); build_model(scene, mesh); print(json.dumps(time.perf_counter() - t))
 """
 
 
-def _build_in_fresh_process(problem: Path, nodes: int, cache: str) -> float:
+def _build_in_fresh_process(problem: Path, nodes: int, element: str, cache: str) -> float:
     env = dict(os.environ, PLUSH_OPT_CACHE=cache)
-    p = subprocess.run([sys.executable, "-c", _BUILD_SNIPPET, str(problem), str(nodes)],
+    p = subprocess.run([sys.executable, "-c", _BUILD_SNIPPET, str(problem), str(nodes), element],
                        capture_output=True, text=True, env=env, timeout=600, check=True)
     return float(json.loads(p.stdout.strip().splitlines()[-1]))
 
@@ -95,30 +96,62 @@ def _certified(eq) -> bool:
     return bool(eq.converged and eq.positive_definite and eq.relative_residual <= 1e-9)
 
 
-def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
-    """One problem at about ``nodes`` nodes (0: the mesh the file asks for)."""
-    scene = load_scene(problem)
-    mesh = build_mesh(scene) if nodes == 0 else mesh_for_nodes(scene, nodes)
-    name = scene.name
-    row = {"problem": name, "target_nodes": nodes, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
-    progress(f"{name} @ {mesh.n_nodes} nodes: model build")
+def _build_times(problem: Path, nodes: int, element: str, repeats: int) -> dict:
+    """Model build in a fresh process, with an empty and a populated kernel cache."""
+    runs = max(1, min(repeats, 3))
     with tempfile.TemporaryDirectory() as cache:
-        row["build_uncached_s"] = float(np.median([_build_in_fresh_process(problem, nodes, tempfile.mkdtemp(dir=cache))
-                                                   for _ in range(max(1, min(repeats, 3)))]))
-        _build_in_fresh_process(problem, nodes, cache)   # populate
-        row["build_cached_s"] = float(np.median([_build_in_fresh_process(problem, nodes, cache)
-                                                 for _ in range(max(1, min(repeats, 3)))]))
+        uncached = [_build_in_fresh_process(problem, nodes, element, tempfile.mkdtemp(dir=cache))
+                    for _ in range(runs)]
+        _build_in_fresh_process(problem, nodes, element, cache)   # populate
+        cached = [_build_in_fresh_process(problem, nodes, element, cache) for _ in range(runs)]
+    return {"build_uncached_s": float(np.median(uncached)), "build_cached_s": float(np.median(cached))}
+
+
+def _factor_times(model, hessian, repeats: int) -> dict:
+    """The factorisation the model takes, and CHOLMOD's two modes side by side."""
+    row = {"factor_mode": None}
+    row["factor_s"], _ = _median_time(lambda: model.factorizer.factor(hessian), 5 * repeats)
+    row["factor_mode"] = f"{model.factorizer.backend} {model.factorizer.mode_used}"
+    if model.factorizer.backend == "cholmod":
+        for mode in ("simplicial", "supernodal"):
+            fz = Factorizer("cholmod", mode)
+            fz.factor(hessian)                          # symbolic analysis, once
+            row[f"factor_{mode}_s"], _ = _median_time(lambda: fz.factor(hessian), 5 * repeats)
+    return row
+
+
+def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
+              inverse_max_nodes: int | None = None) -> dict:
+    """One problem on one mesh. ``size``: about that many nodes (0: the mesh
+    the file asks for), or ``("accuracy", TOL)``: the element and mesh
+    ``--accuracy TOL`` picks (then ``element`` is ignored). Inverse solves
+    are skipped above ``inverse_max_nodes``."""
+    scene = load_scene(problem)
+    if isinstance(size, tuple):
+        picked = from_scene(scene, accuracy=size[1])
+        scene, mesh, nodes = picked.scene, picked.mesh, None
+    else:
+        nodes = size
+        scene = scene.replace(element=element)
+        mesh = build_mesh(scene) if nodes == 0 else mesh_for_nodes(scene, nodes)
+    name = scene.name
+    row = {"problem": name, "target_nodes": nodes, "accuracy": size[1] if isinstance(size, tuple) else None,
+           "element": mesh.element, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
+    label = f"{name} @ {mesh.n_nodes} nodes {mesh.element}"
+    if nodes is not None:
+        progress(f"{label}: model build")
+        row.update(_build_times(problem, nodes, mesh.element, repeats))
     problem = from_scene(scene, mesh)
     model, targets = problem.model, problem.targets
     c = _default_contraction(model, name)
     row["contraction"] = c.tolist()
 
-    progress(f"{name} @ {mesh.n_nodes} nodes: Hessian, factorisation, forward solve")
+    progress(f"{label}: Hessian, factorisation, forward solve")
     eq = solve_equilibrium(model, c, options=NO_EIG)
     ev = model.evaluate(eq.x, c)
     row["hessian_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 2), 5 * repeats)
     row["energy_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 0), 5 * repeats)
-    row["factor_s"], _ = _median_time(lambda: model.factorizer.factor(ev.hessian), 5 * repeats)
+    row.update(_factor_times(model, ev.hessian, repeats))
     row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
     row["forward_iterations"] = fwd.iterations
     row["forward_ratio"] = (row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))
@@ -126,7 +159,7 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
     row["forward_certified"] = _certified(fwd)
     row["min_eigenvalue"] = fwd.factor.min_eigenvalue() if fwd.factor is not None else None
 
-    progress(f"{name} @ {mesh.n_nodes} nodes: warm re-solve")
+    progress(f"{label}: warm re-solve")
     dc = np.zeros_like(c)
     dc[0] = 0.5
     dxdc = state_sensitivity(model, fwd)
@@ -137,9 +170,11 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
     cold = solve_equilibrium(model, c + dc, fwd.x, NO_EIG)
     row["resolve_without_predictor_iterations"] = cold.iterations
 
-    if targets.n_targets:
+    if targets.n_targets and inverse_max_nodes is not None and mesh.n_nodes > inverse_max_nodes:
+        row["inverse_skipped"] = f"above --inverse-max-nodes {inverse_max_nodes}"
+    elif targets.n_targets:
         for method in ("reparam", "clip"):
-            progress(f"{name} @ {mesh.n_nodes} nodes: inverse solve ({method})")
+            progress(f"{label}: inverse solve ({method})")
             t_run, res = _median_time(lambda: run_control(model, targets, method), max(1, repeats // 2))
             steps = np.diff([h.t_wall for h in res.history])
             row[f"inverse_{method}_s"] = t_run
@@ -151,7 +186,7 @@ def bench_one(problem: Path, nodes: int, repeats: int, progress) -> dict:
             if method == "reparam":
                 row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
                 row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
-        row.update(_bench_bilevel(model, targets, repeats, progress, f"{name} @ {mesh.n_nodes} nodes"))
+        row.update(_bench_bilevel(model, targets, repeats, progress, label))
     return row
 
 
@@ -194,6 +229,32 @@ def _ms(v):
     return "—" if v is None else f"{1e3 * v:.1f}"
 
 
+def _s(v, digits):
+    return "—" if v is None else f"{v:.{digits}f}"
+
+
+def _element(r) -> str:
+    """P1/P2, and the tolerance for a mesh --accuracy picked."""
+    return r["element"] if r.get("accuracy") is None else f"{r['element']} (--accuracy {r['accuracy']:g})"
+
+
+def _factor_lines(rows) -> list[str]:
+    """CHOLMOD's simplicial LDL^T against its supernodal LL^T, where measured."""
+    rows = [r for r in rows if "factor_simplicial_s" in r]
+    if not rows:
+        return []
+    lines = ["", "## Factorisation: simplicial against supernodal", "",
+             "One numeric factorisation of the Hessian (symbolic analysis reused). `auto` "
+             "(what the model takes) is supernodal from linalg.SUPERNODAL_MIN_DOFS unknowns on.", "",
+             "| problem | element | nodes | simplicial [ms] | supernodal [ms] | simplicial / supernodal | auto |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        ratio = r["factor_simplicial_s"] / r["factor_supernodal_s"]
+        lines.append(f"| {r['problem']} | {_element(r)} | {r['nodes']} | {_ms(r['factor_simplicial_s'])} | "
+                     f"{_ms(r['factor_supernodal_s'])} | {ratio:.2f} | {r['factor_mode'].split()[-1]} |")
+    return lines
+
+
 def render_markdown(report: dict) -> str:
     m = report["machine"]
     lines = [
@@ -208,23 +269,24 @@ def render_markdown(report: dict) -> str:
         "",
         "## Forward model",
         "",
-        "| problem | nodes | elements | build, no cache [s] | build, cached [s] | Hessian [ms] | "
-        "factorisation [ms] | forward from rest [ms] (iterations) | forward / (its x (H + F)) | "
+        "| problem | element | nodes | elements | build, no cache [s] | build, cached [s] | Hessian [ms] | "
+        "factorisation [ms] (mode) | forward from rest [ms] (iterations) | forward / (its x (H + F)) | "
         "warm re-solve [ms] (its; without predictor) | certified |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
         lines.append(
-            f"| {r['problem']} | {r['nodes']} | {r['elements']} | {r['build_uncached_s']:.2f} | "
-            f"{r['build_cached_s']:.3f} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} | "
+            f"| {r['problem']} | {_element(r)} | {r['nodes']} | {r['elements']} | {_s(r.get('build_uncached_s'), 2)} | "
+            f"{_s(r.get('build_cached_s'), 3)} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} ({r['factor_mode']}) | "
             f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | "
             f"{'—' if r['forward_ratio'] is None else format(r['forward_ratio'], '.2f')} | "
             f"{_ms(r['resolve_s'])} ({r['resolve_iterations']}; {r['resolve_without_predictor_iterations']}) | "
             f"{'yes' if r['forward_certified'] and r['resolve_certified'] else 'NO'} |")
+    lines += _factor_lines(report["rows"])
     lines += ["", "## Inverse control", "",
-              "| problem | nodes | control iterate [ms] median (max) | reparam: time [s], iterates, O | "
+              "| problem | element | nodes | control iterate [ms] median (max) | reparam: time [s], iterates, O | "
               "clip: time [s], iterates, O | bilevel: time [s], iterations, O | all iterates certified |",
-              "|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|"]
     for r in report["rows"]:
         if "inverse_reparam_s" not in r:
             continue
@@ -232,7 +294,7 @@ def render_markdown(report: dict) -> str:
                f"{r['inverse_bilevel_s']:.3f}, {r['inverse_bilevel_iterations']}, "
                f"{r['inverse_bilevel_objective']:.4g}")
         lines.append(
-            f"| {r['problem']} | {r['nodes']} | {_ms(r['control_iterate_s'])} ({_ms(r['control_iterate_max_s'])}) | "
+            f"| {r['problem']} | {_element(r)} | {r['nodes']} | {_ms(r['control_iterate_s'])} ({_ms(r['control_iterate_max_s'])}) | "
             f"{r['inverse_reparam_s']:.3f}, {r['inverse_reparam_iterates']}, {r['inverse_reparam_objective']:.4g} | "
             f"{r['inverse_clip_s']:.3f}, {r['inverse_clip_iterates']}, {r['inverse_clip_objective']:.4g} | "
             f"{bil} | {'yes' if _all_certified(r) else 'NO'} |")
@@ -241,7 +303,10 @@ def render_markdown(report: dict) -> str:
         for method in ("reparam", "clip", "bilevel"):
             key = f"inverse_{method}_status"
             if key in r:
-                lines.append(f"- {r['problem']} @ {r['nodes']} nodes, {method}: {r[key]}")
+                lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}, {method}: {r[key]}")
+        if "inverse_skipped" in r:
+            lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}: inverse solves skipped "
+                         f"({r['inverse_skipped']})")
     bil = [r for r in report["rows"] if "inverse_bilevel_s" in r]
     if bil:
         lines += ["", "## Where the bilevel method's time goes", "",
@@ -251,13 +316,13 @@ def render_markdown(report: dict) -> str:
                   "IPOPT's own: the rest of its rounds (its algebra on n_free variables and the "
                   "callbacks' overhead). Solve / reparam: the bilevel time over "
                   "the gradient loop's in the same run.", "",
-                  "| problem | nodes | setup [s] | solve, set-up included [s] | solve / reparam | IPOPT iterations "
+                  "| problem | element | nodes | setup [s] | solve, set-up included [s] | solve / reparam | IPOPT iterations "
                   "(rounds) | equilibrium solves (failed) | evaluations [s] | IPOPT's own [s] |",
-                  "|---|---|---|---|---|---|---|---|---|"]
+                  "|---|---|---|---|---|---|---|---|---|---|"]
         for r in bil:
             f = lambda v: "—" if v is None else f"{v:.3f}"  # noqa: E731
             ratio = r["inverse_bilevel_s"] / r["inverse_reparam_s"]   # each solve builds its own IPOPT problem
-            lines.append(f"| {r['problem']} | {r['nodes']} | {r['inverse_bilevel_setup_s']:.3f} | "
+            lines.append(f"| {r['problem']} | {_element(r)} | {r['nodes']} | {r['inverse_bilevel_setup_s']:.3f} | "
                          f"{r['inverse_bilevel_s']:.3f} | {ratio:.2f} | {r['inverse_bilevel_iterations']} "
                          f"({r['inverse_bilevel_rounds']}) | {r['inverse_bilevel_equilibrium_solves']} "
                          f"({r['inverse_bilevel_failed_solves']}) | "
@@ -266,14 +331,19 @@ def render_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
-def run_bench(problems, sizes, out: Path, repeats: int = 5, command: str = "", progress=None) -> dict:
+def run_bench(problems, sizes, out: Path, repeats: int = 5, command: str = "", progress=None,
+              elements=("P1",), inverse_max_nodes: int | None = None) -> dict:
+    """Bench every problem at every size with every element (a size
+    ``("accuracy", TOL)`` once: it picks its own element)."""
     progress = progress or (lambda msg: print(f"bench: {msg}", file=sys.stderr, flush=True))
     rows = []
     for problem in problems:
-        for nodes in sizes:
-            rows.append(bench_one(Path(problem), nodes, repeats, progress))
+        for size in sizes:
+            for element in (elements[:1] if isinstance(size, tuple) else elements):
+                rows.append(bench_one(Path(problem), size, repeats, progress, element, inverse_max_nodes))
     report = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
-              "repeats": repeats, "sizes": list(sizes), "rows": rows}
+              "repeats": repeats, "sizes": [list(s) if isinstance(s, tuple) else s for s in sizes],
+              "elements": list(elements), "rows": rows}
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "bench.json", report)
     write_text_atomic(out / "bench.md", render_markdown(report))
@@ -286,22 +356,48 @@ def add_bench_parser(sub) -> None:
                        description="Benchmark the shipped problems (or those given) at several mesh sizes.")
     p.add_argument("problems", nargs="*", type=Path, help="problem files (default: the shipped problems/*.yaml)")
     p.add_argument("--sizes", default="300,1000,3000",
-                   help="approximate node counts, comma separated; 'file' for the mesh the problem asks for")
+                   help="approximate node counts, comma separated; 'file' for the mesh the problem asks "
+                        "for; 'accuracy=TOL' for the element and mesh --accuracy TOL picks")
+    p.add_argument("--elements", default="P1", help="elements to bench each size with: P1, P2 or P1,P2")
+    p.add_argument("--inverse-max-nodes", type=int, default=None, metavar="N",
+                   help="skip the inverse solves on meshes above N nodes (they take minutes at 30,000)")
     p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
     p.add_argument("--out", type=Path, required=True, help="output folder for bench.md and bench.json")
     p.set_defaults(func=cmd_bench)
 
 
+def _parse_size(token: str):
+    token = token.strip()
+    if token == "file":
+        return 0
+    if token.startswith("accuracy="):
+        tol = float(token.split("=", 1)[1])
+        if not (np.isfinite(tol) and tol > 0):
+            raise ValueError(token)
+        return ("accuracy", tol)
+    nodes = int(token)
+    if nodes < 10:
+        raise ValueError(token)
+    return nodes
+
+
 def cmd_bench(args) -> int:
     from ..errors import SceneError
+    from ..scene import ELEMENTS
     try:
-        sizes = [0 if s.strip() == "file" else int(s) for s in args.sizes.split(",") if s.strip()]
+        sizes = [_parse_size(s) for s in args.sizes.split(",") if s.strip()]
     except ValueError:
-        raise SceneError(f"--sizes: expected comma-separated integers or 'file', got {args.sizes!r}") from None
-    if not sizes or any(s < 0 or 0 < s < 10 for s in sizes):
-        raise SceneError(f"--sizes: every size must be 'file' or at least 10 nodes, got {args.sizes!r}")
+        raise SceneError(f"--sizes: every size must be 'file', 'accuracy=TOL' (TOL > 0) or at least "
+                         f"10 nodes, got {args.sizes!r}") from None
+    if not sizes:
+        raise SceneError(f"--sizes: no size given in {args.sizes!r}")
+    elements = tuple(e.strip() for e in args.elements.split(",") if e.strip())
+    if not elements or any(e not in ELEMENTS for e in elements):
+        raise SceneError(f"--elements: expected P1, P2 or P1,P2, got {args.elements!r}")
     if args.repeats < 1:
         raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
+    if args.inverse_max_nodes is not None and args.inverse_max_nodes < 0:
+        raise SceneError(f"--inverse-max-nodes: expected >= 0, got {args.inverse_max_nodes}")
     if args.problems:
         problems = args.problems
     else:
@@ -313,7 +409,6 @@ def cmd_bench(args) -> int:
                          "no problem files to benchmark (none given, none shipped)")
     command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
     quiet = (lambda msg: None) if getattr(args, "quiet", False) else None
-    run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet)
+    run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet, elements=elements,
+              inverse_max_nodes=args.inverse_max_nodes)
     return 0
-
-
