@@ -546,7 +546,8 @@ class Model:
         """The elastic kernels at (mu, lambda) = (1, 0) and (0, 1)."""
         ones, zeros = np.ones(self.n_elems), np.zeros(self.n_elems)
         base = {1: self._Dinv, 2: self._elem_weight}
-        fn = _fast_kernels()["psi_grad"]
+        kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
+        fn = kernels["psi_grad"]
         return {"mu": _Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
                 "lambda": _Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
 
