@@ -127,8 +127,9 @@ class AttachmentWeights:
         nodes, integral, area = self.integrals(p, r)
         w = integral / area
         keep = np.abs(w) > WEIGHT_DROP
-        nodes, w = nodes[keep], w[keep]
-        return nodes, w / w.sum()
+        nodes, w = nodes[keep], w[keep] / w[keep].sum()
+        w[np.argmax(w)] += 1.0 - w.sum()        # the rounding of the scaling, onto the largest
+        return nodes, w
 
     def integrals(self, p, r: float) -> tuple[np.ndarray, np.ndarray, float]:
         """(nodes, integral of N_i over D n body, area of D n body) for the
