@@ -12,17 +12,17 @@ The integrals are computed once on the rest mesh, triangle by triangle:
 a triangle inside D is integrated exactly (a degree-2 rule on a degree <= 2
 integrand); a triangle the circle cuts is split into four, recursively,
 until its pieces are at most ``LEAF_FRACTION`` r wide; such a leaf piece is
-clipped by the circle's tangent line at the leaf and the clipped polygon
-integrated exactly. Error control: a leaf of width h is cut by the circle,
-so its points lie within h of the tangent line's touching point sideways,
-where the circle departs from the line by at most h^2 / (2 r): each cut
-leaf errs by O(h^3 / r), and O(r / h) leaves are cut, so the area (and
-each N_i integral, |N_i| <= 1) errs by O(h^2) = O(LEAF_FRACTION^2 r^2),
-one-sided (the clipped leaves are slightly too big). Measured on full,
-half and quarter discs (radii 0.3 to 4, meshes of 100 to 12,000 nodes, P1
-and P2): relative area errors 1e-6 to 7e-6 and centroid errors ~1e-6 r at
-LEAF_FRACTION = 1/64; tests/test_attachments.py pins them below 1e-5,
-ten times inside the 1e-4 the format asks of each weight.
+clipped by the circle's tangent line at the leaf, the clipped polygon
+integrated exactly, and the sliver between that line and the arc over the
+chord where the line crosses the leaf (its area exact, from the circular
+segment formula) taken back out with one point at its middle.
+Error control: a leaf of width h departs from the arc by at most
+h^2 / (2 r); the tangent clip alone errs by O(h^3 / r) per cut leaf, O(h^2)
+in total; the sliver correction leaves O(h^4 / r^2) of it. Measured on
+full, half and quarter discs (radii 0.3 to 4, P1 and P2): relative area
+and centroid errors below 2e-7 at LEAF_FRACTION = 1/16 (below 4e-5 at 1/4,
+1e-9 at 1/64); tests/test_attachments.py pins them below 1e-5, ten times
+inside the 1e-4 the format asks of each weight.
 
 :class:`TendonPoints` turns these weights into what the model needs: an
 extended coordinate vector z = [x; points with r > 0] and the maps between
@@ -39,8 +39,8 @@ from .elements import interpolation_weights
 from .mesh import Mesh
 
 # Leaf pieces of a cut triangle are at most this fraction of r wide: the
-# tangent-line clip then errs by < 1e-5 of the clipped disc's area (above).
-LEAF_FRACTION = 1.0 / 64
+# corrected tangent-line clip then errs by < 1e-6 of the disc's area (above).
+LEAF_FRACTION = 1.0 / 16
 # A weight smaller than this (relative to 1) is round-off of an integral that
 # is exactly zero (a P2 corner function over a whole triangle): dropped.
 WEIGHT_DROP = 1e-13
@@ -64,8 +64,8 @@ def _barycentric(V: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 
 def _distance_to_triangles(V: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Distance from p to each (filled) triangle V (m, 3, 2)."""
-    inside = np.all(_barycentric(V, np.broadcast_to(p, (len(V), 2))) >= 0, axis=1)
+    """Distance from point p_k to (filled) triangle V_k, (m, 3, 2), (m, 2) -> (m,)."""
+    inside = np.all(_barycentric(V, p) >= 0, axis=1)
     d = np.full(len(V), np.inf)
     for j in range(3):
         a, b = V[:, j], V[:, (j + 1) % 3]
@@ -84,14 +84,15 @@ def _split(V: np.ndarray) -> np.ndarray:
     return kids.reshape(-1, 3, 2)
 
 
-def _clip_by_tangent(V: np.ndarray, p: np.ndarray, r: float):
-    """Each triangle clipped by the tangent half-plane (X - p).u <= r, u the
-    direction to its centroid: the pieces as triangles and their owners."""
+def _clip_by_tangent(V: np.ndarray, p: np.ndarray, r: np.ndarray):
+    """Triangle V_k clipped by the tangent half-plane (X - p_k).u <= r_k, u
+    the direction to its centroid: the pieces as triangles and their owners."""
     u = V.mean(axis=1) - p
     u /= np.linalg.norm(u, axis=1)[:, None]
-    s = np.einsum("mkj,mj->mk", V - p, u) - r
+    s = np.einsum("mkj,mj->mk", V - p[:, None], u) - r[:, None]
     m = len(V)
     out = np.zeros((m, 4, 2))
+    on_line = np.zeros((m, 4), dtype=bool)
     cnt = np.zeros(m, dtype=np.int64)
     for j in range(3):                      # Sutherland-Hodgman, one plane
         a, b, sa, sb = V[:, j], V[:, (j + 1) % 3], s[:, j], s[:, (j + 1) % 3]
@@ -101,16 +102,34 @@ def _clip_by_tangent(V: np.ndarray, p: np.ndarray, r: float):
         cross = np.flatnonzero((sa <= 0) != (sb <= 0))
         t = sa[cross] / (sa[cross] - sb[cross])
         out[cross, cnt[cross]] = a[cross] + t[:, None] * (b[cross] - a[cross])
+        on_line[cross, cnt[cross]] = True
         cnt[cross] += 1
     first = np.flatnonzero(cnt >= 3)
     second = np.flatnonzero(cnt == 4)
     tris = np.concatenate([out[first][:, [0, 1, 2]], out[second][:, [0, 2, 3]]])
-    return tris, np.concatenate([first, second])
+    # the sliver between the clip line and the arc, over the chord where the
+    # line crosses the triangle, was counted but lies outside D: one point
+    # of weight -(its exact area) at its middle takes it back out
+    ends = np.flatnonzero(on_line.sum(axis=1) == 2)
+    both, on_line = out[ends], on_line[ends]
+    chord = both[on_line].reshape(-1, 2, 2)
+    side = np.stack([-u[ends, 1], u[ends, 0]], axis=1)
+    lat = np.sort(np.einsum("ekj,ej->ek", chord - p[ends, None], side), axis=1)
+    rr = r[ends]
+    lat = np.clip(lat, -rr[:, None], rr[:, None])
+    F = rr[:, None] * lat - 0.5 * (lat * np.sqrt(rr[:, None] ** 2 - lat ** 2)
+                                    + rr[:, None] ** 2 * np.arcsin(lat / rr[:, None]))
+    sliver = F[:, 1] - F[:, 0]
+    width = lat[:, 1] - lat[:, 0]
+    depth = np.divide(sliver, width, out=np.zeros_like(sliver), where=width > 0)   # mean depth
+    mid = chord.mean(axis=1) - u[ends] * (depth / 2)[:, None]
+    return tris, np.concatenate([first, second]), (mid, -sliver, ends)
 
 
 class AttachmentWeights:
     """Disc-average weights on one rest mesh (a KD-tree of its triangles is
-    built once; each query touches only the triangles near the disc)."""
+    built once; each query touches only the triangles near the discs, and
+    all discs are integrated together)."""
 
     def __init__(self, mesh: Mesh):
         self.mesh = mesh
@@ -122,45 +141,70 @@ class AttachmentWeights:
     def weights(self, p, r: float, node: int) -> tuple[np.ndarray, np.ndarray]:
         """(nodes, weights) of the via point p at mesh node ``node``: the
         node with weight 1 for r = 0, else the disc average (sum exactly 1)."""
-        if r == 0:
-            return np.array([node], dtype=np.int64), np.array([1.0])
-        nodes, integral, area = self.integrals(p, r)
-        w = integral / area
-        keep = np.abs(w) > WEIGHT_DROP
-        nodes, w = nodes[keep], w[keep] / w[keep].sum()
-        w[np.argmax(w)] += 1.0 - w.sum()        # the rounding of the scaling, onto the largest
-        return nodes, w
+        return self.weights_many([p], [r], [node])[0]
+
+    def weights_many(self, points, radii, nodes) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`weights` of many via points at once."""
+        radii = np.asarray(radii, dtype=np.float64)
+        out = [(np.array([v], dtype=np.int64), np.array([1.0])) for v in nodes]
+        disc = np.flatnonzero(radii > 0)
+        if not len(disc):
+            return out
+        for k, (ids, integral, area) in zip(disc, self.integrals_many(
+                np.asarray(points, dtype=np.float64).reshape(-1, 2)[disc], radii[disc])):
+            w = integral / area
+            keep = np.abs(w) > WEIGHT_DROP
+            ids, w = ids[keep], w[keep] / w[keep].sum()
+            w[np.argmax(w)] += 1.0 - w.sum()        # the rounding of the scaling, onto the largest
+            out[k] = (ids, w)
+        return out
 
     def integrals(self, p, r: float) -> tuple[np.ndarray, np.ndarray, float]:
         """(nodes, integral of N_i over D n body, area of D n body) for the
         disc D of radius r > 0 around p."""
-        p = np.asarray(p, dtype=np.float64)
-        cand = np.asarray(self.tree.query_ball_point(p, r + self.reach), dtype=np.int64)
-        cand = cand[_distance_to_triangles(self.corners[cand], p) <= r]
+        return self.integrals_many(np.reshape(p, (1, 2)), np.array([r]))[0]
+
+    def integrals_many(self, P: np.ndarray, R: np.ndarray) -> list:
+        """:meth:`integrals` of discs (P[k], R[k]), R > 0, all at once."""
+        near = self.tree.query_ball_point(P, R + self.reach)
+        point = np.repeat(np.arange(len(P)), [len(c) for c in near])
+        cand = np.concatenate([np.asarray(c, dtype=np.int64) for c in near])
+        hit = _distance_to_triangles(self.corners[cand], P[point]) <= R[point]
+        point, cand = point[hit], cand[hit]
         V, owner = self.corners[cand], np.arange(len(cand))
-        pieces, owners = [], []                  # whole pieces inside D
-        leaf = LEAF_FRACTION * r
+        pieces, owners = [], []                  # pieces inside D (whole or clipped)
+        extra_pts, extra_w, extra_owner = [], [], []    # sliver corrections
         while len(V):
-            inside = np.all(np.linalg.norm(V - p, axis=2) <= r, axis=1)
+            p, r = P[point[owner]], R[point[owner]]
+            inside = np.all(np.linalg.norm(V - p[:, None], axis=2) <= r[:, None], axis=1)
             pieces.append(V[inside])
             owners.append(owner[inside])
             cut = ~inside & (_distance_to_triangles(V, p) <= r)
-            V, owner = V[cut], owner[cut]
-            wide = np.max(np.linalg.norm(V - np.roll(V, 1, axis=1), axis=2), axis=1) > leaf
-            tris, which = _clip_by_tangent(V[~wide], p, r)
+            V, owner, p, r = V[cut], owner[cut], p[cut], r[cut]
+            wide = np.max(np.linalg.norm(V - np.roll(V, 1, axis=1), axis=2), axis=1) > LEAF_FRACTION * r
+            tris, which, (mid, wgt, whose) = _clip_by_tangent(V[~wide], p[~wide], r[~wide])
             pieces.append(tris)
             owners.append(owner[~wide][which])
+            extra_pts.append(mid)
+            extra_w.append(wgt)
+            extra_owner.append(owner[~wide][whose])
             V, owner = _split(V[wide]), np.repeat(owner[wide], 4)
         V, owner = np.concatenate(pieces), np.concatenate(owners)
-        qpts = np.einsum("qk,mkj->mqj", _RULE, V)                     # (m, 3, 2)
-        qw = np.repeat(_area(V) / 3, 3)
-        elem = cand[np.repeat(owner, 3)]
-        beta = _barycentric(self.corners[elem], qpts.reshape(-1, 2))
+        qpts = np.concatenate([np.einsum("qk,mkj->mqj", _RULE, V).reshape(-1, 2)] + extra_pts)
+        qw = np.concatenate([np.repeat(_area(V) / 3, 3)] + extra_w)
+        q_owner = np.concatenate([np.repeat(owner, 3)] + extra_owner)
+        elem = cand[q_owner]
+        beta = _barycentric(self.corners[elem], qpts)
         N = interpolation_weights(self.mesh.element, beta) * qw[:, None]
         ids = self.mesh.elements[elem]
-        nodes, inv = np.unique(ids.ravel(), return_inverse=True)
-        integral = np.bincount(inv, weights=N.ravel(), minlength=len(nodes))
-        return nodes, integral, float(qw.sum())
+        pt = np.repeat(point[q_owner], ids.shape[1])
+        keys, inv = np.unique(pt * self.mesh.n_nodes + ids.ravel(), return_inverse=True)
+        integral = np.bincount(inv, weights=N.ravel(), minlength=len(keys))
+        area = np.bincount(point[q_owner], weights=qw, minlength=len(P))
+        key_pt, key_node = np.divmod(keys, self.mesh.n_nodes)
+        bounds = np.searchsorted(key_pt, np.arange(len(P) + 1))
+        return [(key_node[a:b], integral[a:b], float(area[k]))
+                for k, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
 
 
 class TendonPoints:
@@ -177,14 +221,19 @@ class TendonPoints:
     def __init__(self, mesh: Mesh, tendons):
         n = mesh.n_nodes
         self.n_nodes = n
-        finder = None
+        radii = [float(t.attachment_radius) for t in tendons]
+        flat = []                                # (p, r, node) of every via point
+        for tendon, nodes, r in zip(tendons, mesh.tendon_nodes, radii):
+            flat += [(p, r, int(v)) for p, v in zip(tendon.path, nodes)]
+        if any(r > 0 for r in radii):
+            found = AttachmentWeights(mesh).weights_many(*zip(*flat))
+        else:
+            found = [(np.array([v], dtype=np.int64), np.array([1.0])) for _, _, v in flat]
         self.weights, self.paths, rows = [], [], []
-        for tendon, nodes in zip(tendons, mesh.tendon_nodes):
-            r = float(getattr(tendon, "attachment_radius", 0.0))
-            if r > 0 and finder is None:
-                finder = AttachmentWeights(mesh)
-            entries = [finder.weights(p, r, int(v)) if r > 0 else (np.array([v]), np.array([1.0]))
-                       for p, v in zip(tendon.path, nodes)]
+        start = 0
+        for nodes, r in zip(mesh.tendon_nodes, radii):
+            entries = found[start:start + len(nodes)]
+            start += len(nodes)
             indptr = np.concatenate([[0], np.cumsum([len(e[0]) for e in entries])])
             W = sp.csr_matrix((np.concatenate([e[1] for e in entries]),
                                np.concatenate([e[0] for e in entries]), indptr),
