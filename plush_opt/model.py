@@ -34,10 +34,12 @@ import numpy as np
 import scipy.sparse as sp
 
 from . import elements
+from .attachments import TendonPoints
 from .errors import SceneError
 from .kernels import compiled
 from .linalg import Factorizer
 from .mesh import Mesh
+from .pins import check_pins
 from .scene import Scene
 from .tendon_law import SEG, SEG_DERIVS, U_DERIVS
 from .tendon_law import U as U_FN
@@ -152,7 +154,7 @@ class Model:
         self.X = np.ascontiguousarray(mesh.X, dtype=np.float64).reshape(-1)
         self.lower = scene.lower
         self.upper = scene.upper
-        self._check_pins()
+        check_pins(scene, mesh)
 
         mat = scene.material
         self.mu, self.lam, self.thickness = mat.mu, mat.lam, mat.thickness
@@ -208,86 +210,38 @@ class Model:
 
     # -- construction -------------------------------------------------------
 
-    def _check_pins(self):
-        """Refuse a scene with free rigid modes before anything is solved.
-
-        Pieces of the mesh that share an edge move as one elastic body;
-        pieces that share only a node hinge about it. A piece is held when
-        it has at least two anchored nodes: its own pins, or nodes it shares
-        with a piece already held. Every piece must end up held; otherwise
-        the Hessian is singular whatever the pose.
-        """
-        tri = self.mesh.triangles
-        n_elems = tri.shape[0]
-        # edge-connected pieces: union-find over elements sharing an edge
-        edges = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-        owner = np.tile(np.arange(n_elems), 3)
-        order = np.lexsort((edges[:, 1], edges[:, 0]))
-        edges, owner = edges[order], owner[order]
-        same = np.all(edges[1:] == edges[:-1], axis=1)
-        parent = np.arange(n_elems)
-
-        def find(i):
-            while parent[i] != i:
-                parent[i] = parent[parent[i]]
-                i = parent[i]
-            return i
-
-        for a, b in zip(owner[:-1][same], owner[1:][same]):
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
-        piece_of_elem = np.array([find(e) for e in range(n_elems)])
-        pieces = np.unique(piece_of_elem)
-        nodes_of = {p: set(np.unique(tri[piece_of_elem == p]).tolist()) for p in pieces}
-        anchored = set(np.unique(self.mesh.pin_nodes).tolist())
-        held: set[int] = set()
-        changed = True
-        while changed:
-            changed = False
-            for p in pieces:
-                if p not in held and len(nodes_of[p] & anchored) >= 2:
-                    held.add(p)
-                    anchored |= nodes_of[p]
-                    changed = True
-        free = [p for p in pieces if p not in held]
-        if free:
-            p = free[0]
-            count = len(nodes_of[p] & anchored)
-            if len(pieces) == 1:
-                raise SceneError(
-                    f"{self.scene.source}: pins: {count} distinct pinned node(s) leave the body free "
-                    f"to move rigidly (a singular Hessian); {2 - count} more pin(s) at distinct "
-                    "points are needed")
-            node = min(nodes_of[p])
-            raise SceneError(
-                f"{self.scene.source}: pins: the mesh piece of {int(np.sum(piece_of_elem == p))} "
-                f"element(s) around node {node} (rest position "
-                f"{tuple(np.round(self.mesh.X[node], 6).tolist())}) is held at {count} distinct "
-                f"point(s) (its pins, or nodes shared with a held piece), which leaves it free to "
-                f"move rigidly (a singular Hessian); {2 - count} more pin(s) at distinct points "
-                "are needed")
-
     def _build_tendons(self):
+        """Segments between consecutive via points. A via point with an
+        attachment radius is a weighted average of nodes: the tendon terms
+        live on z = [x; those points] (plush_opt/attachments.py) and are
+        pulled back to the nodes; with every radius 0, z is x itself."""
         scene, mesh = self.scene, self.mesh
         self.has_tendons = self.n_tendons > 0
         self.tendon_stiffness = scene.tendon_stiffness
         self.tendon_smoothing = scene.tendon_smoothing
         widx = {name: i for i, name in enumerate(self.winch_names)}
         self.tendon_winch = np.array([widx[t.winch] for t in scene.tendons], dtype=np.int64)
-        paths = [np.asarray(p, dtype=np.int64) for p in mesh.tendon_nodes]
-        self.tendon_paths = paths
+        self.tendon_paths = [np.asarray(p, dtype=np.int64) for p in mesh.tendon_nodes]
+        self._points = TendonPoints(mesh, scene.tendons)
+        # the via point weights: via_weights[t] is (n_via, n_nodes) sparse,
+        # tendon t's points as weighted nodes (a selection where r = 0)
+        self.via_weights = self._points.weights
+        self.n_z = self._points.n_z
+        paths = self._points.paths
         seg_a = np.concatenate([p[:-1] for p in paths]) if paths else np.zeros(0, np.int64)
         seg_b = np.concatenate([p[1:] for p in paths]) if paths else np.zeros(0, np.int64)
         self._seg_tendon = np.concatenate(
             [np.full(len(p) - 1, t) for t, p in enumerate(paths)]) if paths else np.zeros(0, np.int64)
+        # z-space dofs of each segment's two ends
         self._seg_dofs = np.concatenate([_dofs(seg_a[:, None]), _dofs(seg_b[:, None])], axis=1) \
             if paths else np.zeros((0, 4), np.int64)
         self.n_segments = len(seg_a)
-        # assembly length a_t = l_t(X) + d_t (d_t the tendon's assembly_offset)
+        # assembly length a_t = l_t(X) + d_t (d_t the tendon's assembly_offset),
+        # l_t at the rest positions of the (weighted) via points
         self.assembly_offset = np.array([t.assembly_offset for t in scene.tendons], dtype=np.float64)
         if self.has_tendons:
-            seglen = np.linalg.norm(self.X[self._seg_dofs[:, 2:]] - self.X[self._seg_dofs[:, :2]], axis=1)
+            Z = self._points.points(self.X)
+            seglen = np.linalg.norm(Z[self._seg_dofs[:, 2:]] - Z[self._seg_dofs[:, :2]], axis=1)
             self.assembly_length = np.bincount(self._seg_tendon, weights=seglen,
                                                minlength=self.n_tendons) + self.assembly_offset
             kernels = _fast_kernels()
@@ -310,25 +264,34 @@ class Model:
 
     def _build_pattern(self):
         """The Hessian's CSC pattern and, for each contribution, its slot in
-        the CSC data array (computed once; each evaluation is a bincount)."""
+        the CSC data array (computed once; each evaluation is a bincount).
+
+        Tendon terms are z-space entries: those between node dofs go to
+        their slot directly; those touching an attachment point spread over
+        its nodes (W^T H_z W) through one sparse matrix ``_spread``."""
         n = self.n_dofs
-        rows, cols = [], []
         e = self._elem_dofs
         k = self._n_elem_dofs
-        rows.append(np.repeat(e, k, axis=1).ravel())
-        cols.append(np.tile(e, (1, k)).ravel())
-        rows.append(self._pin_dofs)
-        cols.append(self._pin_dofs)
+        rows = [np.repeat(e, k, axis=1).ravel(), self._pin_dofs]
+        cols = [np.tile(e, (1, k)).ravel(), self._pin_dofs]
+        spread = []                              # (entry, row, col, factor) per kind
         if self.has_tendons:
             s = self._seg_dofs
-            rows.append(np.repeat(s, 4, axis=1).ravel())
-            cols.append(np.tile(s, (1, 4)).ravel())
             L = self._tendon_dofs
             r = np.repeat(L, L.shape[1], axis=1)
             c = np.tile(L, (1, L.shape[1]))
             self._outer_valid = ((r >= 0) & (c >= 0)).ravel()
-            rows.append(r.ravel()[self._outer_valid])
-            cols.append(c.ravel()[self._outer_valid])
+            self._direct = {}
+            for name, zr, zc in (("seg", np.repeat(s, 4, axis=1).ravel(), np.tile(s, (1, 4)).ravel()),
+                                 ("outer", r.ravel()[self._outer_valid], c.ravel()[self._outer_valid])):
+                direct = (zr < n) & (zc < n)
+                self._direct[name] = None if direct.all() else direct
+                rows.append(zr[direct])
+                cols.append(zc[direct])
+                spread.append(self._points.expand(zr[~direct], zc[~direct]))
+            rows += [x[1] for x in spread]
+            cols += [x[2] for x in spread]
+        sizes = [len(x) for x in rows]
         rows = np.concatenate(rows)
         cols = np.concatenate(cols)
         keys = cols * n + rows
@@ -338,15 +301,19 @@ class Model:
         self._indptr = indptr.astype(np.int32)
         self._indices = urows.astype(np.int32)
         self.hessian_nnz = len(unique_keys)
-        n_e = e.shape[0] * k * k
-        n_p = len(self._pin_dofs)
-        self._slot_elem = slot[:n_e]
-        self._slot_pin = slot[n_e:n_e + n_p]
-        rest = slot[n_e + n_p:]
+        parts = np.split(slot, np.cumsum(sizes)[:-1])
+        self._slot_elem, self._slot_pin = parts[0], parts[1]
         if self.has_tendons:
-            n_s = self.n_segments * 16
-            self._slot_seg = rest[:n_s]
-            self._slot_outer = rest[n_s:]
+            self._slot_seg, self._slot_outer = parts[2], parts[3]
+            # the spread entries index the concatenation [seg entries not
+            # direct, outer entries not direct]
+            n_seg = len(s) * 16 - sizes[2]
+            n_all = n_seg + int(self._outer_valid.sum()) - sizes[3]
+            self._spread = sp.csr_matrix(
+                (np.concatenate([spread[0][3], spread[1][3]]),
+                 (np.concatenate([parts[4], parts[5]]),
+                  np.concatenate([spread[0][0], spread[1][0] + n_seg]))),
+                shape=(self.hessian_nnz, n_all))
 
     @functools.cached_property
     def _casadi(self) -> dict:
@@ -364,7 +331,9 @@ class Model:
         dp = x[self._pin_dofs.tolist()] - ca.DM(self.X[self._pin_dofs])
         E += self.pin_stiffness / 2 * ca.sumsqr(dp)
         if self.has_tendons:
-            xs = ca.reshape(x[self._seg_dofs.ravel().tolist()], 4, self.n_segments)
+            z = x if self._points.n_extra == 0 else \
+                ca.vertcat(x, ca.DM(self._points.extra_dofs) @ x)
+            xs = ca.reshape(z[self._seg_dofs.ravel().tolist()], 4, self.n_segments)
             seglen = SEG.map(self.n_segments, "serial")(xs)
             S = ca.DM(sp.csr_matrix((np.ones(self.n_segments),
                                      (self._seg_tendon, np.arange(self.n_segments))),
@@ -429,7 +398,7 @@ class Model:
         if not self.has_tendons:
             z = np.zeros(0)
             return {"length": z, "stretch": z, "tension": z, "dtension": z}
-        seglen, seggrad, seghess = self._seg(x[self._seg_dofs], 3)
+        seglen, seggrad, seghess = self._seg(self._points.points(x)[self._seg_dofs], 3)
         length = np.bincount(self._seg_tendon, weights=seglen, minlength=self.n_tendons)
         G = length - self.assembly_length + c[self.tendon_winch]
         U, dU, d2U = self._U(G, 3)
@@ -484,7 +453,8 @@ class Model:
         if self.has_tendons:
             tension = ts["tension"]
             seg_g = ts["seg_grad"] * tension[self._seg_tendon][:, None]
-            f_t = np.bincount(self._seg_dofs.ravel(), weights=seg_g.ravel(), minlength=n)
+            f_t = self._points.to_nodes(
+                np.bincount(self._seg_dofs.ravel(), weights=seg_g.ravel(), minlength=self.n_z))
             g += f_t
             scales.append(np.linalg.norm(f_t))
         force_scale = float(max(scales))
@@ -497,12 +467,19 @@ class Model:
                             minlength=self.hessian_nnz)
         if self.has_tendons:
             # U' l'' per segment, and U'' l' l'^T per tendon
-            seg_h = ts["seg_hess"] * tension[self._seg_tendon][:, None]
-            data += np.bincount(self._slot_seg, weights=seg_h.ravel(), minlength=self.hessian_nnz)
+            # (in z-space; attachment points spread over their nodes)
+            seg_h = (ts["seg_hess"] * tension[self._seg_tendon][:, None]).ravel()
             lgrad = self.length_gradient_local(ts["seg_grad"])
             outer = ts["dtension"][:, None, None] * lgrad[:, :, None] * lgrad[:, None, :]
-            data += np.bincount(self._slot_outer, weights=outer.ravel()[self._outer_valid],
+            outer = outer.ravel()[self._outer_valid]
+            ds, do = self._direct["seg"], self._direct["outer"]
+            data += np.bincount(self._slot_seg, weights=seg_h if ds is None else seg_h[ds],
                                 minlength=self.hessian_nnz)
+            data += np.bincount(self._slot_outer, weights=outer if do is None else outer[do],
+                                minlength=self.hessian_nnz)
+            if self._points.n_extra:
+                rest = [v[~d] for v, d in ((seg_h, ds), (outer, do)) if d is not None]
+                data += self._spread @ np.concatenate(rest)
         H = sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n))
         return Evaluation(energy, g, H, force_scale, True)
 
@@ -516,18 +493,18 @@ class Model:
         """dl_t/dx for every tendon, dense (n_dofs, n_tendons) (the routing
         matrix A of the paper, at pose x)."""
         x = np.asarray(x, dtype=np.float64).reshape(-1)
-        out = np.zeros((self.n_dofs, self.n_tendons))
+        out = np.zeros((self.n_z, self.n_tendons))
         if self.has_tendons:
-            (_, seggrad, _) = self._seg(x[self._seg_dofs], 3)
+            (_, seggrad, _) = self._seg(self._points.points(x)[self._seg_dofs], 3)
             for k in range(4):
                 np.add.at(out, (self._seg_dofs[:, k], self._seg_tendon), seggrad.reshape(-1, 4)[:, k])
-        return out
+        return self._points.to_nodes(out)
 
     def mixed(self, x, c) -> np.ndarray:
         """d2E/dx dc, dense (n_dofs, n_winches): column w is
         sum over tendons t of winch w of U''(G_t) dl_t/dx."""
         x = np.asarray(x, dtype=np.float64).reshape(-1)
-        out = np.zeros((self.n_dofs, self.n_winches))
+        out = np.zeros((self.n_z, self.n_winches))
         if not self.has_tendons:
             return out
         ts = self.tendon_state(x, c)
@@ -535,7 +512,7 @@ class Model:
         winch = self.tendon_winch[self._seg_tendon]
         for k in range(4):
             np.add.at(out, (self._seg_dofs[:, k], winch), weight[:, k])
-        return out
+        return self._points.to_nodes(out)
 
     def parameter_mixed(self, x, c) -> dict[str, np.ndarray]:
         """d2E/dx dp for the scene parameters p, exact, at pose x, contraction c.
@@ -550,8 +527,8 @@ class Model:
         xe, n = x[self._elem_dofs], self.n_dofs
         out = {name: np.bincount(self._elem_dofs.ravel(), weights=fn(xe, 2)[1], minlength=n)
                for name, fn in self._unit_material.items()}
-        out["tendon_stiffness"] = np.zeros((n, self.n_tendons))
-        out["assembly_offset"] = np.zeros((n, self.n_tendons))
+        out["tendon_stiffness"] = np.zeros((self.n_z, self.n_tendons))
+        out["assembly_offset"] = np.zeros((self.n_z, self.n_tendons))
         if self.has_tendons:
             ts = self.tendon_state(x, c)
             for k in range(4):
@@ -559,6 +536,8 @@ class Model:
                           (ts["tension"][self._seg_tendon] / self.tendon_stiffness) * ts["seg_grad"][:, k])
                 np.add.at(out["assembly_offset"], (self._seg_dofs[:, k], self._seg_tendon),
                           -ts["dtension"][self._seg_tendon] * ts["seg_grad"][:, k])
+        for key in ("tendon_stiffness", "assembly_offset"):
+            out[key] = self._points.to_nodes(out[key])
         out["tendon_stiffness"] = out["tendon_stiffness"].sum(axis=1)
         return out
 
@@ -567,7 +546,8 @@ class Model:
         """The elastic kernels at (mu, lambda) = (1, 0) and (0, 1)."""
         ones, zeros = np.ones(self.n_elems), np.zeros(self.n_elems)
         base = {1: self._Dinv, 2: self._elem_weight}
-        fn = _fast_kernels()["psi_grad"]
+        kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
+        fn = kernels["psi_grad"]
         return {"mu": _Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
                 "lambda": _Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
 

@@ -29,6 +29,18 @@ METHODS = ("forward", "reparam", "clip", "bilevel")
 _UMASK_LOCK = threading.Lock()
 
 
+def _tendon_entry(tendon, path, assembly_length, weights) -> dict:
+    """One entry of ``model.tendons.list``; with an attachment radius, each
+    via point's nodes and weights (``points``, in path order)."""
+    entry = {"name": tendon.name, "winch": tendon.winch, "nodes": path.tolist(),
+             "assembly_length": float(assembly_length), "assembly_offset": tendon.assembly_offset}
+    if tendon.attachment_radius > 0:
+        entry["attachment_radius"] = tendon.attachment_radius
+        entry["points"] = [{"nodes": weights.indices[a:b].tolist(), "weights": weights.data[a:b].tolist()}
+                           for a, b in zip(weights.indptr[:-1], weights.indptr[1:])]
+    return entry
+
+
 def model_dict(model: Model, targets: Targets) -> dict:
     """The spec's ``model`` section."""
     scene = model.scene
@@ -46,9 +58,8 @@ def model_dict(model: Model, targets: Targets) -> dict:
             "smoothing": scene.tendon_smoothing,
             # assembly_length includes the tendon's assembly_offset (an extra
             # key, so a reader can tell it from the rest path length)
-            "list": [{"name": t.name, "winch": t.winch, "nodes": p.tolist(),
-                      "assembly_length": float(a), "assembly_offset": t.assembly_offset}
-                     for t, p, a in zip(scene.tendons, model.tendon_paths, model.assembly_length)],
+            "list": [_tendon_entry(t, p, a, W) for t, p, a, W in
+                     zip(scene.tendons, model.tendon_paths, model.assembly_length, model.via_weights)],
         },
         "winches": [{"name": w.name, "bounds": [float(w.bounds[0]), float(w.bounds[1])],
                      "frozen": bool(f)}

@@ -64,12 +64,16 @@ class Tendon:
 
     ``assembly_offset`` d (length units) adds to the assembly length:
     a = l(X) + d (negative: tied taut at rest; positive: slack).
+    ``attachment_radius`` r (length units): with r > 0 each via point is the
+    average of the body over the disc of radius r around it (a stopper or a
+    felt hole spreads the pull); 0 is the single node.
     """
 
     name: str
     winch: str
     path: np.ndarray  # (n_via, 2) rest coordinates
     assembly_offset: float = 0.0
+    attachment_radius: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "path", _points(self.path))
@@ -77,7 +81,8 @@ class Tendon:
     def __eq__(self, other):
         return (isinstance(other, Tendon) and self.name == other.name
                 and self.winch == other.winch and np.array_equal(self.path, other.path)
-                and self.assembly_offset == other.assembly_offset)
+                and self.assembly_offset == other.assembly_offset
+                and self.attachment_radius == other.attachment_radius)
 
     __hash__ = None
 

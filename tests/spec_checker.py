@@ -24,6 +24,16 @@ def _elements(model):
     return X, tri, Dm
 
 
+def via_weights(t, n_nodes):
+    """Dense (n_via, n_nodes) weights of a tendon's via points: its
+    ``points`` (finite attachments) if given, else one node each."""
+    points = t.get("points") or [{"nodes": [v], "weights": [1.0]} for v in t["nodes"]]
+    W = np.zeros((len(points), n_nodes))
+    for k, p in enumerate(points):
+        np.add.at(W[k], np.asarray(p["nodes"], int), np.asarray(p["weights"], float))
+    return W
+
+
 def tendon_energy(G, K, eps):
     G = np.asarray(G, float)
     return np.where(G <= -eps, 0.0,
@@ -112,15 +122,18 @@ def _other_terms(doc, m, X, tri, A, x, E, g):
     np.add.at(g, pn, kp * (x[pn] - X[pn]))
     K, eps = m["tendons"]["stiffness"], m["tendons"]["smoothing"]
     for t in m["tendons"]["list"]:
-        nodes = np.asarray(t["nodes"], int)
-        seg = x[nodes[1:]] - x[nodes[:-1]]
+        W = via_weights(t, len(x))
+        P = W @ x                                  # the (weighted) via points
+        seg = P[1:] - P[:-1]
         seglen = np.linalg.norm(seg, axis=1)
         rest = t["assembly_length"] - doc["contractions"][t["winch"]]
         G = seglen.sum() - rest
         E += float(tendon_energy(G, K, eps))
         unit = seg / seglen[:, None] * tendon_tension(G, K, eps)
-        np.add.at(g, nodes[1:], unit)
-        np.add.at(g, nodes[:-1], -unit)
+        gP = np.zeros_like(P)
+        gP[1:] += unit
+        gP[:-1] -= unit
+        g += W.T @ gP
     if m["gravity"] is not None:
         gv = np.asarray(m["gravity"], float)
         w = mat["density"] * th * A / 3
@@ -160,8 +173,11 @@ def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
     x = np.asarray(doc["nodes"], float)
     assert x.shape == X.shape, "nodes and rest_nodes differ in shape"
     for t in m["tendons"]["list"]:
-        nodes = np.asarray(t["nodes"], int)
-        a = np.linalg.norm(np.diff(X[nodes], axis=0), axis=1).sum() + t.get("assembly_offset", 0.0)
+        W = via_weights(t, len(X))
+        a = np.linalg.norm(np.diff(W @ X, axis=0), axis=1).sum() + t.get("assembly_offset", 0.0)
+        if "points" in t:
+            assert len(t["points"]) == len(t["nodes"]), f"points of {t['name']}"
+            assert np.allclose(W.sum(axis=1), 1, rtol=0, atol=1e-12), f"weights of {t['name']}"
         assert abs(a - t["assembly_length"]) <= 1e-9 * max(a, 1), f"assembly_length of {t['name']}"
         assert t["winch"] in doc["contractions"], f"tendon {t['name']}: unknown winch"
     for w in m["winches"]:

@@ -23,7 +23,7 @@ LAYERS = [
     ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
-    ("model", ("model", "elements", "tendon_law", "objective")),
+    ("model", ("model", "attachments", "pins", "elements", "tendon_law", "objective")),
     ("solvers", ("equilibrium", "sensitivity", "accuracy")),
     ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),
