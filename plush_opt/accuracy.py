@@ -10,7 +10,7 @@ few body points (the targets, or else the tendon stoppers and the scene's
 extra points) from three consecutive levels:
 
     d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, r_theory),
-    error_k <= SAFETY d_k / (1 - r_k)
+    error_k <= SAFETY d_k / (1 - r_k),  confirmed by error_{k+1} <= error_k
 
 (the remaining differences d_k + d_{k+1} + ... summed as a geometric series
 with the observed ratio: Richardson extrapolation with the observed order,
@@ -19,7 +19,8 @@ best expected order gives for the level's refinement, so a coincidentally
 small difference never makes the estimate optimistic; a ratio near 1 (no
 convergence, e.g. under a point load) gives no estimate at all. The picked
 level is the one with the least measured solve time whose estimate is below
-the tolerance; docs/accuracy.md has the reasoning and the measurements.
+the tolerance and whose next level confirms it; docs/accuracy.md has the
+reasoning and the measurements.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
 (interpolation of the displacement); the finer level's solve starts from
@@ -49,7 +50,9 @@ log = logging.getLogger(__name__)
 #: Default resolution sweep: max_area as multiples of the scene's own. Each
 #: level halves the area (about twice the nodes), so a level picked because
 #: the one before it missed the tolerance is at most about 2x too fine.
-DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125, 0.0625)
+#: The finest is an eighth of the file's area (P2 there has ~30x the file's P1
+#: nodes): the budget of a tolerance that cannot be met.
+DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125)
 #: A level counts as finer than the previous one only with this many times its nodes.
 MIN_REFINEMENT = 1.3
 #: Element types tried, in this order (P2 first: its solve time bounds how
@@ -170,13 +173,17 @@ class Level:
     difference_to_next: float | None = None
     ratio: float | None = None
     estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
+    confirmed: bool = False          # the next level's estimate agrees (see estimate_errors)
+
+    def meets(self, tol: float) -> bool:
+        return self.confirmed and self.estimate <= tol
 
     def row(self) -> dict:
         return {"element": self.element, "max_area": self.max_area, "n_nodes": self.mesh.n_nodes,
                 "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
                 "newton_iterations": self.newton_iterations,
                 "difference_to_next": self.difference_to_next, "ratio": self.ratio,
-                "estimated_error": _json_number(self.estimate)}
+                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed}
 
 
 def _json_number(v):
@@ -211,7 +218,11 @@ def estimate_errors(ys, nodes, element: str) -> list[dict]:
             observed = d[k] / d[k - 1] if d[k - 1] > 0 else 0.0
             ratio = max(observed, theory)
             estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
-        out.append({"difference": d[k], "ratio": ratio, "estimate": estimate})
+        out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
+    for k in range(n - 1):
+        here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
+        out[k]["confirmed"] = (here is not None and nxt is not None and math.isfinite(nxt)
+                               and nxt <= here)
     return out
 
 
@@ -247,7 +258,7 @@ def _solve_level(scene: Scene, area: float, cs, points, prev: Level | None,
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
            time_limit: float = math.inf) -> list[Level]:
     """Levels of one element, coarse to fine, until one meets ``tol`` (its
-    estimate needs the next level), the levels run out, or a level's solve
+    confirmed estimate needs the next two levels), the levels run out, or a level's solve
     is slower than ``time_limit`` (the best other candidate's: no finer
     level of this element can beat it)."""
     scene = dataclasses.replace(scene, element=element)
@@ -262,8 +273,8 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
         est = estimate_errors([lv.y for lv in done], [lv.mesh.n_nodes for lv in done], element)
         for lv, e in zip(done, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
-        met = [lv for lv in done if lv.estimate is not None and lv.estimate <= tol]
-        if met or done[-1].t_solve > time_limit:
+            lv.confirmed = e["confirmed"]
+        if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
             break
     return done
 
@@ -341,7 +352,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
                       math.inf if best is None else best.t_solve)
         computed += done
         for lv in done:
-            if lv.estimate is not None and lv.estimate <= tol and (best is None or lv.t_solve < best.t_solve):
+            if lv.meets(tol) and (best is None or lv.t_solve < best.t_solve):
                 best = lv
     reached = best is not None
     if not reached:

@@ -58,6 +58,16 @@ def test_estimate_of_a_geometric_sequence_is_its_true_error_times_the_safety_fac
         assert est[k]["ratio"] == pytest.approx(max(r, theory))
         assert est[k]["estimate"] >= true
         assert est[k]["estimate"] == pytest.approx(SAFETY * 0.5 * r**k * (1 - r) / (1 - max(r, theory)))
+    # confirmed by the next level's estimate; the last estimate has none to confirm it
+    assert [e["confirmed"] for e in est] == [False, True, True, False, False]
+
+
+def test_a_coincidental_agreement_is_not_confirmed():
+    # two coarse levels agree, the next difference is large again
+    ys = [np.array([[0.0, v]]) for v in (0.0, 1.0, 1.05, 2.5, 2.9, 3.0)]
+    est = estimate_errors(ys, [100 * 2**k for k in range(6)], "P2")
+    assert math.isfinite(est[1]["estimate"]) and est[1]["estimate"] < 0.2
+    assert not est[1]["confirmed"] and est[2]["estimate"] == math.inf
 
 
 def test_differences_that_do_not_shrink_give_no_estimate():
@@ -174,14 +184,13 @@ def test_explicit_mesh_is_returned_as_is():
 
 def test_result_json_records_the_accuracy(tmp_path):
     out = tmp_path / "r.json"
-    p = run("solve", str(_coarse_leg(tmp_path)), "--method", "forward", "--accuracy", "2",
-            "--out", str(out))
+    p = run("solve", str(CANTILEVER), "--method", "forward", "--accuracy", "0.002", "--out", str(out))
     assert p.returncode == 0, p.stderr
     doc = json.loads(out.read_text())
     acc = doc["accuracy"]
     assert {"tolerance", "estimated_error", "element", "nodes"} <= set(acc)
-    assert acc["tolerance"] == 2.0 and acc["element"] in ("P1", "P2") and acc["reached"]
-    assert acc["estimated_error"] <= 2.0
+    assert acc["tolerance"] == 0.002 and acc["element"] in ("P1", "P2") and acc["reached"]
+    assert acc["estimated_error"] <= 0.002
     assert acc["nodes"] == len(doc["model"]["rest_nodes"])
     assert acc["summary"] in p.stderr and "warning" not in p.stderr
 
