@@ -9,7 +9,7 @@ cheaper), and estimates the error of each level's predicted positions of a
 few body points (the targets, or else the tendon stoppers and the scene's
 extra points) from three consecutive levels:
 
-    d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, r_theory),
+    d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, d_{k+1} / d_k, r_theory),
     error_k <= SAFETY d_k / (1 - r_k),  confirmed by error_{k+1} <= error_k
 
 (the remaining differences d_k + d_{k+1} + ... summed as a geometric series
@@ -66,10 +66,9 @@ EXPECTED_ORDER = {"P1": 2.0, "P2": 3.0}
 #: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
 MAX_RATIO = 0.8
 #: The geometric tail times this: on unstructured, non-nested meshes the
-#: differences of consecutive levels scatter about their trend (on the
-#: cantilever one P2 level's tail was 1.45x what its ratio predicted);
-#: Roache's grid convergence index uses 1.25 for three grids, 3 for two.
-SAFETY = 1.5
+#: differences of consecutive levels scatter about their trend; Roache's
+#: grid convergence index uses 1.25 with three or more grids (3 for two).
+SAFETY = 1.25
 
 
 def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
@@ -215,8 +214,11 @@ def estimate_errors(ys, nodes, element: str) -> list[dict]:
         ratio = estimate = None
         if 0 < k < n - 1:
             theory = (nodes[k] / nodes[k + 1]) ** (EXPECTED_ORDER[element] / 2)
-            observed = d[k] / d[k - 1] if d[k - 1] > 0 else 0.0
-            ratio = max(observed, theory)
+            # the ratios on both sides, where known: level k + 2 is solved
+            # anyway to confirm level k, and one ratio alone scatters
+            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0
+                        for j in (k - 1, k) if j + 1 < n - 1]
+            ratio = max(observed + [theory])
             estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
         out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
     for k in range(n - 1):
