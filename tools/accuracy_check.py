@@ -54,13 +54,19 @@ def distance(a, b) -> np.ndarray:
     return np.linalg.norm(np.asarray(a) - np.asarray(b), axis=-1).max(axis=0)
 
 
-def convergence_rows(scene, finest: float):
+def contractions(scene, file_only: bool) -> np.ndarray:
+    """The probe contractions, or only the file's (``--file-contraction``)."""
+    cs = probe_contractions(scene)
+    return cs[:1] if file_only else cs
+
+
+def convergence_rows(scene, finest: float, cs):
     """P2 levels from the coarsest default factor down to ``finest``; returns
     (levels, rows) with the reference the finest level."""
     base = base_area(scene)
-    areas = [base * f for f in DEFAULT_FACTORS if f >= finest - 1e-12]
+    factors = sorted(set(DEFAULT_FACTORS) | {finest}, reverse=True)
+    areas = [base * f for f in factors if f >= finest - 1e-12]
     points, _ = probe_points(scene)
-    cs = probe_contractions(scene)
     levels = sweep(scene, "P2", areas, cs, points, 0.0, OPTIONS)
     ref = levels[-1].y
     rows = []
@@ -97,12 +103,12 @@ def fmt(v, spec=".3g") -> str:
     return "n/a" if v is None else ("inf" if v == float("inf") else format(v, spec))
 
 
-def check(path: Path, tols, finest: float) -> str:
+def check(path: Path, tols, finest: float, file_only: bool = False) -> str:
     scene = load_scene(path)
     points, kind = probe_points(scene)
-    cs = probe_contractions(scene)
+    cs = contractions(scene, file_only)
     t0 = time.perf_counter()
-    levels, rows, monotone = convergence_rows(scene, finest)
+    levels, rows, monotone = convergence_rows(scene, finest, cs)
     ref = levels[-1]
     out = [f"## {scene.name} ({path.name})", "",
            f"Compared points: {kind} ({len(points)}); contractions {cs.tolist()}; reference: P2, "
@@ -119,7 +125,7 @@ def check(path: Path, tols, finest: float) -> str:
             "| TOL | element | nodes | estimated error | true error | reference >= 4x finer | one solve s | within TOL |",
             "|---|---|---|---|---|---|---|---|"]
     for tol in tols:
-        _, report = choose_mesh(scene, tol)
+        _, report = choose_mesh(scene, tol, contractions=cs)
         true = chosen_error(scene, report, ref, cs, points)
         four = ref.mesh.n_nodes >= 4 * report["nodes"]
         ok = "yes" if true <= tol else "NO"
@@ -137,14 +143,17 @@ def main(argv=None) -> int:
     ap.add_argument("--tols", nargs="+", type=float, default=[1.0, 0.25, 0.05])
     ap.add_argument("--finest", type=float, default=0.0625,
                     help="the reference's max_area as a multiple of the file's (default 1/16)")
+    ap.add_argument("--file-contraction", action="store_true",
+                    help="compare at the file's contractions only (not also mid-range)")
     ap.add_argument("--out", type=Path, default=Path("accuracy_check.md"))
     args = ap.parse_args(argv)
     parts = ["# Accuracy estimate check", "",
              f"`python tools/accuracy_check.py {' '.join(str(p) for p in args.problems)} "
-             f"--tols {' '.join(f'{t:g}' for t in args.tols)} --finest {args.finest:g}` "
+             f"--tols {' '.join(f'{t:g}' for t in args.tols)} --finest {args.finest:g}"
+             f"{' --file-contraction' if args.file_contraction else ''}` "
              f"(Python {platform.python_version()}).", ""]
     for path in args.problems:
-        parts.append(check(path, args.tols, args.finest))
+        parts.append(check(path, args.tols, args.finest, args.file_contraction))
         args.out.write_text("\n".join(parts) + "\n")      # what exists so far, if interrupted
         print(f"accuracy_check: {path.name} done", file=sys.stderr)
     print(f"accuracy_check: wrote {args.out}", file=sys.stderr)
