@@ -1,24 +1,35 @@
-"""Mesh resolution from an accuracy tolerance.
+"""Element and mesh from an accuracy tolerance, with an error estimate that
+accounts for the convergence rate.
 
 A finer mesh predicts the pose better and costs more per equilibrium solve
-(and much more in the bilevel method). :func:`choose_mesh` meshes the scene
-at a sequence of resolutions, coarse to fine, solves the equilibrium at a
-few contractions on each, and picks the coarsest mesh whose predicted
-positions of a few body points (the targets, or else the tendon stoppers
-and the scene's extra points) differ from the next finer mesh by less than
-the tolerance (length units). The difference to the next finer mesh is the
-usual a-posteriori estimate of the discretisation error of the coarser one.
-These differences do not always shrink steadily with refinement (linear
-triangles are stiff in bending), so by default the next pair must agree
-too before a level is taken.
+(and much more in the bilevel method). :func:`choose_mesh` solves the
+equilibrium at a few contractions on a sequence of meshes, coarse to fine,
+for each element type (P2 first, then P1 as long as it can still be
+cheaper), and estimates the error of each level's predicted positions of a
+few body points (the targets, or else the tendon stoppers and the scene's
+extra points) from three consecutive levels:
+
+    d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, d_{k+1} / d_k, r_theory),
+    error_k <= SAFETY d_k / (1 - r_k),  confirmed by error_{k+1} <= error_k
+
+(the remaining differences d_k + d_{k+1} + ... summed as a geometric series
+with the observed ratio: Richardson extrapolation with the observed order,
+bounded by the triangle inequality). ``r_theory`` is the ratio the element's
+best expected order gives for the level's refinement, so a coincidentally
+small difference never makes the estimate optimistic; a ratio near 1 (no
+convergence, e.g. under a point load) gives no estimate at all. The picked
+level is the one with the least measured solve time whose estimate is below
+the tolerance and whose next level confirms it; docs/accuracy.md has the
+reasoning and the measurements.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
-(barycentric interpolation of the displacement); the finer level's solve
-starts from it, so every level follows the same branch of equilibria.
+(interpolation of the displacement); the finer level's solve starts from
+it, so every level follows the same branch of equilibria.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -36,10 +47,28 @@ from .scene import Scene
 
 log = logging.getLogger(__name__)
 
-#: Default resolution sweep: max_area as multiples of the scene's own.
-DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25)
+#: Default resolution sweep: max_area as multiples of the scene's own. Each
+#: level halves the area (about twice the nodes), so a level picked because
+#: the one before it missed the tolerance is at most about 2x too fine.
+#: The finest is an eighth of the file's area (P2 there has ~30x the file's P1
+#: nodes): the budget of a tolerance that cannot be met.
+DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125)
 #: A level counts as finer than the previous one only with this many times its nodes.
 MIN_REFINEMENT = 1.3
+#: Element types tried, in this order (P2 first: its solve time bounds how
+#: far the P1 sweep has to go).
+ELEMENT_ORDER = ("P2", "P1")
+#: Best convergence order (in the mesh size h) of point displacements
+#: expected of each element (h^(k+1) for degree k): the estimate never
+#: assumes faster convergence than this, whatever two levels happened to show.
+EXPECTED_ORDER = {"P1": 2.0, "P2": 3.0}
+#: Differences shrinking by less than this per level are not converging
+#: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
+MAX_RATIO = 0.8
+#: The geometric tail times this: on unstructured, non-nested meshes the
+#: differences of consecutive levels scatter about their trend; Roache's
+#: grid convergence index uses 1.25 with three or more grids (3 for two).
+SAFETY = 1.25
 
 
 def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
@@ -128,40 +157,173 @@ def probe_contractions(scene: Scene) -> np.ndarray:
     return np.array(cs)
 
 
+@dataclasses.dataclass
+class Level:
+    """One mesh level of one element type: its mesh, cost and predictions."""
+
+    element: str
+    max_area: float
+    mesh: Mesh
+    t_mesh: float
+    t_solve: float
+    newton_iterations: int
+    poses: list                      # certified equilibria, one per contraction
+    y: np.ndarray                    # (m contractions, k points, 2) predicted positions
+    difference_to_next: float | None = None
+    ratio: float | None = None
+    estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
+    confirmed: bool = False          # the next level's estimate agrees (see estimate_errors)
+
+    def meets(self, tol: float) -> bool:
+        return self.confirmed and self.estimate <= tol
+
+    def row(self) -> dict:
+        return {"element": self.element, "max_area": self.max_area, "n_nodes": self.mesh.n_nodes,
+                "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
+                "newton_iterations": self.newton_iterations,
+                "difference_to_next": self.difference_to_next, "ratio": self.ratio,
+                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed}
+
+
+def _json_number(v):
+    return None if v is None or not math.isfinite(v) else float(v)
+
+
+def estimate_errors(ys, nodes, element: str) -> list[dict]:
+    """Error estimates of a sequence of levels of one element, coarse to fine.
+
+    Parameters
+    ----------
+    ys : per level, the predicted point positions (any shape ending in 2).
+    nodes : per level, its number of nodes.
+    element : "P1" or "P2" (sets the expected order).
+
+    Returns
+    -------
+    per level a dict: ``difference`` (max distance to the next level, None
+    for the last), ``ratio`` (the ratio used, None without a previous
+    difference) and ``estimate`` (d / (1 - ratio); None where it needs a
+    level that is missing, inf where the differences do not shrink by
+    MAX_RATIO per level).
+    """
+    n = len(ys)
+    d = [float(np.max(np.linalg.norm(np.asarray(ys[k]) - np.asarray(ys[k + 1]), axis=-1), initial=0.0))
+         for k in range(n - 1)] + [None]
+    out = []
+    for k in range(n):
+        ratio = estimate = None
+        if 0 < k < n - 1:
+            theory = (nodes[k] / nodes[k + 1]) ** (EXPECTED_ORDER[element] / 2)
+            # the ratios on both sides, where known: level k + 2 is solved
+            # anyway to confirm level k, and one ratio alone scatters
+            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0
+                        for j in (k - 1, k) if j + 1 < n - 1]
+            ratio = max(observed + [theory])
+            estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
+        out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
+    for k in range(n - 1):
+        here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
+        out[k]["confirmed"] = (here is not None and nxt is not None and math.isfinite(nxt)
+                               and nxt <= here)
+    return out
+
+
+def _solve_level(scene: Scene, area: float, cs, points, prev: Level | None,
+                 options: EquilibriumOptions) -> Level:
+    """Mesh ``scene`` at ``area``, time one cold solve, and solve at every
+    contraction of ``cs`` from the previous level's poses."""
+    t0 = time.perf_counter()
+    mesh = build_mesh(scene, max_area=area)
+    t_mesh = time.perf_counter() - t0
+    model = build_model(scene, mesh)
+    probe = Targets.at_points(mesh, points, points)
+    solve_equilibrium(model, cs[-1], None, options)      # CHOLMOD's symbolic analysis: setup
+    t0 = time.perf_counter()
+    cold = solve_equilibrium(model, cs[-1], None, options)
+    t_solve = time.perf_counter() - t0
+    poses, ys = [], []
+    for j, c in enumerate(cs):
+        x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
+        eq = cold if x0 is None and j == len(cs) - 1 and cold.converged else \
+            equilibrium_at(model, c, x0, options)
+        if not eq.converged:
+            raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction "
+                             f"{c.tolist()} on the {scene.element} mesh with max_area {area:g}: "
+                             f"{eq.status}")
+        poses.append(eq.x)
+        ys.append(probe.y(eq.x))
+    log.info("accuracy: %s max_area %.4g, %d nodes, one solve %.3f s", scene.element, area,
+             mesh.n_nodes, t_solve)
+    return Level(scene.element, area, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys))
+
+
+def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
+           time_limit: float = math.inf) -> list[Level]:
+    """Levels of one element, coarse to fine, until one meets ``tol`` (its
+    confirmed estimate needs the next two levels), the levels run out, or a level's solve
+    is slower than ``time_limit`` (the best other candidate's: no finer
+    level of this element can beat it)."""
+    scene = dataclasses.replace(scene, element=element)
+    done: list[Level] = []
+    for area in levels:
+        if done and build_mesh(scene, max_area=area).n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
+            # not really finer (forced points and the angle bound dominate)
+            log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
+                     element, area)
+            continue
+        done.append(_solve_level(scene, area, cs, points, done[-1] if done else None, options))
+        est = estimate_errors([lv.y for lv in done], [lv.mesh.n_nodes for lv in done], element)
+        for lv, e in zip(done, est):
+            lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
+            lv.confirmed = e["confirmed"]
+        if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
+            break
+    return done
+
+
+def _check_arguments(tol, levels, scene: Scene):
+    if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
+        raise SceneError(f"{scene.source}: accuracy: the tolerance must be a finite number > 0, "
+                         f"got {tol!r}")
+    levels = default_levels(scene) if levels is None else tuple(float(a) for a in levels)
+    if len(levels) < 3 or any(not (a > 0 and math.isfinite(a)) for a in levels) \
+            or any(b >= a for a, b in zip(levels, levels[1:])):
+        raise SceneError(f"{scene.source}: accuracy: levels must be >= 3 max_area values > 0, "
+                         f"strictly decreasing (coarse to fine), got {list(levels)!r}")
+    return float(tol), levels
+
+
 def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points=None,
-                options: EquilibriumOptions | None = None, confirm: bool = True) -> tuple[Mesh, dict]:
-    """The coarsest mesh that predicts the pose to within ``tol``.
+                options: EquilibriumOptions | None = None,
+                elements=ELEMENT_ORDER) -> tuple[Mesh, dict]:
+    """The element and mesh that predict the pose to within ``tol`` at the
+    least solve time.
 
     Parameters
     ----------
     scene : an outline scene (an explicit mesh is returned unchanged).
-    tol : largest acceptable difference (length units) between a level's
-        predicted point positions and the next finer level's.
+    tol : largest acceptable estimated error (length units) of the
+        predicted positions of the compared points.
     levels : max_area values (length^2), coarse to fine (strictly
-        decreasing); default :func:`default_levels`.
+        decreasing, at least 3); default :func:`default_levels`.
     contractions : (m, n_winches) contractions to compare at; default
         :func:`probe_contractions`.
     points : (k, 2) rest coordinates of the compared body points; default
         :func:`probe_points`.
     options : equilibrium options.
-    confirm : also require the next finer level to agree with its own next
-        finer level (two differences in a row below ``tol``). The
-        differences of these meshes do not always shrink with refinement
-        (linear triangles in bending and compression): one small
-        difference can be a coincidence, two in a row rarely are. Costs one
-        more level.
+    elements : element types to try ("P2", "P1").
 
     Returns
     -------
-    mesh : the chosen mesh.
-    report : dict (JSON-able): ``tol``, ``picked`` (level index),
-        ``max_area``, ``n_nodes``, ``reached`` (False if no level met the
-        tolerance: the finest computed level is returned), ``confirmed``,
-        ``levels`` (per
-        level: max_area, n_nodes, n_elems, t_mesh_s, t_solve_s,
-        difference_to_next; levels that are not 1.3 x finer than the previous
-        one are skipped), ``points``, ``contractions``, and the savings
-        against the next finer level and the scene's own mesh.
+    mesh : the chosen mesh (its ``element`` is the chosen element).
+    report : dict (JSON-able): ``tolerance``, ``estimated_error`` (None if
+        no level has an estimate), ``element``, ``nodes``, ``reached``
+        (False: no level met ``tol``; the finest level computed is returned
+        and ``estimated_error`` is the estimate of the level before it, a
+        bound while the levels converge), ``status``, ``max_area``,
+        ``levels`` (per level computed: element, max_area, n_nodes,
+        t_solve_s, difference_to_next, ratio, estimated_error), ``points``,
+        ``contractions``, ``summary``.
 
     Raises
     ------
@@ -170,117 +332,71 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         equilibrium cannot be certified.
     """
     options = options or EquilibriumOptions(eigenvalue=False)
-    if not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
-        raise SceneError(f"accuracy: tol must be a finite number > 0, got {tol!r}")
     if scene.outline is None:
+        _check_arguments(tol, (3.0, 2.0, 1.0), scene)
         mesh = build_mesh(scene)
-        return mesh, {"tol": float(tol), "picked": 0, "reached": True,
-                      "n_nodes": mesh.n_nodes, "max_area": None,
-                      "note": "explicit mesh: its resolution is fixed", "levels": []}
-    levels = default_levels(scene) if levels is None else tuple(float(a) for a in levels)
-    if len(levels) < 2 or any(not (a > 0 and math.isfinite(a)) for a in levels) \
-            or any(b >= a for a, b in zip(levels, levels[1:])):
-        raise SceneError(f"accuracy: levels must be >= 2 max_area values > 0, strictly "
-                         f"decreasing (coarse to fine), got {list(levels)!r}")
+        report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element,
+                  "nodes": mesh.n_nodes, "reached": False, "status": "explicit_mesh",
+                  "max_area": None, "levels": [],
+                  "summary": "explicit mesh: its resolution is fixed and its error not estimated"}
+        return mesh, report
+    tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
         points, kind = probe_points(scene)
     else:
         points, kind = np.asarray(points, dtype=np.float64).reshape(-1, 2), "given points"
     cs = probe_contractions(scene) if contractions is None else \
         np.asarray(contractions, dtype=np.float64).reshape(-1, len(scene.winches))
-
-    rows, meshes = [], []
-    prev = None            # (mesh, poses, y) of the previous (coarser) level
-    picked = None
-    confirmed = False
-    for area in levels:
-        t0 = time.perf_counter()
-        mesh = build_mesh(scene, max_area=area)
-        t_mesh = time.perf_counter() - t0
-        if prev is not None and mesh.n_nodes < MIN_REFINEMENT * prev[0].n_nodes:
-            # not really finer (forced points and the angle bound dominate):
-            # comparing with it would say nothing about the error
-            log.info("accuracy: max_area %.4g gives %d nodes, not finer than %d: skipped",
-                     area, mesh.n_nodes, prev[0].n_nodes)
-            continue
-        model = build_model(scene, mesh)
-        probe = Targets.at_points(mesh, points, points)
-        # cost of one solve at this level: cold, from the rest pose
-        t0 = time.perf_counter()
-        cold = solve_equilibrium(model, cs[-1], None, options)
-        t_solve = time.perf_counter() - t0
-        poses, ys = [], []
-        for j, c in enumerate(cs):
-            x0 = transfer_pose(prev[0], prev[1][j], mesh) if prev is not None else None
-            if x0 is None and j == len(cs) - 1 and cold.converged:
-                eq = cold
-            else:
-                eq = equilibrium_at(model, c, x0, options)
-            if not eq.converged:
-                raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at "
-                                 f"contraction {c.tolist()} on the mesh with max_area {area:g}: "
-                                 f"{eq.status}")
-            poses.append(eq.x)
-            ys.append(probe.y(eq.x))
-        rows.append({"max_area": area, "n_nodes": mesh.n_nodes, "n_elems": mesh.n_elems,
-                     "t_mesh_s": t_mesh, "t_solve_s": t_solve, "newton_iterations": cold.iterations,
-                     "difference_to_next": None})
-        meshes.append(mesh)
-        log.info("accuracy: max_area %.4g, %d nodes, one solve %.3f s", area, mesh.n_nodes, t_solve)
-        if prev is not None:
-            rows[-2]["difference_to_next"] = max(
-                float(np.max(np.linalg.norm(a - b, axis=1), initial=0.0)) for a, b in zip(prev[2], ys))
-        prev = (mesh, poses, ys)
-        # the coarsest candidate that can be decided now
-        k = len(rows) - (3 if confirm else 2)
-        if k >= 0 and rows[k]["difference_to_next"] < tol and (
-                not confirm or rows[k + 1]["difference_to_next"] < tol):
-            picked, confirmed = k, confirm
-            break
-    if picked is None and confirm and len(rows) >= 2 and rows[-2]["difference_to_next"] < tol:
-        picked = len(rows) - 2          # the last pair agrees; nothing finer to confirm with
-    reached = picked is not None
+    computed: list[Level] = []
+    best: Level | None = None
+    for element in elements:
+        done = sweep(scene, element, levels, cs, points, tol, options,
+                      math.inf if best is None else best.t_solve)
+        computed += done
+        for lv in done:
+            if lv.meets(tol) and (best is None or lv.t_solve < best.t_solve):
+                best = lv
+    reached = best is not None
     if not reached:
-        picked = len(rows) - 1
-    chosen = meshes[picked]
-    row, nxt = rows[picked], rows[picked + 1] if picked + 1 < len(rows) else None
+        best = _fallback(computed, elements)
     report = {
-        "tol": float(tol), "picked": picked, "reached": reached, "confirmed": confirmed,
-        "max_area": row["max_area"], "n_nodes": row["n_nodes"], "n_elems": row["n_elems"],
-        "points": kind, "n_points": int(len(points)), "contractions": cs.tolist(),
-        "levels": rows,
+        "tolerance": tol, "estimated_error": _json_number(best.estimate if reached else _bound(computed, best)),
+        "element": best.element, "nodes": best.mesh.n_nodes, "reached": reached,
+        "status": "met" if reached else "tolerance_not_met", "max_area": best.max_area,
+        "n_elems": best.mesh.n_elems, "t_solve_s": best.t_solve,
+        "picked": computed.index(best), "points": kind, "n_points": int(len(points)),
+        "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],
     }
-    if nxt is not None:
-        report["nodes_saved_vs_next"] = nxt["n_nodes"] - row["n_nodes"]
-        report["t_solve_saved_vs_next_s"] = nxt["t_solve_s"] - row["t_solve_s"]
-    if scene.max_area is not None:
-        own = build_mesh(scene)
-        report["scene_mesh_nodes"] = own.n_nodes
-        report["nodes_saved_vs_scene_mesh"] = own.n_nodes - row["n_nodes"]
     report["summary"] = summary(report)
-    return chosen, report
+    return best.mesh, report
+
+
+def _fallback(computed: list[Level], elements) -> Level:
+    """No level met the tolerance: the finest level of the first element."""
+    first = [lv for lv in computed if lv.element == elements[0]]
+    return first[-1]
+
+
+def _bound(computed: list[Level], level: Level):
+    """The estimate of the level before ``level`` (same element): a bound of
+    its error while the levels converge; None if there is none."""
+    same = [lv for lv in computed if lv.element == level.element]
+    i = same.index(level)
+    return same[i - 1].estimate if i > 0 else None
 
 
 def summary(report: dict) -> str:
-    """One line for the user: which level, why, what it saves."""
+    """One line for the user: which element and mesh, the estimate, honestly."""
     if not report.get("levels"):
-        return report.get("note", "")
-    i = report["picked"]
-    row = report["levels"][i]
+        return report.get("summary", "")
+    row = report["levels"][report["picked"]]
+    where = (f"{report['element']} elements, {report['nodes']} nodes (max_area {report['max_area']:.4g}, "
+             f"one solve {row['t_solve_s']:.3f} s)")
+    est = report["estimated_error"]
     if report["reached"]:
-        text = (f"mesh level {i} (max_area {row['max_area']:.4g}, {row['n_nodes']} nodes): "
-                f"its {report['points']} differ from the next finer mesh by "
-                f"{row['difference_to_next']:.3g} < tol {report['tol']:.3g}"
-                + (" (and that one its next finer)" if report.get("confirmed") else ""))
-    else:
-        prev = report["levels"][i - 1]["difference_to_next"] if i > 0 else float("nan")
-        text = (f"tolerance {report['tol']:.3g} not reached: using the finest level {i} "
-                f"(max_area {row['max_area']:.4g}, {row['n_nodes']} nodes); the last two levels "
-                f"differ by {prev:.3g}")
-    if "scene_mesh_nodes" in report:
-        text += f"; the problem file's own mesh has {report['scene_mesh_nodes']} nodes"
-    if "t_solve_saved_vs_next_s" in report:
-        nxt = report["levels"][i + 1]
-        text += (f"; {report['nodes_saved_vs_next']} fewer nodes than the next finer level "
-                 f"(one solve {row['t_solve_s']:.3f} s against {nxt['t_solve_s']:.3f} s)")
-    return text
+        return (f"{where}: estimated error of the {report['points']} {est:.3g} <= tolerance "
+                f"{report['tolerance']:.3g} (the cheapest level that meets it)")
+    bound = "no estimate (the levels do not converge)" if est is None else \
+        f"estimated error {est:.3g} (bound from the level before it)"
+    return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
+            f"{where}; {bound}")

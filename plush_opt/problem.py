@@ -7,6 +7,7 @@ repeating the pipeline ``scene -> mesh -> model -> targets``.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -139,13 +140,15 @@ class Problem:
 def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None = None,
                accuracy: float | None = None) -> Problem:
     """Build a :class:`Problem` from a scene: mesh it (the file's mesh, a
-    ``max_area``, or the coarsest mesh good to ``accuracy``), model it, and
-    place its targets."""
+    ``max_area``, or the element and mesh good to ``accuracy`` at the least
+    solve time), model it, and place its targets."""
     report = None
     if mesh is None:
         if accuracy is not None:
             from .accuracy import choose_mesh
             mesh, report = choose_mesh(scene, accuracy)
+            if mesh.element != scene.element:
+                scene = dataclasses.replace(scene, element=mesh.element)
         else:
             mesh = build_mesh(scene, max_area)
     model = build_model(scene, mesh)
@@ -159,7 +162,9 @@ def load(path, *, max_area: float | None = None, accuracy: float | None = None) 
     ----------
     path : the problem file (YAML, ``format: plush-opt/1``).
     max_area : mesh finer or coarser than the file asks (optional).
-    accuracy : choose the coarsest mesh whose target points are good to
-        this length (optional; see docs/model.md).
+    accuracy : choose the element (P1, P2) and mesh whose target points
+        are good to this length at the least solve time (optional; see
+        docs/accuracy.md). ``Problem.mesh_report`` says what was chosen and
+        whether the tolerance was met.
     """
     return from_scene(load_scene(Path(path)), max_area=max_area, accuracy=accuracy)

@@ -1,59 +1,153 @@
-"""Mesh resolution from a tolerance: choose_mesh and transfer_pose."""
+"""Element and mesh from a tolerance: the error estimate, choose_mesh,
+transfer_pose, and --accuracy on the command line."""
+
+import dataclasses
+import json
+import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+import yaml
 
-from plush_opt.accuracy import choose_mesh, default_levels, probe_contractions, transfer_pose
+from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, choose_mesh, default_levels,
+                                estimate_errors, probe_contractions, sweep, transfer_pose)
+from plush_opt.apps.cantilever import beam_deflection
+from plush_opt.equilibrium import EquilibriumOptions
 from plush_opt.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import build_mesh
+from plush_opt.problem import load
 from shipped import ROOT
+
+CANTILEVER = ROOT / "problems" / "cantilever.yaml"
+TIP = np.array([[200.0, 0.0]])
 
 
 def _leg():
     return load_scene(ROOT / "problems" / "hexapod_leg.yaml")
 
 
-def test_looser_tolerances_pick_coarser_meshes():
-    scene = _leg()
-    levels = [scene.max_area * f for f in (8, 4, 2, 1, 0.5)]
-    picks = {}
-    for tol in (5.0, 1.0, 0.05):
-        mesh, report = choose_mesh(scene, tol, levels=levels)
-        picks[tol] = report
-        row = report["levels"][report["picked"]]
-        assert mesh.n_nodes == row["n_nodes"] == report["n_nodes"]
-        assert report["summary"]
-    assert picks[5.0]["n_nodes"] < picks[1.0]["n_nodes"] <= picks[0.05]["n_nodes"]
-    # a picked level really meets the tolerance against the next finer one
-    for tol in (5.0, 1.0):
-        r = picks[tol]
-        assert r["reached"] and r["levels"][r["picked"]]["difference_to_next"] < tol
-    # an unreachable tolerance says so and returns the finest level computed
-    r = picks[0.05]
-    assert not r["reached"] and r["picked"] == len(r["levels"]) - 1
-    assert "not reached" in r["summary"]
+def _coarse_leg(tmp_path, max_area=24.0):
+    """The leg with a coarser own mesh, so that a whole level sweep is cheap."""
+    doc = yaml.safe_load((ROOT / "problems" / "hexapod_leg.yaml").read_text())
+    doc["mesh"]["max_area"] = max_area
+    path = tmp_path / "leg.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "plush_opt", *args], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+# --- the estimate itself -------------------------------------------------
+
+def test_estimate_of_a_geometric_sequence_is_its_true_error_times_the_safety_factor():
+    # y_k = y* + C r^k along a line; nodes double per level
+    r = 0.3
+    ys = [np.array([[1.0 + 0.5 * r**k, 2.0]]) for k in range(5)]
+    nodes = [100 * 2**k for k in range(5)]
+    est = estimate_errors(ys, nodes, "P1")
+    assert est[0]["estimate"] is None and est[-1]["estimate"] is None
+    theory = 0.5 ** (EXPECTED_ORDER["P1"] / 2)          # 0.5: r = 0.3 is faster than P1's order
+    for k in (1, 2, 3):
+        true = 0.5 * r**k
+        assert est[k]["ratio"] == pytest.approx(max(r, theory))
+        assert est[k]["estimate"] >= true
+        assert est[k]["estimate"] == pytest.approx(SAFETY * 0.5 * r**k * (1 - r) / (1 - max(r, theory)))
+    # confirmed by the next level's estimate; the last estimate has none to confirm it
+    assert [e["confirmed"] for e in est] == [False, True, True, False, False]
+
+
+def test_a_coincidental_agreement_is_not_confirmed():
+    # two coarse levels agree, the next difference is large again
+    ys = [np.array([[0.0, v]]) for v in (0.0, 1.0, 1.05, 2.5, 2.9, 3.0)]
+    nodes = [100 * 2**k for k in range(6)]
+    early = estimate_errors(ys[:3], nodes[:3], "P2")      # before the next level is known
+    assert math.isfinite(early[1]["estimate"]) and early[1]["estimate"] < 0.2
+    assert not early[1]["confirmed"]
+    est = estimate_errors(ys, nodes, "P2")
+    assert not est[1]["confirmed"] and est[1]["estimate"] == est[2]["estimate"] == math.inf
+
+
+def test_differences_that_do_not_shrink_give_no_estimate():
+    # a point load in 2D: the displacement grows like log(1/h), differences stay put
+    ys = [np.array([[0.0, math.log(2.0) * k]]) for k in range(4)]
+    est = estimate_errors(ys, [100 * 2**k for k in range(4)], "P2")
+    assert est[1]["ratio"] >= MAX_RATIO and est[1]["estimate"] == math.inf
+
+
+def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
+    scene = load_scene(CANTILEVER)
+    cs = probe_contractions(scene)
+    opts = EquilibriumOptions(eigenvalue=False)
+    levels = sweep(scene, "P2", [32.0, 16.0, 8.0, 4.0, 2.0, 1.0], cs, TIP, 0.0, opts)
+    fine = sweep(scene, "P2", [0.5, 0.25], cs, TIP, 0.0, opts)[-1]   # 4x finer than the finest above
+    deflection = -(fine.y[0, 0, 1] - 0.0)
+    # the fine solve is beam theory's tip deflection to within the theory's own error
+    assert deflection == pytest.approx(beam_deflection(scene), rel=0.02)
+    estimated = [lv for lv in levels if lv.estimate is not None and math.isfinite(lv.estimate)]
+    assert len(estimated) >= 2
+    for lv in estimated:
+        true = float(np.linalg.norm(lv.y - fine.y, axis=-1).max())
+        assert true <= lv.estimate <= 4 * true, (lv.mesh.n_nodes, true, lv.estimate)
+    p1 = sweep(scene, "P1", [8.0, 4.0, 2.0], cs, TIP, 0.0, opts)[1]
+    true = float(np.linalg.norm(p1.y - fine.y, axis=-1).max())
+    assert true <= p1.estimate                         # P1 locks in bending: large, but bounded
+
+
+def test_tighter_tolerances_pick_finer_levels_and_a_met_one_is_within_it():
+    scene = load_scene(CANTILEVER)
+    tip = 0.214                                  # mm, the tip deflection
+    reports = {}
+    for rel in (1e-2, 1e-3):
+        mesh, report = choose_mesh(scene, rel * tip, points=TIP)
+        reports[rel] = report
+        assert report["reached"] and report["status"] == "met"
+        assert report["estimated_error"] <= rel * tip
+        assert mesh.element == report["element"] and mesh.n_nodes == report["nodes"]
+        picked = report["levels"][report["picked"]]
+        assert picked["n_nodes"] == report["nodes"] and picked["element"] == report["element"]
+    assert reports[1e-2]["t_solve_s"] <= reports[1e-3]["t_solve_s"] * 1.5 or \
+        reports[1e-2]["nodes"] <= reports[1e-3]["nodes"]
+    # both element types were tried where P1 could still be cheaper
+    assert {row["element"] for row in reports[1e-2]["levels"]} == {"P1", "P2"}
+
+
+def test_unreachable_tolerance_says_so(tmp_path):
+    scene = load_scene(_coarse_leg(tmp_path))
+    levels = [scene.max_area * f for f in (4, 2, 1)]
+    mesh, report = choose_mesh(scene, 1e-9, levels=levels)
+    assert not report["reached"] and report["status"] == "tolerance_not_met"
+    assert "NOT met" in report["summary"]
+    assert report["element"] == "P2" and mesh.n_nodes == max(
+        row["n_nodes"] for row in report["levels"] if row["element"] == "P2")
 
 
 def test_levels_that_are_not_finer_are_skipped():
     scene = load_scene(ROOT / "problems" / "gripper.yaml")
     # 400 and 200 give the same mesh (forced points and the angle bound rule)
-    _, report = choose_mesh(scene, 100.0, levels=[400.0, 200.0, 50.0, 25.0])
+    _, report = choose_mesh(scene, 100.0, levels=[400.0, 200.0, 50.0, 25.0], elements=("P1",))
     nodes = [row["n_nodes"] for row in report["levels"]]
     assert all(b >= 1.3 * a for a, b in zip(nodes, nodes[1:]))
 
 
 def test_transfer_pose_reproduces_affine_motions_exactly():
     scene = _leg()
-    coarse = build_mesh(scene, max_area=24.0)
-    fine = build_mesh(scene, max_area=3.0)
     A = np.array([[0.9, 0.2], [-0.1, 1.1]])
     b = np.array([3.0, -2.0])
-    x_coarse = (coarse.X @ A.T + b).reshape(-1)
-    x_fine = transfer_pose(coarse, x_coarse, fine)
-    assert np.abs(x_fine - (fine.X @ A.T + b).reshape(-1)).max() <= 1e-9
-    # onto the same mesh it is the identity
-    assert np.abs(transfer_pose(coarse, x_coarse, coarse) - x_coarse).max() <= 1e-9
+    for element in ("P1", "P2"):
+        s = dataclasses.replace(scene, element=element)
+        coarse = build_mesh(s, max_area=24.0)
+        fine = build_mesh(s, max_area=3.0)
+        x_coarse = (coarse.X @ A.T + b).reshape(-1)
+        x_fine = transfer_pose(coarse, x_coarse, fine)
+        assert np.abs(x_fine - (fine.X @ A.T + b).reshape(-1)).max() <= 1e-9
+        # onto the same mesh it is the identity
+        assert np.abs(transfer_pose(coarse, x_coarse, coarse) - x_coarse).max() <= 1e-9
 
 
 def test_control_problems_are_also_compared_mid_range():
@@ -63,12 +157,17 @@ def test_control_problems_are_also_compared_mid_range():
     assert len(default_levels(scene)) >= 5
 
 
-def test_bad_tolerance_and_levels_are_refused():
-    scene = _leg()
-    with pytest.raises(SceneError, match="tol"):
-        choose_mesh(scene, -1.0)
+@pytest.mark.parametrize("tol", [-1.0, 0.0, float("nan"), float("inf"), True, "1"])
+def test_bad_tolerance_is_refused(tol):
+    with pytest.raises(SceneError, match=r"hexapod_leg.yaml: accuracy: the tolerance"):
+        load(ROOT / "problems" / "hexapod_leg.yaml", accuracy=tol)
+
+
+def test_bad_levels_are_refused():
     with pytest.raises(SceneError, match="levels"):
-        choose_mesh(scene, 1.0, levels=[2.0, 4.0])
+        choose_mesh(_leg(), 1.0, levels=[2.0, 4.0, 8.0])
+    with pytest.raises(SceneError, match="levels"):
+        choose_mesh(_leg(), 1.0, levels=[4.0, 2.0])
 
 
 def test_explicit_mesh_is_returned_as_is():
@@ -81,4 +180,37 @@ def test_explicit_mesh_is_returned_as_is():
            "tendons": {"stiffness": 50.0, "smoothing": 0.01,
                        "list": [{"name": "t", "winch": "w", "path": [[10, 10], [0, 0]]}]}}
     mesh, report = choose_mesh(scene_from_dict(doc), 0.1)
-    assert mesh.n_nodes == 4 and "explicit" in report["note"]
+    assert mesh.n_nodes == 4 and "explicit" in report["summary"] and not report["reached"]
+
+
+# --- the command line ----------------------------------------------------
+
+def test_result_json_records_the_accuracy(tmp_path):
+    out = tmp_path / "r.json"
+    p = run("solve", str(CANTILEVER), "--method", "forward", "--accuracy", "0.002", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    acc = doc["accuracy"]
+    assert {"tolerance", "estimated_error", "element", "nodes"} <= set(acc)
+    assert acc["tolerance"] == 0.002 and acc["element"] in ("P1", "P2") and acc["reached"]
+    assert acc["estimated_error"] <= 0.002
+    assert acc["nodes"] == len(doc["model"]["rest_nodes"])
+    assert acc["summary"] in p.stderr and "warning" not in p.stderr
+
+
+def test_cli_warns_when_the_tolerance_is_not_met(tmp_path):
+    out = tmp_path / "r.json"
+    p = run("solve", str(_coarse_leg(tmp_path, max_area=200.0)), "--method", "forward",
+            "--accuracy", "1e-12", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    assert "warning" in p.stderr and "NOT met" in p.stderr
+    acc = json.loads(out.read_text())["accuracy"]
+    assert acc["reached"] is False and acc["status"] == "tolerance_not_met"
+
+
+@pytest.mark.parametrize("value, message", [("-1", "the tolerance must be a finite number > 0"),
+                                            ("nan", "the tolerance must be a finite number > 0"),
+                                            ("abc", "--accuracy")])
+def test_cli_refuses_a_bad_tolerance(value, message):
+    p = run("solve", str(ROOT / "problems" / "hexapod_leg.yaml"), "--accuracy", value)
+    assert p.returncode == 2 and message in p.stderr and "Traceback" not in p.stderr

@@ -26,9 +26,6 @@ EXCEPTIONS = {
     # Triangle's switches, forced points and holes, then the checks of what
     # it returned, in the order they happen
     "plush_opt/mesh.py:build_mesh",
-    # the accuracy estimate is being replaced (P2 elements, an estimate with
-    # a convergence rate); not worth splitting the one it replaces
-    "plush_opt/accuracy.py:choose_mesh",
     # the report's sections, one after the other, as they appear in report.md
     "plush_opt/apps/compare/report.py:report_text",
 }

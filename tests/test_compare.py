@@ -39,11 +39,20 @@ def test_coarse_comparison_on_two_shipped_problems(tmp_path):
         # the bilevel method is as good as the loop (the leg's trap included)
         assert o[2] <= 1.01 * o[0]
     assert any(r["pareto"] == "1" for r in rows)
+    # errors against a P2 reference whose own check is far below them
+    for problem in ("gripper", "hexapod_leg"):
+        mine = [r for r in rows if r["problem"] == problem]
+        assert {r["element"] for r in mine} == {"P1"}
+        errors = [float(r["model_error"]) for r in mine]
+        checks = [float(r["reference_difference"]) for r in mine]
+        assert all(e > 0 for e in errors)           # no run scores zero by construction
+        assert max(checks) < min(errors)
 
     report = (tmp_path / "report.md").read_text()
     for word in ("## gripper", "## hexapod_leg", "| reparam |", "| clip |", "| bilevel |",
                  "bound violation", "Pareto front", "anytime.png", "speed_error.png",
-                 "## Bilevel against the gradient loop"):
+                 "## Bilevel against the gradient loop", "against a P2 reference of",
+                 "Least solve time"):
         assert word in report
     curves = list(csv.DictReader((tmp_path / "curves.csv").open()))
     kinds = {(c["method"], c["kind"], c["dispatchable"]) for c in curves}

@@ -11,14 +11,20 @@ equilibrium (the file's contractions):
 
 Runs: each method at its default tolerances on the problem's mesh (the
 main table and the anytime curves), a sweep over solver tolerances on that
-mesh, and a sweep over mesh resolutions at the default tolerances. Errors:
+mesh, and a sweep over mesh resolutions and element types (P1, P2) at the
+default tolerances. Errors are measured against a P2 reference mesh much
+finer than the sweep's (``CompareSettings.reference_factor``), whose own
+convergence is checked against a coarser P2 level (``check_factor``) and
+reported:
 
 * ``rms_target_error`` - RMS distance of the targets on the run's own mesh;
 * ``model_error``      - RMS distance between the run's target points and
-  the finest mesh's at the same contractions (the discretisation error);
-* ``fine_target_error``- RMS target error of the finest mesh's pose at the
+  the reference's at the same contractions (the discretisation error);
+* ``fine_target_error``- RMS target error of the reference's pose at the
   run's contractions: the best available prediction of what the robot
-  would do. The speed-against-error Pareto front uses this one.
+  would do. The speed-against-error Pareto front uses this one;
+* ``reference_difference`` - RMS distance of the target points between the
+  reference and its check level at the run's contractions.
 
 Times are wall-clock seconds of the solve (from the starting equilibrium to
 the returned pose); building IPOPT's problem is setup, reported separately

@@ -12,9 +12,9 @@ import numpy as np
 from ...results import write_text_atomic
 from .settings import METHODS, TOLERANCES, CompareSettings
 
-CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "mesh_factor", "max_area", "n_nodes",
+CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "element", "mesh_factor", "max_area", "n_nodes",
               "n_elems", "converged", "stable", "saddle_flagged", "objective", "rms_target_error",
-              "model_error", "fine_target_error", "t_solve_s", "t_setup_s", "iterations",
+              "model_error", "fine_target_error", "reference_difference", "t_solve_s", "t_setup_s", "iterations",
               "equilibrium_solves", "bound_violation", "pareto", "contractions", "status")
 
 
@@ -38,10 +38,10 @@ def write_outputs(out: Path, problems, runs, settings, t_total) -> list[Path]:
     w = csv.writer(buf)
     w.writerow(CSV_FIELDS)
     for r in runs:
-        w.writerow([r.problem, r.method, r.sweep, r.tolerance, r.mesh_factor, _fmt(r.max_area),
+        w.writerow([r.problem, r.method, r.sweep, r.tolerance, r.element, r.mesh_factor, _fmt(r.max_area),
                     r.n_nodes, r.n_elems, int(r.converged), int(r.stable), int(r.saddle_flagged),
                     repr(r.objective), repr(r.rms_target_error), repr(r.model_error),
-                    repr(r.fine_target_error), f"{r.t_solve:.6f}", f"{r.t_setup:.6f}", r.iterations,
+                    repr(r.fine_target_error), repr(r.reference_difference), f"{r.t_solve:.6f}", f"{r.t_setup:.6f}", r.iterations,
                     r.equilibrium_solves, repr(r.bound_violation), int(r.pareto),
                     _contraction_text(by_name[r.problem], r), r.status])
     files = [write_text_atomic(out / "results.csv", buf.getvalue())]
@@ -69,6 +69,11 @@ def write_outputs(out: Path, problems, runs, settings, t_total) -> list[Path]:
 
 COLORS = {"reparam": "#1f77b4", "clip": "#2ca02c", "bilevel": "#d62728"}
 MARKERS = {"main": "o", "tolerance": "s", "mesh": "^"}
+MESH_MARKERS = {"P1": "^", "P2": "v"}      # the mesh sweep, by element
+
+
+def _marker(run) -> str:
+    return MESH_MARKERS[run.element] if run.sweep == "mesh" else MARKERS[run.sweep]
 
 
 def _grid(n):
@@ -131,7 +136,7 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
         mine = [r for r in runs if r.problem == p.scene.name
                 and math.isfinite(r.t_solve) and math.isfinite(r.fine_target_error)]
         for r in mine:
-            ax.plot(r.t_solve, r.fine_target_error, MARKERS[r.sweep], color=COLORS[r.method],
+            ax.plot(r.t_solve, r.fine_target_error, _marker(r), color=COLORS[r.method],
                     ms=6, mfc=COLORS[r.method] if r.stable and r.converged else "none",
                     label=f"{r.method}")
         front = sorted((r for r in mine if r.pareto), key=lambda r: r.t_solve)
@@ -145,12 +150,15 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
         from matplotlib.ticker import NullFormatter
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel("solve time [s]")
-        ax.set_ylabel("RMS target error, finest mesh [mm]")
+        ax.set_ylabel("RMS target error, P2 reference [mm]")
         ax.set_title(p.scene.name, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
     from matplotlib.lines import Line2D
     handles = [Line2D([], [], ls="", marker="o", color=c, label=m) for m, c in COLORS.items()]
-    handles += [Line2D([], [], ls="", marker=mk, color="grey", label=f"{s} sweep") for s, mk in MARKERS.items()]
+    handles += [Line2D([], [], ls="", marker=mk, color="grey", label=f"{s} sweep") for s, mk in MARKERS.items()
+                if s != "mesh"]
+    handles += [Line2D([], [], ls="", marker=mk, color="grey", label=f"mesh sweep, {e}")
+                for e, mk in MESH_MARKERS.items()]
     handles += [Line2D([], [], ls="", marker="o", mfc="none", color="grey", label="not converged / unstable"),
                 Line2D([], [], color="black", label="Pareto front")]
     legend = fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=4, fontsize=8,
@@ -285,19 +293,20 @@ def report_text(problems, runs, settings, t_total) -> str:
         mesh_runs = [r for r in rs if r.sweep in ("main", "mesh")]
         if len(mesh_runs) > len(main):
             L += ["Mesh sweep (default tolerances; model error = RMS distance of the target points "
-                  "from the finest mesh's at the same contractions):", "",
-                  "| method | max_area | nodes | final O (own mesh) | model error | fine-mesh target "
-                  "error | time s | setup s |", "|---|---|---|---|---|---|---|---|"]
-            for r in sorted(mesh_runs, key=lambda r: (METHODS.index(r.method), -r.mesh_factor)):
-                L.append(f"| {r.method} | {_fmt(r.max_area, '.4g')} | {r.n_nodes} | {_fmt(r.objective)} | "
+                  "from the P2 reference's at the same contractions):", "",
+                  "| method | element | max_area | nodes | final O (own mesh) | model error | reference "
+                  "target error | time s | setup s |", "|---|---|---|---|---|---|---|---|---|"]
+            for r in sorted(mesh_runs, key=lambda r: (METHODS.index(r.method), r.element, -r.mesh_factor)):
+                L.append(f"| {r.method} | {r.element} | {_fmt(r.max_area, '.4g')} | {r.n_nodes} | {_fmt(r.objective)} | "
                          f"{_fmt(r.model_error, '.3g')} | {_fmt(r.fine_target_error, '.4g')} | "
                          f"{r.t_solve:.3f} | {r.t_setup:.2f} |")
             L.append("")
         front = sorted((r for r in rs if r.pareto), key=lambda r: r.t_solve)
         if front:
-            L += ["Pareto front (solve time, fine-mesh target error): "
-                  + "; ".join(f"{r.method} {r.sweep}/{r.tolerance}/{r.n_nodes} nodes "
+            L += ["Pareto front (solve time, reference target error): "
+                  + "; ".join(f"{r.method} {r.sweep}/{r.tolerance}/{r.element} {r.n_nodes} nodes "
                               f"({r.t_solve:.3f} s, {r.fine_target_error:.4g})" for r in front) + ".", ""]
+        L += accuracy_section(p, rs)
         bad = [r for r in rs if r.contraction is not None and (r.bound_violation > 0 or not r.stable)]
         if bad:
             L += ["**Warning**: returned poses outside the bounds or not stable: "
@@ -314,9 +323,9 @@ def _bilevel_table(problems, runs) -> list[str]:
          "| bilevel status |", "|---|---|---|---|---|---|---|---|---|"]
     for p in problems:
         rs = [r for r in runs if r.problem == p.scene.name and r.sweep in ("main", "mesh")]
-        for f in sorted({r.mesh_factor for r in rs}, reverse=True):
-            loop = next((r for r in rs if r.method == "reparam" and r.mesh_factor == f), None)
-            bil = next((r for r in rs if r.method == "bilevel" and r.mesh_factor == f), None)
+        for e, f in sorted({(r.element, r.mesh_factor) for r in rs}, key=lambda k: (k[0], -k[1])):
+            loop = next((r for r in rs if r.method == "reparam" and (r.element, r.mesh_factor) == (e, f)), None)
+            bil = next((r for r in rs if r.method == "bilevel" and (r.element, r.mesh_factor) == (e, f)), None)
             if loop is None or bil is None:
                 continue
             t_loop, t_bil = loop.t_solve + loop.t_setup, bil.t_solve + bil.t_setup
@@ -324,4 +333,45 @@ def _bilevel_table(problems, runs) -> list[str]:
             L.append(f"| {p.scene.name} | {bil.n_nodes} | {_fmt(loop.objective)} | {t_loop:.3f} | "
                      f"{_fmt(bil.objective)} | {t_bil:.3f} | {_fmt(ratio_o, '.4f')} | "
                      f"{t_bil / t_loop:.2f} | {bil.reason} |")
+    return L + [""]
+
+
+#: The reference's check difference must be this fraction of the smallest
+#: error measured, or the report says the reference is not converged.
+REFERENCE_MARGIN = 0.1
+#: The model errors (length units) the "time to reach" table asks for.
+ERROR_LEVELS = (1.0, 0.25, 0.05)
+
+
+def accuracy_section(problem, runs) -> list[str]:
+    """The P2 reference, its own check, and the time each method and element
+    needs to reach a given model error."""
+    ref, chk = problem.reference, problem.check
+    if ref is None:
+        return []
+    measured = [r.model_error for r in runs if math.isfinite(r.model_error)]
+    checks = [r.reference_difference for r in runs if math.isfinite(r.reference_difference)]
+    L = [f"Accuracy: errors are measured against a P2 reference of {ref.mesh.n_nodes} nodes at each "
+         f"run's contractions. Its check against a coarser P2 level ({chk.mesh.n_nodes} nodes): "
+         f"RMS distance of the target points at most {_fmt(max(checks, default=math.nan), '.3g')} "
+         f"(the reference's own error is below it where the levels converge); the smallest model "
+         f"error measured is {_fmt(min(measured, default=math.nan), '.3g')}"
+         + ("." if checks and measured and max(checks) <= REFERENCE_MARGIN * min(measured) else
+            f": **the reference is not converged to {1 / REFERENCE_MARGIN:g} x below the errors "
+            "measured** (point loads at the tendons' via points, docs/accuracy.md); errors below "
+            "its check difference are not resolved."), "",
+         "Least solve time (s) of a stable run whose model error is at most the column's "
+         "(default tolerances, any mesh; '-' = no run that accurate):", "",
+         "| method | element | " + " | ".join(f"<= {e:g}" for e in ERROR_LEVELS) + " |",
+         "|---|---|" + "---|" * len(ERROR_LEVELS)]
+    for method in METHODS:
+        for element in sorted({r.element for r in runs}):
+            mine = [r for r in runs if r.method == method and r.element == element and r.stable
+                    and r.tolerance == "default" and math.isfinite(r.model_error)]
+            cells = []
+            for e in ERROR_LEVELS:
+                ok = [r for r in mine if r.model_error <= e]
+                cells.append("-" if not ok else (lambda r: f"{r.t_solve:.3f} ({r.n_nodes} nodes)")(
+                    min(ok, key=lambda r: r.t_solve)))
+            L.append(f"| {method} | {element} | " + " | ".join(cells) + " |")
     return L + [""]

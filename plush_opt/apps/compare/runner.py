@@ -1,8 +1,9 @@
-"""Running the comparison: every method on every problem, mesh and
-tolerance, errors against the finest mesh, and the Pareto front."""
+"""Running the comparison: every method on every problem, element, mesh and
+tolerance, errors against a converged P2 reference, and the Pareto front."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -27,21 +28,42 @@ log = logging.getLogger(__name__)
 class _Problem:
     path: Path
     scene: object
-    levels: dict                # factor -> (Problem, t_build)
+    levels: dict                # (element, factor) -> (Problem, t_build)
     start: np.ndarray
     frozen: np.ndarray
+    reference: object = None    # the P2 reference Problem
+    check: object = None        # the coarser P2 level that checks the reference
 
 
 # --------------------------------------------------------------------------
 # Running
 # --------------------------------------------------------------------------
 
-def _level(scene, factor):
+def _level(scene, factor, element=None):
     t0 = time.perf_counter()
+    if element is not None and element != scene.element:
+        scene = dataclasses.replace(scene, element=element)
     p = from_scene(scene, max_area=None if scene.outline is None else base_area(scene) * factor)
     # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
     solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
     return p, time.perf_counter() - t0
+
+
+def _levels(scene, settings: CompareSettings) -> dict:
+    """(element, factor) -> (Problem, t_build): the file's element at every
+    factor (and the large level), each other element of the sweep at every
+    factor. An explicit mesh has one level."""
+    if scene.outline is None:
+        return {(scene.element, settings.main_factor): _level(scene, settings.main_factor)}
+    own = {f: _level(scene, f) for f in settings.mesh_factors}
+    large = _large_factor(own, settings)
+    if large is not None:
+        own[large] = _level(scene, large)
+    levels = {(scene.element, f): v for f, v in own.items()}
+    for element in settings.elements:
+        if element != scene.element:
+            levels.update({(element, f): _level(scene, f, element) for f in settings.mesh_factors})
+    return levels
 
 
 def _large_factor(levels: dict, settings: CompareSettings) -> float | None:
@@ -61,23 +83,24 @@ def _bound_violation(model, c) -> float:
     return float(max(0.0, np.max(model.lower - c), np.max(c - model.upper)))
 
 
-def _run(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
+def _run(problem: _Problem, method: str, tol: str, level: tuple, sweep: str,
          settings: CompareSettings) -> Run:
-    runs = [_run_once(problem, method, tol, factor, sweep, settings) for _ in range(settings.repeat)]
+    runs = [_run_once(problem, method, tol, level, sweep, settings) for _ in range(settings.repeat)]
     best = min(runs, key=lambda r: r.t_solve if math.isfinite(r.t_solve) else math.inf)
     best.t_setup = runs[0].t_setup
     if best.ipopt_history is not None and settings.resolve_bilevel_iterates and sweep == "main":
-        p, _ = problem.levels[factor]
+        p, _ = problem.levels[level]
         best.resolved = _resolve_iterates(p.model, p.targets, *best.ipopt_history)
     return best
 
 
-def _run_once(problem: _Problem, method: str, tol: str, factor: float, sweep: str,
+def _run_once(problem: _Problem, method: str, tol: str, level: tuple, sweep: str,
               settings: CompareSettings) -> Run:
-    p, _ = problem.levels[factor]
+    p, _ = problem.levels[level]
     mesh, model, targets = p.mesh, p.model, p.targets
     scene = problem.scene
-    run = Run(scene.name, method, sweep, tol, factor,
+    element, factor = level
+    run = Run(scene.name, method, sweep, tol, element, factor,
               None if scene.outline is None else base_area(scene) * factor,
               mesh.n_nodes, mesh.n_elems, mesh=mesh)
     try:
@@ -142,31 +165,41 @@ def _resolve_iterates(model, targets, t_start, history) -> list:
     return out
 
 
-def _reference(problem: _Problem, runs: list, cache: dict) -> None:
-    """Model error and fine-mesh target error of each run (finest level)."""
-    finest = min(problem.levels)
-    fine, _ = problem.levels[finest]
-    fmesh, fmodel, ftargets = fine.mesh, fine.model, fine.targets
+def _reference(problem: _Problem, runs: list, settings: CompareSettings) -> None:
+    """Model error, reference target error and the reference's own check of
+    each run: the P2 reference's pose (and its coarser check level's) at the
+    run's contractions, from the run's pose carried over."""
+    scene = problem.scene
+    if problem.reference is None:
+        if scene.outline is None:       # an explicit mesh cannot be refined: it is its own reference
+            problem.reference = problem.check = problem.levels[(scene.element, settings.main_factor)][0]
+        else:
+            problem.reference = _level(scene, settings.reference_factor, "P2")[0]
+            problem.check = _level(scene, settings.check_factor, "P2")[0]
+    ref, chk = problem.reference, problem.check
+    cache: dict = {}
     for run in runs:
         if run.contraction is None:
             continue
         key = tuple(np.round(run.contraction, 12))
-        if run.mesh_factor == finest:
-            run.model_error = 0.0
-            run.fine_target_error = run.rms_target_error
-            cache.setdefault(key, run.x)
-            continue
         if key not in cache:
-            x0 = transfer_pose(run.mesh, run.x, fmesh)
-            eq = equilibrium_at(fmodel, run.contraction, x0)
-            cache[key] = eq.x if eq.converged else None
-        xf = cache[key]
-        if xf is None:
+            xs = []
+            for p in (ref, chk):
+                eq = equilibrium_at(p.model, run.contraction, transfer_pose(run.mesh, run.x, p.mesh))
+                xs.append(eq.x if eq.converged else None)
+            cache[key] = xs
+        x_ref, x_chk = cache[key]
+        if x_ref is None:
             continue
-        targets = problem.levels[run.mesh_factor][0].targets
-        d = targets.y(run.x) - ftargets.y(xf)
-        run.model_error = float(np.sqrt(np.mean(np.sum(d**2, axis=1))))
-        run.fine_target_error = float(ftargets.rms_error(xf))
+        own = problem.levels[(run.element, run.mesh_factor)][0].targets
+        run.model_error = _rms(own.y(run.x) - ref.targets.y(x_ref))
+        run.fine_target_error = float(ref.targets.rms_error(x_ref))
+        if x_chk is not None:
+            run.reference_difference = _rms(ref.targets.y(x_ref) - chk.targets.y(x_chk))
+
+
+def _rms(d) -> float:
+    return float(np.sqrt(np.mean(np.sum(np.asarray(d) ** 2, axis=1))))
 
 
 def pareto_front(points, rel: float = 1e-3) -> list[int]:
@@ -217,28 +250,24 @@ def run_compare(problem_paths, out_dir, coarse: bool = False, progress=None,
         names = [p.scene.name for p in problems]
         if scene.name in names:
             raise SceneError(f"{scene.source}: name: {scene.name!r} is used by another problem file")
-        factors = settings.mesh_factors if scene.outline is not None else (settings.main_factor,)
-        say(f"compare: [{k + 1}/{len(paths)}] {scene.name}: meshing {len(factors)} resolution(s)")
-        levels = {f: _level(scene, f) for f in factors}
-        large = _large_factor(levels, settings)
-        if large is not None:
-            levels[large] = _level(scene, large)
-            factors = (*factors, large)
+        levels = _levels(scene, settings)
+        say(f"compare: [{k + 1}/{len(paths)}] {scene.name}: meshed {len(levels)} level(s)")
         problem = _Problem(path, scene, levels, scene.contraction.copy(), scene.frozen.copy())
         problems.append(problem)
-        plan = [(m, "default", settings.main_factor, "main") for m in METHODS]
-        plan += [(m, t, settings.main_factor, "tolerance") for m in METHODS
+        main = (scene.element, settings.main_factor)
+        plan = [(m, "default", main, "main") for m in METHODS]
+        plan += [(m, t, main, "tolerance") for m in METHODS
                  for t in settings.tolerances if t != "default"]
-        plan += [(m, "default", f, "mesh") for m in METHODS for f in factors
-                 if f != settings.main_factor]
+        plan += [(m, "default", lv, "mesh") for m in METHODS for lv in levels if lv != main]
         runs = []
-        for j, (method, tol, factor, sweep) in enumerate(plan):
-            run = _run(problem, method, tol, factor, sweep, settings)
+        for j, (method, tol, level, sweep) in enumerate(plan):
+            run = _run(problem, method, tol, level, sweep, settings)
             runs.append(run)
             say(f"compare: {scene.name} [{j + 1}/{len(plan)}] {method:8s} {sweep:9s} tol={tol:7s} "
-                f"nodes={run.n_nodes:5d}  O={run.objective:.6g}  t={run.t_solve:.3f} s"
+                f"{run.element} nodes={run.n_nodes:5d}  O={run.objective:.6g}  t={run.t_solve:.3f} s"
                 f"{'' if run.converged else '  (not converged)'}")
-        _reference(problem, runs, {})
+        say(f"compare: {scene.name}: errors against the P2 reference")
+        _reference(problem, runs, settings)
         # only poses a robot may be sent to belong on the front
         front = pareto_front([(r.t_solve, r.fine_target_error) if r.stable and r.bound_violation == 0
                               else (float("nan"), float("nan")) for r in runs])

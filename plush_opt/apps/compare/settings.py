@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 METHODS = ("reparam", "clip", "bilevel")
+ELEMENTS = ("P1", "P2")
 TOLERANCES = ("loose", "default", "tight")
 # A problem whose finest factor already gives this fraction of large_nodes
 # gets no extra level (it is "about" that size).
@@ -45,6 +46,15 @@ class CompareSettings:
     large_nodes : also run the mesh sweep at about this many nodes (a
         finer max_area chosen per problem) when the finest factor stays
         below LARGE_SHORTFALL of it; None: no such level.
+    elements : element types of the mesh sweep (every factor with each);
+        the main runs use the problem file's element.
+    reference_factor : max_area of the P2 reference, as a multiple of the
+        file's: every run's error is measured against the reference's pose
+        at the run's contractions.
+    check_factor : a coarser P2 level (multiple of the file's max_area)
+        whose distance from the reference is reported as the check of the
+        reference's own convergence (it must be far below the errors
+        measured).
     """
 
     mesh_factors: tuple = (4.0, 1.0, 0.25)
@@ -54,6 +64,9 @@ class CompareSettings:
     resolve_bilevel_iterates: bool = True
     repeat: int = 3
     large_nodes: int | None = 3000
+    elements: tuple = ELEMENTS
+    reference_factor: float = 1 / 16
+    check_factor: float = 1 / 4
 
     def __post_init__(self):
         if not (isinstance(self.repeat, int) and self.repeat >= 1):
@@ -67,6 +80,11 @@ class CompareSettings:
         if bad or "default" not in self.tolerances:
             raise ValueError(f"tolerances: expected a subset of {TOLERANCES} with 'default', "
                              f"got {self.tolerances!r}")
+        if not self.elements or any(e not in ELEMENTS for e in self.elements):
+            raise ValueError(f"elements: expected a subset of {ELEMENTS}, got {self.elements!r}")
+        if not (0 < self.reference_factor < self.check_factor):
+            raise ValueError(f"reference_factor, check_factor: expected 0 < reference_factor < "
+                             f"check_factor, got {self.reference_factor!r}, {self.check_factor!r}")
         object.__setattr__(self, "mesh_factors", f)
 
     @classmethod
@@ -77,7 +95,8 @@ class CompareSettings:
     def coarse(cls) -> "CompareSettings":
         """A quick smoke run: coarser meshes, two tolerance presets."""
         return cls(mesh_factors=(8.0, 4.0, 2.0), main_factor=4.0, tolerances=("loose", "default"),
-                   max_time=30.0, resolve_bilevel_iterates=False, repeat=1, large_nodes=None)
+                   max_time=30.0, resolve_bilevel_iterates=False, repeat=1, large_nodes=None,
+                   elements=("P1",), reference_factor=0.5, check_factor=1.0)
 
 
 @dataclass
@@ -88,6 +107,7 @@ class Run:
     method: str
     sweep: str                 # 'main', 'tolerance' or 'mesh'
     tolerance: str
+    element: str
     mesh_factor: float
     max_area: float | None
     n_nodes: int
@@ -107,6 +127,7 @@ class Run:
     saddle_flagged: bool = False
     model_error: float = math.nan
     fine_target_error: float = math.nan
+    reference_difference: float = math.nan           # RMS, reference against its check level
     pareto: bool = False
     curve: list = field(default_factory=list)      # (t, O, dispatchable)
     resolved: list = field(default_factory=list)   # bilevel iterates re-solved: (t, O)
