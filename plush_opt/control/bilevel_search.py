@@ -129,7 +129,7 @@ class ReducedRun:
                 self.stop = "max_iterations"
                 break
             self.stationary, self._stall, self._last = "", 0, math.inf
-            self.ev.accepted = None        # no secant pair across a look-further jump
+            self.ev.new_round()            # no secant pair, nor adapted damping, across a jump
             point = self._round(solver, point, lbx, ubx)
             if self.stop is not None or not self._kkt():
                 break
