@@ -374,3 +374,52 @@ def test_a_run_whose_every_trial_point_fails_is_an_honest_solver_failure(monkeyp
     assert res.stats.details.calls["failed_equilibrium_solves"] > 0
     assert np.array_equal(res.contraction, model.scene.contraction)
     _certified(model, res)
+
+
+def test_a_weak_winch_walks_to_its_bound_without_crawling():
+    """The hexapod with its targets moved to 3 % of their distance from the
+    pose at a = 12, b = 0: b moves the targets little, its tendons are
+    nearly slack, and its small gradient points at its lower bound. IPOPT's
+    barrier first pushes b about mu / |g| inside; walking it back, a fixed
+    damping on the slack winch made its steps g / lambda (122 iterations),
+    and counting IPOPT's barrier rises of O as a stall stopped it half-way
+    (O 19 % above the loop's). With the damping adapted as the loop's and
+    only O within ftol of its best counted as a stall, it takes about a dozen
+    and reaches the loop's O, b at its bound."""
+    from dataclasses import replace as _replace
+    _, _, model, targets = built("hexapod")
+    reach = targets.y(solve_equilibrium(model, np.array([12.0, 0.0])).x)
+    near = _replace(targets, to=reach + 0.03 * (targets.to - reach))
+    loop, res = solve_control(model, near), solve_bilevel(model, near)
+    _certified(model, res)
+    assert res.converged and res.reason == "stationary", res.status
+    assert res.objective <= loop.objective * (1 + 1e-6), (res.objective, loop.objective)
+    assert res.stats.iterations <= 20, res.stats.iterations
+    assert "bound active: b" in res.status, res.status
+
+
+def test_the_slack_winches_damping_adapts_as_the_loops():
+    """The damping of the (nearly) slack winches falls by the loop's factor
+    after an accepted iterate that lowered O, rises after one that did not
+    (never above hessian_damping), and a new round starts it afresh."""
+    from plush_opt.control import bilevel_reduced as br
+    from plush_opt.equilibrium import EquilibriumOptions
+    _, _, model, targets = built("hexapod")
+    quick = EquilibriumOptions(eigenvalue=False)
+    free = np.arange(model.n_winches)
+    c0 = np.array([5.0, 0.0])
+    ev = br.Evaluator(model, targets, c0, free, solve_equilibrium(model, c0, options=quick), quick,
+                      damping=1e-3)
+    a, b = ev.points[-1], ev.at(np.array([8.0, 0.0]))
+    assert b.objective < a.objective and ev._near_slack(b)[1]
+    ev.accept(a)
+    ev.accept(b)
+    assert ev.mu == pytest.approx(1e-3 / br.DAMPING_DECREASE)
+    rows = ev.jacobian_rows(b)[-len(free):]
+    lam = float(np.max(np.sum(b.J * b.J, axis=0)))
+    assert rows[1, 1] ** 2 == pytest.approx(ev.mu * lam) and rows[0, 0] == 0.0
+    ev.accept(a)                          # O went up: the damping rises, capped at its start
+    assert ev.mu == pytest.approx(1e-3)
+    ev.accept(b)
+    ev.new_round()
+    assert ev.mu == 1e-3 and ev.accepted is None

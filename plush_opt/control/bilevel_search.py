@@ -87,13 +87,30 @@ class ReducedRun:
             # the same accuracy (IPOPT's own tol is on its scaled KKT error,
             # which the Newton tolerance of the evaluations can keep it from
             # reaching: it then spends its line search on noise)
-            self._stall = self._stall + 1 if point.objective > self._last * (1 - opts.ftol) else 0
+            self._stall = self._stalled(point.objective)
             self._last = min(self._last, point.objective)
             if self._projected(point) <= opts.gtol * max(point.objective, opts.objective_floor):
                 self.stationary = "projected gradient below gtol"
             elif self._stall >= opts.patience:
                 self.stationary = "objective stopped decreasing (relative decrease below ftol)"
         return self.stop is not None or bool(self.stationary)
+
+    def _stalled(self, objective: float) -> int:
+        """The stall count after an iterate with this O: one more where O
+        is within ftol of the best so far (the loop's test), back to zero
+        where it is lower by more. An iterate where O rose by more than ftol
+        leaves the count as it is: the loop only ever takes a step that
+        lowers O, but IPOPT accepts a rise to follow its barrier (a winch
+        with a small gradient near its bound is pushed about mu / |g|
+        inside, then walked back as mu falls), and counting those rises as
+        a stall stopped it half-way back (16 % above the loop's O on a
+        hexapod whose targets are almost reached)."""
+        ftol = self.options.ftol
+        if objective <= self._last * (1 - ftol):
+            return 0
+        if objective > self._last * (1 + ftol):
+            return self._stall
+        return self._stall + 1
 
     def _projected(self, point: Point) -> float:
         """|projected gradient| x the mean bound range (length^2, as O).
