@@ -98,6 +98,7 @@ class Evaluator:
         self.model, self.targets = model, targets
         self.damping = damping
         self.mu = damping                           # the current (adapted) damping factor
+        self._solves_seen = 0                       # self.solves at the last accepted iterate
         self.secant = secant
         self.S = np.zeros((len(free), len(free)))   # the secant estimate of r . d2r/dc2
         self.accepted: Point | None = None
@@ -209,6 +210,7 @@ class Evaluator:
         across the jump, and the damping back at its start."""
         self.accepted = None
         self.mu = self.damping
+        self._solves_seen = self.solves
 
     def accept(self, point: Point) -> None:
         """An iterate IPOPT accepted: update the secant estimate S of the
@@ -219,15 +221,19 @@ class Evaluator:
         hexapod: 1e-5) its Gauss-Newton curvature is far below the true
         one, and IPOPT's steps along it overshoot and backtrack."""
         prev, self.accepted = self.accepted, self.derivatives(point)
+        trials, self._solves_seen = self.solves - self._solves_seen, self.solves
         if prev is None:
             return
         # the loop's Levenberg-Marquardt rule for the damping of the slack
-        # winches: IPOPT accepts a step that keeps O (barrier, filter), so
-        # only a step that lowered O counts as the model being trusted
-        if point.objective < prev.objective:
+        # winches: down after a first trial that lowered O; up by the
+        # increase per trial IPOPT's line search cut back (the loop's rule
+        # per failed trial: without it the tentacle with unreachable
+        # targets backtracked 10-25 times per iteration), and up once for
+        # a step that kept O (IPOPT's barrier and filter accept those)
+        if point.objective < prev.objective and trials <= 1:
             self.mu = max(self.mu / DAMPING_DECREASE, min(MIN_DAMPING, self.damping))
         else:
-            self.mu = min(self.mu * DAMPING_INCREASE, self.damping)
+            self.mu = min(self.mu * DAMPING_INCREASE ** max(trials - 1, 1), self.damping)
         if not self.secant:
             return
         step = point.c[self.free] - prev.c[self.free]
