@@ -399,27 +399,31 @@ def test_a_weak_winch_walks_to_its_bound_without_crawling():
 
 
 def test_the_slack_winches_damping_adapts_as_the_loops():
-    """The damping of the (nearly) slack winches falls by the loop's factor
-    after an accepted iterate that lowered O, rises after one that did not
-    (never above hessian_damping), and a new round starts it afresh."""
+    """The damping of a (nearly) slack winch falls by the loop's factor
+    after an accepted iterate that lowered O with a step that fell short
+    along it (downhill, its gradient's sign kept: the crawl), rises where
+    the step flipped its gradient or IPOPT's step kept O (never above
+    hessian_damping), and a new round starts it afresh."""
     from plush_opt.control import bilevel_reduced as br
     from plush_opt.equilibrium import EquilibriumOptions
     _, _, model, targets = built("hexapod")
     quick = EquilibriumOptions(eigenvalue=False)
     free = np.arange(model.n_winches)
-    c0 = np.array([5.0, 0.0])
+    c0 = np.array([11.5, 0.5])
     ev = br.Evaluator(model, targets, c0, free, solve_equilibrium(model, c0, options=quick), quick,
                       damping=1e-3)
-    a, b = ev.points[-1], ev.at(np.array([8.0, 0.0]))
-    assert b.objective < a.objective and ev._near_slack(b)[1]
+    a, b = ev.derivatives(ev.points[-1]), ev.derivatives(ev.at(np.array([12.0, 0.3])))
+    ga, gb = a.gradient(), b.gradient()
+    assert b.objective < a.objective and ev._near_slack(b)[1] and not ev._near_slack(b)[0]
+    assert ga[0] * gb[0] < 0 and ga[1] > 0 and gb[1] > 0      # a overshot, b fell short
     ev.accept(a)
     ev.accept(b)
-    assert ev.mu == pytest.approx(1e-3 / br.DAMPING_DECREASE)
+    np.testing.assert_allclose(ev.mu, [1e-3, 1e-3 / br.DAMPING_DECREASE])
     rows = ev.jacobian_rows(b)[-len(free):]
     lam = float(np.max(np.sum(b.J * b.J, axis=0)))
-    assert rows[1, 1] ** 2 == pytest.approx(ev.mu * lam) and rows[0, 0] == 0.0
+    assert rows[1, 1] ** 2 == pytest.approx(ev.mu[1] * lam) and rows[0, 0] == 0.0
     ev.accept(a)                          # O went up: the damping rises, capped at its start
-    assert ev.mu == pytest.approx(1e-3)
+    np.testing.assert_allclose(ev.mu, 1e-3)
     ev.accept(b)
     ev.new_round()
-    assert ev.mu == 1e-3 and ev.accepted is None
+    assert np.all(ev.mu == 1e-3) and ev.accepted is None

@@ -57,10 +57,10 @@ NEAR_SLACK = 0.5
 # A secant pair (s, y) updates the second-order estimate only if its
 # curvature s.y is at least this fraction of |s| |y| (BFGS's safeguard).
 SECANT_CURVATURE = 1e-8
-# The damping of the (nearly) slack winches adapts as the gradient loop's
-# Levenberg-Marquardt damping does (its defaults): divided by this after an
-# accepted iterate that lowered O, multiplied by the other after one that
-# did not, never above its start (``hessian_damping``) nor below the floor.
+# The damping of each (nearly) slack winch adapts with the gradient loop's
+# Levenberg-Marquardt factors and floor (its defaults): divided by the first
+# where a step fell short along the winch, multiplied by the second where
+# it overshot or IPOPT cut a trial back; never above ``hessian_damping``.
 DAMPING_DECREASE = 3.0
 DAMPING_INCREASE = 10.0
 MIN_DAMPING = 1e-9
@@ -97,7 +97,7 @@ class Evaluator:
                  secant: bool = False):
         self.model, self.targets = model, targets
         self.damping = damping
-        self.mu = damping                           # the current (adapted) damping factor
+        self.mu = np.full(len(free), float(damping))   # the current (adapted) damping, per winch
         self._solves_seen = 0                       # self.solves at the last accepted iterate
         self.secant = secant
         self.S = np.zeros((len(free), len(free)))   # the secant estimate of r . d2r/dc2
@@ -190,11 +190,12 @@ class Evaluator:
         the gradient loop adapts its damping, swamped a winch that moves the
         targets little, 1e-5 of the other's curvature on the 238-node
         hexapod, and made its steps a linear crawl: 281 iterations instead
-        of 20.) The factor is the adapted ``mu`` (:meth:`accept`), not the
-        fixed start: a nearly slack winch may still move the targets (the
-        smoothing zone carries a little force), and a fixed lambda made its
-        steps g / lambda, a linear crawl to its bound (the 2,809-node
-        hexapod: 3.6e-3 mm per iteration, 126 iterations)."""
+        of 20.) The factor is each winch's adapted ``mu``
+        (:meth:`_adapt_damping`), not the fixed start: a nearly slack winch
+        may still move the targets (the smoothing zone carries a little
+        force), and a fixed lambda made its steps g / lambda, a linear crawl
+        to its bound (the 2,809-node hexapod: 3.6e-3 mm per iteration, 126
+        iterations instead of 11)."""
         J = self.derivatives(point).J
         curv = np.sum(J * J, axis=0)
         lam = max(float(np.max(curv, initial=0.0)), np.finfo(float).tiny)
@@ -209,11 +210,12 @@ class Evaluator:
         """A new IPOPT round (after a look-further jump): no secant pair
         across the jump, and the damping back at its start."""
         self.accepted = None
-        self.mu = self.damping
+        self.mu = np.full(len(self.free), float(self.damping))
         self._solves_seen = self.solves
 
     def accept(self, point: Point) -> None:
-        """An iterate IPOPT accepted: update the secant estimate S of the
+        """An iterate IPOPT accepted: adapt the slack winches' damping
+        (:meth:`_adapt_damping`) and update the secant estimate S of the
         second-order term r . d2r/dc2 the Gauss-Newton Hessian drops
         (structured BFGS: S s = (J_new - J_old)^T r_new, kept positive
         definite by skipping a pair with no positive curvature). Where a
@@ -224,19 +226,10 @@ class Evaluator:
         trials, self._solves_seen = self.solves - self._solves_seen, self.solves
         if prev is None:
             return
-        # the loop's Levenberg-Marquardt rule for the damping of the slack
-        # winches: down after a first trial that lowered O; up by the
-        # increase per trial IPOPT's line search cut back (the loop's rule
-        # per failed trial: without it the tentacle with unreachable
-        # targets backtracked 10-25 times per iteration), and up once for
-        # a step that kept O (IPOPT's barrier and filter accept those)
-        if point.objective < prev.objective and trials <= 1:
-            self.mu = max(self.mu / DAMPING_DECREASE, min(MIN_DAMPING, self.damping))
-        else:
-            self.mu = min(self.mu * DAMPING_INCREASE ** max(trials - 1, 1), self.damping)
+        step = point.c[self.free] - prev.c[self.free]
+        self._adapt_damping(prev, point, step, trials)
         if not self.secant:
             return
-        step = point.c[self.free] - prev.c[self.free]
         y = (point.J - prev.J).T @ point.r
         sy = float(step @ y)
         if (not sy > SECANT_CURVATURE * float(np.linalg.norm(step) * np.linalg.norm(y))
@@ -257,6 +250,27 @@ class Evaluator:
             S, Ss, sSs = tau * S, tau * Ss, tau * sSs
             S = S - np.outer(Ss, Ss) / sSs
         self.S = S + np.outer(y, y) / sy
+
+    def _adapt_damping(self, prev: Point, point: Point, step, trials: int) -> None:
+        """The loop's Levenberg-Marquardt rule, per winch, for the damping
+        of the slack winches. After a first trial that lowered O: down where
+        the step went downhill and left the gradient's sign as it was (it
+        fell short: the crawl), up where it flipped it (overshot), kept
+        elsewhere. Up by the increase per trial IPOPT's line search cut back
+        (the loop's rule per failed trial), and once for a step that kept O
+        (IPOPT's barrier and filter accept those). One factor for every
+        slack winch, lowered after any good step, let the tentacle with
+        unreachable targets throw a winch 3 mm and backtrack 5-25 times per
+        iteration after it (250 equilibrium solves instead of 46)."""
+        if point.objective < prev.objective and trials <= 1:
+            g_old, g_new = prev.gradient(), point.gradient()
+            short = (step * g_old < 0) & (g_old * g_new > 0)
+            flipped = g_old * g_new < 0
+            lower = np.maximum(self.mu / DAMPING_DECREASE, min(MIN_DAMPING, self.damping))
+            higher = np.minimum(self.mu * DAMPING_INCREASE, self.damping)
+            self.mu = np.where(short, lower, np.where(flipped, higher, self.mu))
+        else:
+            self.mu = np.minimum(self.mu * DAMPING_INCREASE ** max(trials - 1, 1), self.damping)
 
     def _near_slack(self, point: Point) -> np.ndarray:
         """Free winches (positions in ``free``) whose every tendon has its
