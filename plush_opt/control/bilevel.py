@@ -94,9 +94,10 @@ class BilevelOptions:
         (the gradient loop's, docs/control.md).
     hessian_damping : (reduced) Levenberg-Marquardt damping added to the
         Gauss-Newton Hessian on the winches whose tendons are all (nearly)
-        slack, relative to its largest diagonal entry (the gradient loop's
-        initial damping): bounds the step of a winch whose column is
-        (nearly) zero; the other winches get none.
+        slack, relative to its largest diagonal entry, at the start (the
+        loop's initial damping; it then adapts per winch as the loop's
+        does, never above this): bounds the step of a winch whose column
+        is (nearly) zero; the other winches get none.
     hessian_secant : (reduced) add to the Gauss-Newton Hessian a secant
         (structured BFGS) estimate of the term it drops, r . d2r/dc2, from
         the accepted iterates: a winch that moves the targets little has a
