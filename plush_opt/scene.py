@@ -64,12 +64,15 @@ class Tendon:
 
     ``assembly_offset`` d (length units) adds to the assembly length:
     a = l(X) + d (negative: tied taut at rest; positive: slack).
+    ``friction`` mu >= 0 is the capstan friction coefficient at its interior
+    via points (0: the tendon slides freely, one spring).
     """
 
     name: str
     winch: str
     path: np.ndarray  # (n_via, 2) rest coordinates
     assembly_offset: float = 0.0
+    friction: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "path", _points(self.path))
@@ -77,7 +80,8 @@ class Tendon:
     def __eq__(self, other):
         return (isinstance(other, Tendon) and self.name == other.name
                 and self.winch == other.winch and np.array_equal(self.path, other.path)
-                and self.assembly_offset == other.assembly_offset)
+                and self.assembly_offset == other.assembly_offset
+                and self.friction == other.friction)
 
     __hash__ = None
 

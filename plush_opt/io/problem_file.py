@@ -38,8 +38,8 @@ _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "t
                   "density")
 _PIN_KEYS = ("stiffness", "at", "box")
 _WINCH_KEYS = ("name", "bounds", "contraction", "frozen")
-_TENDONS_KEYS = ("stiffness", "smoothing", "list")
-_TENDON_KEYS = ("name", "winch", "path", "assembly_offset")
+_TENDONS_KEYS = ("stiffness", "smoothing", "friction", "list")
+_TENDON_KEYS = ("name", "winch", "path", "assembly_offset", "friction")
 _TARGET_KEYS = ("at", "to", "weight")
 
 
@@ -411,6 +411,8 @@ def _tendons_section(ck: Checker, raw, winches):
     ck.mapping(raw, "tendons", _TENDONS_KEYS, required=("stiffness", "smoothing", "list"))
     stiffness = ck.number(raw["stiffness"], "tendons.stiffness", gt=0)
     smoothing = ck.number(raw["smoothing"], "tendons.smoothing", gt=0)
+    friction = _opt(raw, "friction")
+    friction = 0.0 if friction is None else ck.number(friction, "tendons.friction", ge=0)
     winch_index = {w.name: i for i, w in enumerate(winches)}
     used = set()
     tendons, seen = [], {}
@@ -437,7 +439,10 @@ def _tendons_section(ck: Checker, raw, winches):
         if not rest + offset > 0:
             ck.fail(at_key(path, "assembly_offset"), f"{format_number(offset)} leaves the tendon "
                     f"no length (its path is {format_number(rest)} long)")
-        tendons.append(Tendon(name=name, winch=winch, path=via, assembly_offset=offset))
+        mu = _opt(t, "friction")
+        mu = friction if mu is None else ck.number(mu, at_key(path, "friction"), ge=0)
+        tendons.append(Tendon(name=name, winch=winch, path=via, assembly_offset=offset,
+                              friction=mu))
     for i, w in enumerate(winches):
         if w.name not in used:
             ck.fail(at_index("winches", i), f"winch {w.name!r} has no tendons")
