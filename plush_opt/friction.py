@@ -97,7 +97,8 @@ class FrictionModel:
     seg_tendon : (n_segments,) scene index of each segment's tendon.
     seg_first, seg_last : (n_friction,) first segment and winch-end segment.
     n_interior : interior via points; ``lo``, ``hi`` their stopper-side and
-        winch-side segments; ``mu`` their tendon's friction.
+        winch-side segments; ``mu`` their tendon's friction; ``via_index``
+        their position on the tendon's path (0 = stopper end).
     """
 
     def __init__(self, model: Model, include_frictionless: bool = False):
@@ -121,7 +122,7 @@ class FrictionModel:
 
     def _build_segments(self):
         model = self.model
-        blocks, seg_p, seg_t, lo, hi, wrap_p, mu = [], [], [], [], [], [], []
+        blocks, seg_p, seg_t, lo, hi, wrap_p, mu, via = [], [], [], [], [], [], [], []
         first, last, n_p, n_s = [], [], 0, 0
         for t in self.tendons:
             W = via_weights(model, t)
@@ -137,6 +138,7 @@ class FrictionModel:
             hi.append(n_s + j)
             wrap_p.append(np.stack([p[j - 1], p[j - 1] + 1, p[j], p[j] + 1, p[j + 1], p[j + 1] + 1], 1))
             mu.append(np.full(len(j), model.scene.tendons[t].friction))
+            via.append(j)
             n_p += 2 * n_via
             n_s += n_via - 1
         cat = lambda a, shape: np.concatenate(a) if a else np.zeros(shape, np.int64)  # noqa: E731
@@ -147,6 +149,7 @@ class FrictionModel:
         self.seg_first = np.asarray(first, np.int64)
         self.seg_last = np.asarray(last, np.int64)
         self.lo, self.hi = cat(lo, 0), cat(hi, 0)
+        self.via_index = cat(via, 0)          # position of each interior point on its path
         self.wrap_p = cat(wrap_p, (0, 6))
         self.mu = np.concatenate(mu) if mu else np.zeros(0)
         self.n_interior = len(self.lo)

@@ -1,0 +1,322 @@
+"""Forward solves with friction at via points: follow a contraction path.
+
+Which equilibrium a robot with friction is in depends on how it got there,
+so a state is a pose *and* the segment rest lengths (plush_opt/friction.py),
+advanced along a path of contractions in steps. One step (docs/model.md,
+"Friction at via points"):
+
+1. The winch reels in (or lets out) at its winch-end segments: predicted
+   rest lengths r_pred.
+2. Each interior via point i is stuck (delta_i = 0), slips toward the winch
+   (delta_i >= 0, T_hi = T_lo exp(mu theta)) or toward the stopper
+   (delta_i <= 0, T_lo = T_hi exp(mu theta)); delta_i is the material moved
+   through it in this step, r = r_pred + D delta.
+3. For a set of modes, Newton on the slip amounts solves the capstan
+   equalities, the pose being the equilibrium at r (the equilibrium Newton,
+   its factor reused for dx/dr).
+4. Modes are switched (a stuck point whose inequality fails slips that way;
+   a slipping point that moved the wrong way sticks) until none changes.
+
+:func:`check_state` verifies the model's inequalities at a state from its
+pose and rest lengths alone; every state a step returns as converged has
+passed it. A failing step is retried in halves; an honest status otherwise.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from .friction import FrictionModel
+
+log = logging.getLogger(__name__)
+
+STICK, SLIP_WINCH, SLIP_STOPPER = 0, 1, -1
+MODE_NAMES = {STICK: "stick", SLIP_WINCH: "slip toward the winch", SLIP_STOPPER: "slip toward the stopper"}
+
+
+@dataclass(frozen=True)
+class FrictionOptions:
+    """Options of the path-following friction solver.
+
+    Attributes
+    ----------
+    tol : capstan residual and inequality tolerance, relative to the
+        tension scale (largest tension, at least the smoothing-zone tension
+        K eps / 2): a point sticks while its inequality holds to this.
+    check_tol : tolerance :func:`check_state` applies to a returned state
+        (looser than ``tol``: the check recomputes everything from x, r).
+    max_newton : Newton iterations on the slip amounts per set of modes.
+    max_backtracks : step halvings of that Newton before it gives up.
+    max_mode_changes : rounds of mode switching per step before it reports
+        a cycling set of modes.
+    max_splits : how many times a failing step is retried as two halves.
+    equilibrium : options of the inner equilibrium solves.
+    """
+
+    tol: float = 1e-10
+    check_tol: float = 1e-8
+    max_newton: int = 40
+    max_backtracks: int = 30
+    max_mode_changes: int = 30
+    max_splits: int = 6
+    equilibrium: EquilibriumOptions = field(
+        default_factory=lambda: EquilibriumOptions(eigenvalue=False, escape_saddles=False))
+
+    def __post_init__(self):
+        if not (0 < self.tol <= self.check_tol < 1):
+            raise ValueError(f"tol, check_tol: expected 0 < tol <= check_tol < 1, got "
+                             f"{self.tol!r}, {self.check_tol!r}")
+
+
+@dataclass(frozen=True)
+class FrictionState:
+    """One state on a contraction path.
+
+    Attributes
+    ----------
+    x : (n_dofs,) flat pose.
+    contraction : (n_winches,).
+    rest : (n_segments,) segment rest lengths of the friction tendons.
+    tension : (n_segments,) their tensions at (x, rest).
+    wrap : (n_interior,) wrap angles at the interior via points, radians.
+    mode : (n_interior,) STICK, SLIP_WINCH or SLIP_STOPPER in the last step.
+    slip : (n_interior,) material moved through each point in the last step
+        (toward the winch positive).
+    converged, status : the step's outcome.
+    equilibrium : the pose's equilibrium solve (its factor for sensitivities).
+    """
+
+    x: np.ndarray
+    contraction: np.ndarray
+    rest: np.ndarray
+    tension: np.ndarray
+    wrap: np.ndarray
+    mode: np.ndarray
+    slip: np.ndarray
+    converged: bool
+    status: str
+    equilibrium: Equilibrium | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def nodes(self) -> np.ndarray:
+        return self.x.reshape(-1, 2)
+
+
+def tension_scale(fm: FrictionModel, tension: np.ndarray) -> float:
+    """The size tensions are judged against."""
+    floor = fm.K * fm.eps / 2     # U'(0): the tension of a segment at its rest length
+    return float(max(np.max(tension, initial=0.0), floor))
+
+
+def _capstan(fm: FrictionModel, x, r, c):
+    """Per interior point: f_winch = T_hi - T_lo e, f_stopper = T_lo - T_hi e
+    (e = exp(mu theta)), with the segment data and wraps they came from."""
+    seg = fm.segments(x, r, c)
+    theta, dtheta = fm.wraps(x)
+    T = seg["tension"]
+    e = np.exp(fm.mu * theta)
+    return T[fm.hi] - T[fm.lo] * e, T[fm.lo] - T[fm.hi] * e, seg, theta, dtheta, e
+
+
+def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = None) -> list[str]:
+    """The model's conditions at ``state``, recomputed from its pose and rest
+    lengths: every rest length positive and each tendon's summing to
+    a_t - c_w; at every interior via point T_hi <= T_lo exp(mu theta) and
+    T_lo <= T_hi exp(mu theta); a point that slipped in the last step has
+    the equality of its direction. Returns the violations (empty: all hold)."""
+    tol = FrictionOptions().check_tol if tol is None else tol
+    x, r, c = state.x, state.rest, state.contraction
+    out = []
+    if fm.n_segments == 0:
+        return out
+    if np.any(r <= 0):
+        out.append(f"segment rest length {float(r.min()):.3g} <= 0")
+        return out
+    total = np.bincount(fm.seg_tendon, weights=r, minlength=fm.model.n_tendons)[fm.seg_tendon]
+    want = fm.rest_total(c)
+    if np.max(np.abs(total - want) / want) > tol:
+        out.append(f"rest lengths sum to {total} instead of a - c = {want}")
+    f_w, f_s, seg, theta, _, _ = _capstan(fm, x, r, c)
+    scale = tension_scale(fm, seg["tension"])
+    names = [fm.model.scene.tendons[t].name for t in fm.seg_tendon[fm.hi]]
+    for i in range(fm.n_interior):
+        where = f"tendon {names[i]!r}, via point {fm.via_index[i]}"
+        for f, side in ((f_w[i], "T_winch_side > T_stopper_side exp(mu theta)"),
+                        (f_s[i], "T_stopper_side > T_winch_side exp(mu theta)")):
+            if f > tol * scale:
+                out.append(f"{where}: {side} by {f / scale:.2e} of the tension scale")
+        mode = int(state.mode[i])
+        if mode != STICK:
+            f = f_w[i] if mode == SLIP_WINCH else f_s[i]
+            if abs(f) > tol * scale:
+                out.append(f"{where}: slips ({MODE_NAMES[mode]}) off the capstan equality by "
+                           f"{abs(f) / scale:.2e} of the tension scale")
+            if state.slip[i] * mode < -tol * float(r.mean()):
+                out.append(f"{where}: moved {state.slip[i]:.3g} against its slip direction")
+    return out
+
+
+def _state(fm, x, r, c, mode, slip, converged, status, eq=None) -> FrictionState:
+    seg = fm.segments(x, r, c)
+    theta, _ = fm.wraps(x)
+    return FrictionState(x=np.asarray(x, dtype=np.float64).copy(), contraction=np.asarray(c, dtype=np.float64).copy(),
+                         rest=np.asarray(r, dtype=np.float64).copy(), tension=seg["tension"], wrap=theta,
+                         mode=np.asarray(mode, dtype=np.int8).copy(), slip=np.asarray(slip, dtype=np.float64).copy(),
+                         converged=bool(converged), status=status, equilibrium=eq)
+
+
+def start_state(fm: FrictionModel, options: FrictionOptions | None = None) -> FrictionState:
+    """The scene's start state: zero contraction, each friction tendon's rest
+    length shared in proportion to its segments' lengths in X, and the
+    equilibrium reached from X with those rest lengths."""
+    zero = np.zeros(fm.n_winches)
+    at_rest = _state(fm, fm.X, fm.start_rest_lengths(), zero, np.zeros(fm.n_interior),
+                     np.zeros(fm.n_interior), True, "rest")
+    return step(fm, at_rest, zero, options)
+
+
+def step(fm: FrictionModel, state: FrictionState, contraction, options: FrictionOptions | None = None,
+         _splits: int = 0) -> FrictionState:
+    """The state reached from ``state`` when the contractions go to
+    ``contraction`` (a static friction equilibrium reachable from it);
+    a failing step is retried as two halves, ``max_splits`` deep."""
+    options = options or FrictionOptions()
+    c = np.asarray(contraction, dtype=np.float64).reshape(-1)
+    out = _step(fm, state, c, options)
+    if out.converged or _splits >= options.max_splits or np.array_equal(c, state.contraction):
+        return out
+    log.info("friction step to %s failed (%s); trying two halves", c, out.status)
+    mid = step(fm, state, (state.contraction + c) / 2, options, _splits + 1)
+    if not mid.converged:
+        return mid
+    return step(fm, mid, c, options, _splits + 1)
+
+
+def follow(fm: FrictionModel, state: FrictionState, path, options: FrictionOptions | None = None
+           ) -> list[FrictionState]:
+    """States along ``path`` ((n_steps, n_winches) contractions), each from
+    the previous; stops after the first step that does not converge."""
+    states = []
+    for c in np.atleast_2d(np.asarray(path, dtype=np.float64)):
+        state = step(fm, state, c, options)
+        states.append(state)
+        if not state.converged:
+            break
+    return states
+
+
+def _step(fm, state, c, options) -> FrictionState:
+    r_pred = state.rest.copy()
+    dc = c - state.contraction
+    r_pred[fm.seg_last] -= dc[fm.seg_winch[fm.seg_last]]
+    if np.any(r_pred <= 0):
+        return replace(state, converged=False,
+                       status="a winch-end segment would have no rest length left (step too large)")
+    mode = state.mode.astype(np.int8).copy()
+    delta = np.zeros(fm.n_interior)
+    x = state.x
+    seen = set()
+    for _ in range(options.max_mode_changes):
+        key = mode.tobytes()
+        if key in seen:
+            return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
+                          "the stick/slip modes cycle without settling")
+        seen.add(key)
+        delta[mode == STICK] = 0.0
+        solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
+        if isinstance(solved, str):
+            return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
+        x, delta, eq = solved
+        new = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
+        if np.array_equal(new, mode):
+            result = _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, True, "converged", eq)
+            problems = check_state(fm, result, options.check_tol)
+            if problems:
+                return replace(result, converged=False, status="state check failed: " + "; ".join(problems))
+            return result
+        mode = new
+    return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
+                  f"stick/slip modes still changing after {options.max_mode_changes} rounds")
+
+
+def _switch(fm, x, r, c, mode, delta, options) -> np.ndarray:
+    """The modes the solution at (x, r) calls for."""
+    f_w, f_s, seg, *_ = _capstan(fm, x, r, c)
+    tol = options.tol * tension_scale(fm, seg["tension"])
+    new = mode.copy()
+    new[(mode != STICK) & (delta * mode < 0)] = STICK
+    stuck = new == STICK
+    new[stuck & (f_w > tol)] = SLIP_WINCH
+    new[stuck & (f_s > tol)] = SLIP_STOPPER
+    return new
+
+
+def _equilibrium(fm, x, r, c, options):
+    if np.any(r <= 0):
+        return None
+    eq = solve_equilibrium(fm.fixed(r), c, x, options.equilibrium)
+    return eq if eq.converged else None
+
+
+def _residual(fm, x, r, c, active, mode):
+    """Capstan residuals h of the slipping points and their Jacobian in
+    (x, r): rows of dh/dx (dense) and dh/dr."""
+    f_w, f_s, seg, theta, dtheta, e = _capstan(fm, x, r, c)
+    i = np.flatnonzero(active)
+    up = mode[i] == SLIP_WINCH
+    h = np.where(up, f_w[i], f_s[i])
+    # winch-side: h = T_hi - e T_lo; stopper-side: h = T_lo - e T_hi
+    a = np.where(up, fm.hi[i], fm.lo[i])          # the segment whose tension is bounded
+    b = np.where(up, fm.lo[i], fm.hi[i])          # the one that bounds it
+    T, gT, Tr = seg["tension"], seg["dtension_dx"], seg["dtension_dr"]
+    vals = np.hstack([gT[a], -e[i, None] * gT[b], -(T[b] * e[i] * fm.mu[i])[:, None] * dtheta[i]])
+    pdofs = np.hstack([fm.seg_p[a], fm.seg_p[b], fm.wrap_p[i]])
+    dh_dx = fm.to_x(vals, pdofs)
+    dh_dr = np.zeros((len(i), fm.n_segments))
+    dh_dr[np.arange(len(i)), a] += Tr[a]
+    dh_dr[np.arange(len(i)), b] -= e[i] * Tr[b]
+    return h, dh_dx, dh_dr, tension_scale(fm, T)
+
+
+def _solve_modes(fm, x, r_pred, c, mode, delta, options):
+    """Newton on the slip amounts of the slipping points (the others held at
+    0) with the pose at equilibrium: (x, delta, equilibrium), or a status."""
+    active = mode != STICK
+    delta = delta.copy()
+    eq = _equilibrium(fm, x, r_pred + fm.D @ delta, c, options)
+    if eq is None:
+        return "the pose equilibrium at these rest lengths did not converge"
+    if not active.any():
+        return eq.x, delta, eq
+    Ds = fm.D[:, active].toarray()
+    for _ in range(options.max_newton):
+        r = r_pred + fm.D @ delta
+        h, dh_dx, dh_dr, scale = _residual(fm, eq.x, r, c, active, mode)
+        norm = float(np.max(np.abs(h)))
+        if norm <= options.tol * scale:
+            return eq.x, delta, eq
+        dx_dd = -eq.factor.solve(fm.mixed_r(eq.x, r, c) @ Ds)
+        J = dh_dr @ Ds + dh_dx @ dx_dd
+        d = np.linalg.lstsq(J, -h, rcond=None)[0]
+        alpha, accepted = 1.0, None
+        for _ in range(options.max_backtracks):
+            trial = delta.copy()
+            trial[active] += alpha * d
+            r_t = r_pred + fm.D @ trial
+            eq_t = _equilibrium(fm, eq.x + alpha * (dx_dd @ d), r_t, c, options) \
+                or _equilibrium(fm, eq.x, r_t, c, options)
+            if eq_t is not None:
+                h_t = _residual(fm, eq_t.x, r_t, c, active, mode)[0]
+                if np.max(np.abs(h_t)) < (1 - 1e-4 * alpha) * norm:
+                    accepted = (trial, eq_t)
+                    break
+            alpha /= 2
+        if accepted is None:
+            return "the capstan Newton found no step that reduces the residual"
+        delta, eq = accepted
+    return f"the capstan Newton did not converge in {options.max_newton} iterations"
