@@ -26,8 +26,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
+from .kernels import compiled
 from .linalg import Factorizer
-from .model import Evaluation, Model
+from .model import Evaluation, Model, _Mapped
 from .tendon_law import U_DERIVS
 
 
@@ -53,10 +54,10 @@ def via_weights(model: Model, t: int) -> sp.csr_matrix:
 
 @functools.lru_cache(maxsize=None)
 def segment_kernel() -> ca.Function:
-    """fseg(xs, r, R, K, eps): one segment's energy phi U(G/phi), phi = r/R,
-    and the derivatives the solvers need (x: the 4 end coordinates)."""
-    xs, r, R, K, eps = (ca.SX.sym(n, k) for n, k in
-                        (("xs", 4), ("r", 1), ("R", 1), ("K", 1), ("eps", 1)))
+    """fseg(v, K, eps), v = [xs (4 end coordinates), r, R]: one segment's
+    energy phi U(G/phi), phi = r/R, and the derivatives the solvers need."""
+    v, K, eps = ca.SX.sym("v", 6), ca.SX.sym("K"), ca.SX.sym("eps")
+    xs, r, R = v[0:4], v[4], v[5]
     length = ca.norm_2(xs[2:4] - xs[0:2])
     phi = r / R
     z = (length - r) / phi
@@ -65,10 +66,16 @@ def segment_kernel() -> ca.Function:
     ge = ca.gradient(e, xs)
     He = ca.densify(ca.jacobian(ge, xs))
     return ca.Function(
-        "fseg", [xs, r, R, K, eps],
+        "fseg", [v, K, eps],
         [e, ge, He, ca.gradient(e, r), ca.jacobian(ge, r), T, ca.gradient(T, xs), ca.gradient(T, r)],
-        ["xs", "r", "R", "K", "eps"],
+        ["v", "K", "eps"],
         ["e", "grad", "hess", "de_dr", "dgrad_dr", "tension", "dtension_dx", "dtension_dr"])
+
+
+@functools.lru_cache(maxsize=None)
+def _compiled_kernels() -> tuple[ca.Function, ca.Function]:
+    """Both kernels compiled (cached on disk) once per process."""
+    return compiled(segment_kernel()), compiled(wrap_kernel())
 
 
 @functools.lru_cache(maxsize=None)
@@ -112,6 +119,10 @@ class FrictionModel:
         self.K, self.eps = model.tendon_stiffness, model.tendon_smoothing
         self._build_segments()
         self._build_pattern()
+        fseg, wrap = _compiled_kernels()
+        self._fseg = _Mapped(fseg, self.n_segments, {1: np.full(self.n_segments, self.K),
+                                                     2: np.full(self.n_segments, self.eps)})
+        self._wrap = _Mapped(wrap, self.n_interior, {})
         self.factorizer = Factorizer()
 
     # the attributes the equilibrium Newton reads
@@ -222,15 +233,11 @@ class FrictionModel:
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         n = self.n_segments
         P = self.W @ x
-        xs = P[self.seg_p].T
-        ones = np.ones((1, n))
-        outs = segment_kernel().map(n, "serial")(xs, np.reshape(r, (1, n)),
-                                                  self.rest_total(c).reshape(1, n),
-                                                  self.K * ones, self.eps * ones)
-        e, g, H, er, ger, T, gT, Tr = (np.asarray(o) for o in outs)
-        return {"energy": e.ravel(), "grad": g.T, "hess": H.reshape(4, n, 4).transpose(1, 0, 2),
-                "de_dr": er.ravel(), "dgrad_dr": ger.T, "tension": T.ravel(),
-                "dtension_dx": gT.T, "dtension_dr": Tr.ravel()}
+        v = np.hstack([P[self.seg_p], np.reshape(r, (n, 1)), self.rest_total(c).reshape(n, 1)])
+        e, g, H, er, ger, T, gT, Tr = self._fseg(v, 8)
+        return {"energy": e, "grad": g.reshape(n, 4), "hess": H.reshape(n, 4, 4),
+                "de_dr": er, "dgrad_dr": ger.reshape(n, 4), "tension": T,
+                "dtension_dx": gT.reshape(n, 4), "dtension_dr": Tr}
 
     def wraps(self, x) -> tuple[np.ndarray, np.ndarray]:
         """Wrap angles (n_interior,) in [0, pi] at pose x, and their
@@ -238,16 +245,16 @@ class FrictionModel:
         if not self.n_interior:
             return np.zeros(0), np.zeros((0, 6))
         P = self.W @ np.asarray(x, dtype=np.float64).reshape(-1)
-        theta, g = wrap_kernel().map(self.n_interior, "serial")(P[self.wrap_p].T)
-        return np.asarray(theta).ravel(), np.asarray(g).T
+        theta, g = self._wrap(P[self.wrap_p], 2)
+        return theta, g.reshape(-1, 6)
 
     def to_x(self, values: np.ndarray, pdofs: np.ndarray) -> np.ndarray:
         """Rows of per-item derivatives in via point coordinates (k, m) at
         P dofs ``pdofs`` (k, m) -> dense (k, n_dofs) in pose coordinates."""
         k, m = values.shape
-        Gp = sp.csr_matrix((values.ravel(), (np.repeat(np.arange(k), m), pdofs.ravel())),
-                           shape=(k, self.W.shape[0]))
-        return (Gp @ self.W).toarray()
+        Gp = np.zeros((k, self.W.shape[0]))
+        np.add.at(Gp, (np.repeat(np.arange(k), m), pdofs.ravel()), values.ravel())
+        return np.asarray((self.W.T @ Gp.T).T)
 
     def evaluate(self, x, c, r, order: int = 2) -> Evaluation:
         """E(x; c, r) (order 0), grad_x (1), and the Hessian (2)."""

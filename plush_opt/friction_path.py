@@ -32,6 +32,7 @@ import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .friction import FrictionModel
+from .linalg import NotPositiveDefinite
 
 log = logging.getLogger(__name__)
 
@@ -264,8 +265,10 @@ def _equilibrium(fm, x, r, c, options):
 
 
 def _residual(fm, x, r, c, active, mode):
-    """Capstan residuals h of the slipping points and their Jacobian in
-    (x, r): rows of dh/dx (dense) and dh/dr."""
+    """Capstan residuals h of the slipping points (tension units) twice (the
+    convergence test's and Newton's), with Newton's Jacobian in x (dense
+    rows) and r. (Known weakness: a slip that drives a segment to slack has
+    a double root in T, where this Newton converges only linearly.)"""
     f_w, f_s, seg, theta, dtheta, e = _capstan(fm, x, r, c)
     i = np.flatnonzero(active)
     up = mode[i] == SLIP_WINCH
@@ -276,14 +279,76 @@ def _residual(fm, x, r, c, active, mode):
     T, gT, Tr = seg["tension"], seg["dtension_dx"], seg["dtension_dr"]
     vals = np.hstack([gT[a], -e[i, None] * gT[b], -(T[b] * e[i] * fm.mu[i])[:, None] * dtheta[i]])
     pdofs = np.hstack([fm.seg_p[a], fm.seg_p[b], fm.wrap_p[i]])
-    dh_dx = fm.to_x(vals, pdofs)
-    dh_dr = np.zeros((len(i), fm.n_segments))
-    dh_dr[np.arange(len(i)), a] += Tr[a]
-    dh_dr[np.arange(len(i)), b] -= e[i] * Tr[b]
-    return h, dh_dx, dh_dr, tension_scale(fm, T)
+    dhs_dx = fm.to_x(vals, pdofs)
+    dhs_dr = np.zeros((len(i), fm.n_segments))
+    dhs_dr[np.arange(len(i)), a] += Tr[a]
+    dhs_dr[np.arange(len(i)), b] -= e[i] * Tr[b]
+    return h, h, dhs_dx, dhs_dr, tension_scale(fm, T)
 
 
 def _solve_modes(fm, x, r_pred, c, mode, delta, options):
+    """Pose and slip amounts for a set of modes: the joint Newton
+    (:func:`_joint_newton`), or where it fails the nested one."""
+    if (mode != STICK).any():
+        joint = _joint_newton(fm, x, r_pred, c, mode, delta, options)
+        if joint is not None:
+            return joint
+    return _nested_newton(fm, x, r_pred, c, mode, delta, options)
+
+
+def _joint_newton(fm, x, r_pred, c, mode, delta, options):
+    """Newton on (x, delta_slipping) together: grad_x E = 0 and the capstan
+    equalities h = 0, one factorisation of H per iteration, the slip
+    unknowns eliminated by their Schur complement. Backtracks on the sum of
+    the two relative residuals squared; None when it gets stuck (a Hessian
+    that is not positive definite, no decrease), for the nested Newton."""
+    active = mode != STICK
+    Ds = fm.D[:, active].toarray()
+    delta = delta.copy()
+    gtol = options.equilibrium.gtol
+
+    def merit(x, delta):
+        r = r_pred + fm.D @ delta
+        if np.any(r <= 0):
+            return None
+        ev = fm.evaluate(x, c, r, 2)
+        if not ev.admissible:
+            return None
+        res = _residual(fm, x, r, c, active, mode)
+        value = (np.linalg.norm(ev.gradient) / ev.force_scale) ** 2 + (np.linalg.norm(res[0]) / res[4]) ** 2
+        return value, ev, res, r
+
+    now = merit(x, delta)
+    for _ in range(options.max_newton):
+        if now is None:
+            return None
+        value, ev, (h, hs, dh_dx, dh_dr, scale), r = now
+        if np.linalg.norm(ev.gradient) <= gtol * ev.force_scale and np.max(np.abs(h)) <= options.tol * scale:
+            eq = _equilibrium(fm, x, r, c, options)
+            return None if eq is None else (eq.x, delta, eq)
+        try:
+            factor = fm.factorizer.factor(ev.hessian)
+        except NotPositiveDefinite:
+            return None
+        Hg = factor.solve(ev.gradient)
+        HB = factor.solve(fm.mixed_r(x, r, c) @ Ds)
+        dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
+        dx = -Hg - HB @ dd
+        alpha = 1.0
+        for _ in range(options.max_backtracks):
+            trial = delta.copy()
+            trial[active] += alpha * dd
+            nxt = merit(x + alpha * dx, trial)
+            if nxt is not None and nxt[0] < (1 - 1e-4 * alpha) * value:
+                x, delta, now = x + alpha * dx, trial, nxt
+                break
+            alpha /= 2
+        else:
+            return None
+    return None
+
+
+def _nested_newton(fm, x, r_pred, c, mode, delta, options):
     """Newton on the slip amounts of the slipping points (the others held at
     0) with the pose at equilibrium: (x, delta, equilibrium), or a status."""
     active = mode != STICK
@@ -296,13 +361,13 @@ def _solve_modes(fm, x, r_pred, c, mode, delta, options):
     Ds = fm.D[:, active].toarray()
     for _ in range(options.max_newton):
         r = r_pred + fm.D @ delta
-        h, dh_dx, dh_dr, scale = _residual(fm, eq.x, r, c, active, mode)
-        norm = float(np.max(np.abs(h)))
-        if norm <= options.tol * scale:
+        h, hs, dh_dx, dh_dr, scale = _residual(fm, eq.x, r, c, active, mode)
+        if np.max(np.abs(h)) <= options.tol * scale:
             return eq.x, delta, eq
+        norm = float(np.max(np.abs(hs)))
         dx_dd = -eq.factor.solve(fm.mixed_r(eq.x, r, c) @ Ds)
         J = dh_dr @ Ds + dh_dx @ dx_dd
-        d = np.linalg.lstsq(J, -h, rcond=None)[0]
+        d = np.linalg.lstsq(J, -hs, rcond=None)[0]
         alpha, accepted = 1.0, None
         for _ in range(options.max_backtracks):
             trial = delta.copy()
@@ -311,7 +376,7 @@ def _solve_modes(fm, x, r_pred, c, mode, delta, options):
             eq_t = _equilibrium(fm, eq.x + alpha * (dx_dd @ d), r_t, c, options) \
                 or _equilibrium(fm, eq.x, r_t, c, options)
             if eq_t is not None:
-                h_t = _residual(fm, eq_t.x, r_t, c, active, mode)[0]
+                h_t = _residual(fm, eq_t.x, r_t, c, active, mode)[1]
                 if np.max(np.abs(h_t)) < (1 - 1e-4 * alpha) * norm:
                     accepted = (trial, eq_t)
                     break
