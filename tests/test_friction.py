@@ -1,0 +1,173 @@
+"""Friction at via points: parsing, the segment energies' derivatives, the
+capstan law, mu = 0 equals the one-spring model, hysteresis, and the state
+checker at every returned state."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from plush_opt.errors import SceneError
+from plush_opt.friction import FrictionModel
+from plush_opt.friction_path import (SLIP_WINCH, FrictionOptions, check_state, follow,
+                                     start_state)
+from plush_opt.io import scene_from_dict
+from plush_opt.problem import from_scene
+
+EPS = np.finfo(float).eps
+
+
+def arc(friction=0.2, stiff=True):
+    """A stiff pinned block with one tendon through five interior via points
+    on a half circle of radius 50: six chords, each turning by pi/6 at an
+    interior point (total wrap 5 pi / 6 at rest)."""
+    angles = np.linspace(np.pi, 0, 7)
+    path = [[round(50 * np.cos(a), 6), round(10 + 50 * np.sin(a), 6)] for a in angles]
+    return {
+        "format": "plush-opt/1", "name": "arc",
+        "mesh": {"outline": [[-60, 0], [60, 0], [60, 70], [-60, 70]], "max_area": 60.0},
+        "material": {"model": "neo_hookean", "youngs_modulus": 1000.0 if stiff else 1.0,
+                     "poisson_ratio": 0.3, "thickness": 10.0},
+        "pins": {"stiffness": 1.0e6 if stiff else 1.0e3, "at": [[-60, 0], [60, 0]], "box": [-60, 0, 60, 0]},
+        "winches": [{"name": "w", "bounds": [-5.0, 5.0]}],
+        "tendons": {"stiffness": 50.0, "smoothing": 0.01, "friction": friction,
+                    "list": [{"name": "arc", "winch": "w", "path": path}]},
+    }
+
+
+def loop_area(c, y):
+    """Signed area enclosed by the closed polygon (c_i, y_i) (shoelace)."""
+    return 0.5 * float(np.sum(c * np.roll(y, -1) - np.roll(c, -1) * y))
+
+
+def problem(doc):
+    return from_scene(scene_from_dict(doc, "arc.yaml"))
+
+
+# -- parsing -----------------------------------------------------------------
+
+def test_friction_parses_with_default_and_override():
+    doc = arc(0.2)
+    assert scene_from_dict(doc).tendons[0].friction == 0.2
+    doc["tendons"]["list"][0]["friction"] = 0.5
+    assert scene_from_dict(doc).tendons[0].friction == 0.5
+    del doc["tendons"]["friction"], doc["tendons"]["list"][0]["friction"]
+    assert scene_from_dict(doc).tendons[0].friction == 0.0
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), True, "0.3", None.__class__])
+def test_bad_friction_names_file_key_and_index(bad):
+    doc = arc(0.2)
+    doc["tendons"]["list"][0]["friction"] = bad if bad is not None.__class__ else [0.3]
+    with pytest.raises(SceneError, match=r"arc\.yaml: tendons\.list\[0\]\.friction"):
+        scene_from_dict(doc, "arc.yaml")
+    doc = arc(0.2)
+    doc["tendons"]["friction"] = bad if bad is not None.__class__ else [0.3]
+    with pytest.raises(SceneError, match=r"arc\.yaml: tendons\.friction"):
+        scene_from_dict(doc, "arc.yaml")
+
+
+# -- derivatives ---------------------------------------------------------------
+
+def test_segment_energy_derivatives_against_central_differences():
+    p = problem(arc(0.2, stiff=False))
+    fm = FrictionModel(p.model)
+    rng = np.random.default_rng(3)
+    c = np.array([1.0])
+    r = fm.start_rest_lengths() * (1 + 0.01 * rng.standard_normal(fm.n_segments))
+    x = p.model.X + 0.2 * rng.standard_normal(p.model.n_dofs)
+    ev = fm.evaluate(x, c, r, 2)
+    v, w = rng.standard_normal(p.model.n_dofs), rng.standard_normal(fm.n_segments)
+    h = 1e-6
+    checks = {
+        "gradient": ((fm.evaluate(x + h * v, c, r, 0).energy - fm.evaluate(x - h * v, c, r, 0).energy)
+                     / (2 * h), ev.gradient @ v),
+        "hessian": ((fm.evaluate(x + h * v, c, r, 1).gradient - fm.evaluate(x - h * v, c, r, 1).gradient)
+                    / (2 * h), ev.hessian @ v),
+        "mixed": ((fm.evaluate(x, c, r + h * w, 1).gradient - fm.evaluate(x, c, r - h * w, 1).gradient)
+                  / (2 * h), fm.mixed_r(x, r, c) @ w),
+        "de_dr": ((fm.segments(x, r + h * w, c)["energy"] - fm.segments(x, r - h * w, c)["energy"])
+                  / (2 * h), fm.segments(x, r, c)["de_dr"] * w),
+        "tension_x": ((fm.segments(x + h * v, r, c)["tension"] - fm.segments(x - h * v, r, c)["tension"])
+                      / (2 * h), fm.to_x(fm.segments(x, r, c)["dtension_dx"], fm.seg_p) @ v),
+        "tension_r": ((fm.segments(x, r + h * w, c)["tension"] - fm.segments(x, r - h * w, c)["tension"])
+                      / (2 * h), fm.segments(x, r, c)["dtension_dr"] * w),
+        "wrap": ((fm.wraps(x + h * v)[0] - fm.wraps(x - h * v)[0]) / (2 * h),
+                 fm.to_x(fm.wraps(x)[1], fm.wrap_p) @ v),
+    }
+    for name, (fd, exact) in checks.items():
+        err = np.max(np.abs(np.asarray(fd) - exact))
+        threshold = 1e3 * np.sqrt(EPS) * max(1.0, np.max(np.abs(exact)))
+        assert err <= threshold, f"{name}: error {err:.3g} > threshold {threshold:.3g}"
+
+
+def test_equal_shares_are_the_one_spring_model():
+    p = problem(arc(0.2))
+    fm = FrictionModel(p.model)
+    c = np.zeros(1)
+    r = fm.start_rest_lengths()
+    assert fm.evaluate(p.model.X, c, r, 0).energy == pytest.approx(p.model.energy(p.model.X, c), rel=1e-12)
+    g = fm.evaluate(p.model.X, c, r, 1).gradient
+    assert np.allclose(g, p.model.evaluate(p.model.X, c, 1).gradient, atol=1e-12 * np.abs(g).max())
+
+
+# -- the path-following solver --------------------------------------------------
+
+def test_capstan_law_on_a_stiff_arc():
+    mu = 0.2
+    p = problem(arc(mu))
+    fm = FrictionModel(p.model)
+    states = follow(fm, start_state(fm), np.linspace(0, 1.0, 6)[1:, None])
+    assert all(s.converged for s in states), [s.status for s in states]
+    for s in states:
+        assert not check_state(fm, s)
+        assert np.all(s.mode == SLIP_WINCH)
+        ratio = s.tension[fm.seg_last[0]] / s.tension[fm.seg_first[0]]
+        assert ratio == pytest.approx(np.exp(mu * s.wrap.sum()), rel=1e-2)
+        # the stiff body hardly moves: the rest geometry's wrap gives the ratio
+        assert ratio == pytest.approx(np.exp(mu * 5 * np.pi / 6), rel=1e-2)
+
+
+def test_zero_friction_equal_tensions_and_the_ordinary_equilibrium():
+    p = problem(arc(0.0, stiff=False))
+    fm = FrictionModel(p.model, include_frictionless=True)
+    options = FrictionOptions(tol=1e-11)
+    states = follow(fm, start_state(fm, options), np.linspace(0, 2.0, 4)[1:, None], options)
+    for s in states:
+        assert s.converged, s.status
+        assert np.ptp(s.tension) <= 1e-9 * s.tension.max()
+        eq = p.equilibrium({"w": float(s.contraction[0])})
+        assert np.max(np.abs(s.x - eq.x)) <= 1e-6
+
+
+def test_a_load_unload_cycle_encloses_a_loop_only_with_friction():
+    areas = {}
+    for mu in (0.0, 0.3):
+        p = problem(arc(mu, stiff=False))
+        fm = FrictionModel(p.model, include_frictionless=True)
+        up = np.linspace(0, 3, 7)
+        path = np.r_[up[1:], up[::-1][1:]][:, None]
+        start = start_state(fm)
+        states = [start] + follow(fm, start, path)
+        assert all(s.converged for s in states), [s.status for s in states]
+        for s in states:
+            assert not check_state(fm, s)
+        node = int(p.model.tendon_paths[0][3])          # the top of the arc
+        y = np.array([s.nodes[node, 1] for s in states])
+        c = np.array([s.contraction[0] for s in states])
+        areas[mu] = abs(loop_area(c, y))
+    assert areas[0.0] <= 1e-9 * areas[0.3]
+    assert areas[0.3] > 0
+
+
+def test_check_state_reports_a_violated_bound():
+    p = problem(arc(0.2))
+    fm = FrictionModel(p.model)
+    s = follow(fm, start_state(fm), [[1.0]])[-1]
+    bad = copy.copy(s)
+    r = s.rest.copy()
+    r[fm.seg_last[0]] -= 0.5          # a winch-end segment far too tight ...
+    r[fm.seg_first[0]] += 0.5         # ... with the sum kept
+    object.__setattr__(bad, "rest", r)
+    problems = check_state(fm, bad)
+    assert problems and any("exp(mu theta)" in m for m in problems)
