@@ -171,3 +171,25 @@ def test_check_state_reports_a_violated_bound():
     object.__setattr__(bad, "rest", r)
     problems = check_state(fm, bad)
     assert problems and any("exp(mu theta)" in m for m in problems)
+
+
+def test_sweep_command_writes_csv_and_plot(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+    doc = arc(0.3, stiff=False)
+    doc["points"] = [[0, 60]]
+    src = tmp_path / "arc.yaml"
+    src.write_text(yaml.safe_dump(doc))
+    out, png = tmp_path / "s.csv", tmp_path / "s.png"
+    run = subprocess.run([sys.executable, "-m", "plush_opt", "sweep", str(src), "--winch", "w",
+                          "--to", "2", "--back", "0", "--steps", "4", "--out", str(out),
+                          "--plot", str(png)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    rows = out.read_text().splitlines()
+    assert rows[0] == "step,c_w,x_0,y_0,T_arc_winch,T_arc_stopper"
+    assert len(rows) == 1 + 9 and png.stat().st_size > 0
+    bad = subprocess.run([sys.executable, "-m", "plush_opt", "sweep", str(src), "--winch", "nope",
+                          "--to", "2", "--out", str(out)], capture_output=True, text=True)
+    assert bad.returncode == 2 and "no winch named 'nope'" in bad.stderr
