@@ -22,7 +22,7 @@ def arc(friction=0.2, stiff=True):
     on a half circle of radius 50: six chords, each turning by pi/6 at an
     interior point (total wrap 5 pi / 6 at rest)."""
     angles = np.linspace(np.pi, 0, 7)
-    path = [[round(50 * np.cos(a), 6), round(10 + 50 * np.sin(a), 6)] for a in angles]
+    path = [[float(round(50 * np.cos(a), 6)), float(round(10 + 50 * np.sin(a), 6))] for a in angles]
     return {
         "format": "plush-opt/1", "name": "arc",
         "mesh": {"outline": [[-60, 0], [60, 0], [60, 70], [-60, 70]], "max_area": 60.0},
