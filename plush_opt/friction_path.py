@@ -37,6 +37,7 @@ from .linalg import NotPositiveDefinite
 log = logging.getLogger(__name__)
 
 STICK, SLIP_WINCH, SLIP_STOPPER = 0, 1, -1
+ARMIJO = 1e-4     # sufficient decrease of the line searches' merit (the usual Newton choice)
 MODE_NAMES = {STICK: "stick", SLIP_WINCH: "slip toward the winch", SLIP_STOPPER: "slip toward the stopper"}
 
 
@@ -46,9 +47,15 @@ class FrictionOptions:
 
     Attributes
     ----------
-    tol : capstan residual and inequality tolerance, relative to the
-        tension scale (largest tension, at least the smoothing-zone tension
-        K eps / 2): a point sticks while its inequality holds to this.
+    tol : capstan equality tolerance of the Newton solves, relative to
+        the tension scale (largest tension, at least the smoothing-zone
+        tension K eps / 2).
+    stick_tol : inequality tolerance, relative to the tension scale: a
+        point sticks while its bound holds to this, and a segment whose
+        tension is below it counts as slack. Far below any tension that
+        moves the body, it keeps the vanishing tails of the smoothing zone
+        (a nearly slack segment pulling 1e-5 of the scale, its stretch in the last 1e-4 of the smoothing zone) from making
+        points slip back and forth by nothing.
     check_tol : tolerance :func:`check_state` applies to a returned state
         (looser than ``tol``: the check recomputes everything from x, r).
     max_newton : Newton iterations on the slip amounts per set of modes.
@@ -60,6 +67,7 @@ class FrictionOptions:
     """
 
     tol: float = 1e-10
+    stick_tol: float = 1e-4
     check_tol: float = 1e-8
     max_newton: int = 40
     max_backtracks: int = 30
@@ -69,6 +77,8 @@ class FrictionOptions:
         default_factory=lambda: EquilibriumOptions(eigenvalue=False, escape_saddles=False))
 
     def __post_init__(self):
+        if not (0 < self.stick_tol < 1):
+            raise ValueError(f"stick_tol: expected 0 < stick_tol < 1, got {self.stick_tol!r}")
         if not (0 < self.tol <= self.check_tol < 1):
             raise ValueError(f"tol, check_tol: expected 0 < tol <= check_tol < 1, got "
                              f"{self.tol!r}, {self.check_tol!r}")
@@ -90,6 +100,8 @@ class FrictionState:
         (toward the winch positive).
     converged, status : the step's outcome.
     equilibrium : the pose's equilibrium solve (its factor for sensitivities).
+    step_dx, step_dc : pose and contraction change of the last step (the
+        next step's predictor), or None.
     """
 
     x: np.ndarray
@@ -102,6 +114,8 @@ class FrictionState:
     converged: bool
     status: str
     equilibrium: Equilibrium | None = field(default=None, repr=False, compare=False)
+    step_dx: np.ndarray | None = field(default=None, repr=False, compare=False)
+    step_dc: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def nodes(self) -> np.ndarray:
@@ -124,13 +138,17 @@ def _capstan(fm: FrictionModel, x, r, c):
     return T[fm.hi] - T[fm.lo] * e, T[fm.lo] - T[fm.hi] * e, seg, theta, dtheta, e
 
 
-def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = None) -> list[str]:
+def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = None,
+                stick_tol: float | None = None) -> list[str]:
     """The model's conditions at ``state``, recomputed from its pose and rest
     lengths: every rest length positive and each tendon's summing to
     a_t - c_w; at every interior via point T_hi <= T_lo exp(mu theta) and
     T_lo <= T_hi exp(mu theta); a point that slipped in the last step has
-    the equality of its direction. Returns the violations (empty: all hold)."""
+    the equality of its direction. Returns the violations (empty: all hold).
+    ``tol`` (default the options' ``check_tol``) applies to the sums and
+    equalities, ``tol + stick_tol`` to the inequalities."""
     tol = FrictionOptions().check_tol if tol is None else tol
+    stick_tol = FrictionOptions().stick_tol if stick_tol is None else stick_tol
     x, r, c = state.x, state.rest, state.contraction
     out = []
     if fm.n_segments == 0:
@@ -149,7 +167,7 @@ def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = Non
         where = f"tendon {names[i]!r}, via point {fm.via_index[i]}"
         for f, side in ((f_w[i], "T_winch_side > T_stopper_side exp(mu theta)"),
                         (f_s[i], "T_stopper_side > T_winch_side exp(mu theta)")):
-            if f > tol * scale:
+            if f > (tol + stick_tol) * scale:
                 out.append(f"{where}: {side} by {f / scale:.2e} of the tension scale")
         mode = int(state.mode[i])
         if mode != STICK:
@@ -219,42 +237,76 @@ def _step(fm, state, c, options) -> FrictionState:
         return replace(state, converged=False,
                        status="a winch-end segment would have no rest length left (step too large)")
     mode = state.mode.astype(np.int8).copy()
-    delta = np.zeros(fm.n_interior)
-    x = state.x
+    mode[_slack(fm, state.tension, options.stick_tol * tension_scale(fm, state.tension))] = STICK
+    if state.step_dc is not None and float(dc @ state.step_dc) < 0:
+        mode[:] = STICK       # the path turns back: what slipped on the way out sticks first
+    x, delta = _predict(fm, state, dc, mode, r_pred)
     seen = set()
     for _ in range(options.max_mode_changes):
-        key = mode.tobytes()
+        key = mode.tobytes() + (delta != 0).tobytes()    # stuck points may hold a slip
         if key in seen:
             return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                           "the stick/slip modes cycle without settling")
         seen.add(key)
-        delta[mode == STICK] = 0.0
         solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
         if isinstance(solved, str):
             return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
         x, delta, eq = solved
-        new = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
-        if np.array_equal(new, mode):
+        new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
+        if reset.any():
+            # slips undone: the pose at the step's start fits the rest lengths better
+            delta[reset] = 0.0
+            x = state.x
+        if np.array_equal(new, mode) and not reset.any():
             result = _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, True, "converged", eq)
-            problems = check_state(fm, result, options.check_tol)
+            problems = check_state(fm, result, options.check_tol, options.stick_tol)
             if problems:
                 return replace(result, converged=False, status="state check failed: " + "; ".join(problems))
-            return result
+            return replace(result, step_dx=result.x - state.x, step_dc=dc)
         mode = new
     return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                   f"stick/slip modes still changing after {options.max_mode_changes} rounds")
 
 
-def _switch(fm, x, r, c, mode, delta, options) -> np.ndarray:
-    """The modes the solution at (x, r) calls for."""
+def _predict(fm, state, dc, mode, r_pred):
+    """Start of a step's Newton: the last step's pose change and slips,
+    scaled to this step (a secant predictor), where this step goes on the
+    way the last one went; the state's pose and no slip otherwise."""
+    rest = state.x, np.zeros(fm.n_interior)
+    if state.step_dc is None or not state.step_dc.any():
+        return rest
+    s = float(dc @ state.step_dc) / float(state.step_dc @ state.step_dc)
+    if s <= 0:
+        return rest
+    delta = np.where((mode != STICK) & (state.slip * mode > 0), s * state.slip, 0.0)
+    x = state.x + s * state.step_dx
+    if np.any(r_pred + fm.D @ delta <= 0) or not fm.model.admissible(x):
+        return rest
+    return x, delta
+
+
+def _switch(fm, x, r, c, mode, delta, options) -> tuple[np.ndarray, np.ndarray]:
+    """The modes the solution at (x, r) calls for, and the points whose slip
+    in this step is undone (they moved against their direction). A point
+    gone slack on both sides sticks where it is, keeping the slip it made."""
     f_w, f_s, seg, *_ = _capstan(fm, x, r, c)
-    tol = options.tol * tension_scale(fm, seg["tension"])
+    tol = options.stick_tol * tension_scale(fm, seg["tension"])
     new = mode.copy()
-    new[(mode != STICK) & (delta * mode < 0)] = STICK
+    slack = _slack(fm, seg["tension"], tol)
+    reset = (mode != STICK) & (delta * mode < 0) & ~slack
+    new[reset | slack] = STICK
     stuck = new == STICK
     new[stuck & (f_w > tol)] = SLIP_WINCH
     new[stuck & (f_s > tol)] = SLIP_STOPPER
-    return new
+    return new, reset & (new == STICK)
+
+
+def _slack(fm, tension, tol) -> np.ndarray:
+    """Interior points with both neighbouring segments slack (tension within
+    ``tol`` of 0): both capstan bounds hold there whatever the wrap (0 <= 0),
+    so such a point is held stuck rather than given a degenerate equality
+    (material lying slack on both sides of a via point does not move)."""
+    return (tension[fm.lo] <= tol) & (tension[fm.hi] <= tol)
 
 
 def _equilibrium(fm, x, r, c, options):
@@ -289,10 +341,9 @@ def _residual(fm, x, r, c, active, mode):
 def _solve_modes(fm, x, r_pred, c, mode, delta, options):
     """Pose and slip amounts for a set of modes: the joint Newton
     (:func:`_joint_newton`), or where it fails the nested one."""
-    if (mode != STICK).any():
-        joint = _joint_newton(fm, x, r_pred, c, mode, delta, options)
-        if joint is not None:
-            return joint
+    joint = _joint_newton(fm, x, r_pred, c, mode, delta, options)
+    if joint is not None:
+        return joint
     return _nested_newton(fm, x, r_pred, c, mode, delta, options)
 
 
@@ -300,50 +351,78 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
     """Newton on (x, delta_slipping) together: grad_x E = 0 and the capstan
     equalities h = 0, one factorisation of H per iteration, the slip
     unknowns eliminated by their Schur complement. Backtracks on the sum of
-    the two relative residuals squared; None when it gets stuck (a Hessian
+    the two relative residuals squared (trial points at order 1: only an
+    accepted one needs its Hessian); None when it gets stuck (a Hessian
     that is not positive definite, no decrease), for the nested Newton."""
+    t0 = time.perf_counter()
     active = mode != STICK
     Ds = fm.D[:, active].toarray()
     delta = delta.copy()
     gtol = options.equilibrium.gtol
 
-    def merit(x, delta):
+    def merit(x, delta, order):
         r = r_pred + fm.D @ delta
         if np.any(r <= 0):
             return None
-        ev = fm.evaluate(x, c, r, 2)
+        ev = fm.evaluate(x, c, r, order)
         if not ev.admissible:
             return None
-        res = _residual(fm, x, r, c, active, mode)
-        value = (np.linalg.norm(ev.gradient) / ev.force_scale) ** 2 + (np.linalg.norm(res[0]) / res[4]) ** 2
-        return value, ev, res, r
+        f_w, f_s, seg, *_ = _capstan(fm, x, r, c)
+        h = np.where(mode == SLIP_WINCH, f_w, f_s)[active]
+        scale = tension_scale(fm, seg["tension"])
+        value = (np.linalg.norm(ev.gradient) / ev.force_scale) ** 2 + (np.linalg.norm(h) / scale) ** 2
+        return value, ev, h, scale, r, seg["tension"]
 
-    now = merit(x, delta)
-    for _ in range(options.max_newton):
+    now = merit(x, delta, 2)
+    for it in range(options.max_newton):
         if now is None:
             return None
-        value, ev, (h, hs, dh_dx, dh_dr, scale), r = now
-        if np.linalg.norm(ev.gradient) <= gtol * ev.force_scale and np.max(np.abs(h)) <= options.tol * scale:
-            eq = _equilibrium(fm, x, r, c, options)
-            return None if eq is None else (eq.x, delta, eq)
+        value, ev, h, scale, r, tension = now
+        # a slipping point gone slack on both sides stops here, holding its
+        # slip (_switch then sticks it): its equality has a double root at
+        # the slack end, where Newton would crawl
+        done = _slack(fm, tension, options.stick_tol * scale) & active
+        if done.any():
+            active = active & ~done
+            Ds = fm.D[:, active].toarray()
+            now = merit(x, delta, 2)
+            continue
+        if ev.hessian is None:
+            ev = fm.evaluate(x, c, r, 2)
         try:
             factor = fm.factorizer.factor(ev.hessian)
         except NotPositiveDefinite:
+            log.debug("joint newton %d: Hessian not positive definite", it)
             return None
-        Hg = factor.solve(ev.gradient)
-        HB = factor.solve(fm.mixed_r(x, r, c) @ Ds)
-        dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
-        dx = -Hg - HB @ dd
+        gnorm = float(np.linalg.norm(ev.gradient))
+        if gnorm <= gtol * ev.force_scale and np.max(np.abs(h), initial=0.0) <= options.tol * scale:
+            eq = Equilibrium(x, np.asarray(c, dtype=np.float64).copy(), True, "converged", ev.energy, gnorm,
+                             ev.force_scale, True, None, it, time.perf_counter() - t0, "newton",
+                             factor=factor)
+            return x, delta, eq
+        if not active.any():
+            Hg, dd, dx = factor.solve(ev.gradient), np.zeros(0), None
+            dx = -Hg
+        else:
+            _, hs, dh_dx, dh_dr, _ = _residual(fm, x, r, c, active, mode)
+            Hg = factor.solve(ev.gradient)
+            HB = factor.solve(fm.mixed_r(x, r, c) @ Ds)
+            dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
+            dx = -Hg - HB @ dd
+        log.debug("joint newton %d: |g|/f %.2e, |h|/T %.2e, slipping %s", it, gnorm / ev.force_scale,
+                  np.max(np.abs(h), initial=0.0) / scale, np.flatnonzero(active))
         alpha = 1.0
         for _ in range(options.max_backtracks):
             trial = delta.copy()
             trial[active] += alpha * dd
-            nxt = merit(x + alpha * dx, trial)
-            if nxt is not None and nxt[0] < (1 - 1e-4 * alpha) * value:
+            # the full step usually succeeds near the solution: its Hessian is the next one
+            nxt = merit(x + alpha * dx, trial, 2 if alpha == 1.0 else 1)
+            if nxt is not None and nxt[0] < (1 - ARMIJO * alpha) * value:
                 x, delta, now = x + alpha * dx, trial, nxt
                 break
             alpha /= 2
         else:
+            log.debug("joint newton %d: no decrease along the Newton step", it)
             return None
     return None
 
@@ -377,7 +456,7 @@ def _nested_newton(fm, x, r_pred, c, mode, delta, options):
                 or _equilibrium(fm, eq.x, r_t, c, options)
             if eq_t is not None:
                 h_t = _residual(fm, eq_t.x, r_t, c, active, mode)[1]
-                if np.max(np.abs(h_t)) < (1 - 1e-4 * alpha) * norm:
+                if np.max(np.abs(h_t)) < (1 - ARMIJO * alpha) * norm:
                     accepted = (trial, eq_t)
                     break
             alpha /= 2
