@@ -193,3 +193,62 @@ def test_sweep_command_writes_csv_and_plot(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "plush_opt", "sweep", str(src), "--winch", "nope",
                           "--to", "2", "--out", str(out)], capture_output=True, text=True)
     assert bad.returncode == 2 and "no winch named 'nope'" in bad.stderr
+
+
+# -- forward solves and result files -----------------------------------------
+
+def _forward_doc(p, eq):
+    from plush_opt.results import result_dict
+    return result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
+                       status=eq.status, total_s=0.0, solve_s=0.0, iterations=eq.iterations)
+
+
+def test_forward_solve_with_friction_follows_the_path_from_the_start_state():
+    from spec_checker import check_result
+    from plush_opt.friction_solve import FrictionEquilibrium
+    p = problem(arc(0.3, stiff=False))
+    eq = p.equilibrium({"w": 3.0}, steps=4)
+    assert isinstance(eq, FrictionEquilibrium) and eq.converged, eq.status
+    assert np.allclose(eq.path[:, 0], [0.75, 1.5, 2.25, 3.0]) and eq.steps_done == 4
+    assert eq.min_eigenvalue is not None and eq.min_eigenvalue > 0
+    fm = p.friction
+    assert not check_state(fm, eq.friction)
+    by_hand = follow(fm, start_state(fm), eq.path)[-1]
+    assert np.max(np.abs(by_hand.x - eq.x)) <= 1e-6
+    # friction changes the answer: not the frictionless equilibrium
+    plain = problem(arc(0.0, stiff=False)).equilibrium({"w": 3.0})
+    assert np.max(np.abs(plain.x - eq.x)) > 1e-3
+    doc = _forward_doc(p, eq)
+    assert doc["friction_path"]["steps"] == 4 and doc["friction_path"]["steps_done"] == 4
+    entry = doc["model"]["tendons"]["list"][0]
+    assert entry["segment_rest_lengths"] == pytest.approx(eq.friction.rest.tolist())
+    assert entry["segment_tensions"] == pytest.approx(eq.friction.tension.tolist())
+    assert doc["tendon_tension"]["arc"] == pytest.approx(eq.friction.tension[-1])
+    check_result(doc)          # rebuilds E from the segments' rest lengths
+
+
+def test_a_frictionless_result_records_proportional_segments_and_equal_tensions():
+    from spec_checker import check_result
+    p = problem(arc(0.0, stiff=False))
+    eq = p.equilibrium({"w": 2.0})
+    assert type(eq).__name__ == "Equilibrium"
+    doc = _forward_doc(p, eq)
+    assert "friction_path" not in doc
+    entry = doc["model"]["tendons"]["list"][0]
+    r, T = np.array(entry["segment_rest_lengths"]), np.array(entry["segment_tensions"])
+    nodes = eq.x.reshape(-1, 2)[p.model.tendon_paths[0]]
+    lengths = np.linalg.norm(np.diff(nodes, axis=0), axis=1)
+    assert r.sum() == pytest.approx(p.model.assembly_length[0] - 2.0, rel=1e-12)
+    assert np.allclose(r / lengths, r[0] / lengths[0], rtol=1e-12)
+    assert np.all(T == T[0]) and T[0] == pytest.approx(doc["tendon_tension"]["arc"])
+    check_result(doc)
+
+
+def test_forward_solve_that_cannot_start_reports_it(monkeypatch):
+    import plush_opt.friction_solve as fs
+    p = problem(arc(0.3, stiff=False))
+    bad = fs.start_state(p.friction)
+    monkeypatch.setattr(fs, "start_state", lambda fm, options=None: copy.copy(bad).__class__(
+        **{**bad.__dict__, "converged": False, "status": "no equilibrium"}))
+    eq = p.equilibrium({"w": 1.0}, steps=2)
+    assert not eq.converged and "stopped after 0 of 2" in eq.status and "no equilibrium" in eq.status
