@@ -256,13 +256,14 @@ class FrictionModel:
         np.add.at(Gp, (np.repeat(np.arange(k), m), pdofs.ravel()), values.ravel())
         return np.asarray((self.W.T @ Gp.T).T)
 
-    def evaluate(self, x, c, r, order: int = 2) -> Evaluation:
-        """E(x; c, r) (order 0), grad_x (1), and the Hessian (2)."""
+    def evaluate(self, x, c, r, order: int = 2, seg: dict | None = None) -> Evaluation:
+        """E(x; c, r) (order 0), grad_x (1), and the Hessian (2); ``seg``:
+        :meth:`segments` at the same point, if the caller has it."""
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         ev = self.base.evaluate(x, c, order)
         if not ev.admissible:
             return ev
-        seg = self.segments(x, r, c)
+        seg = self.segments(x, r, c) if seg is None else seg
         energy = ev.energy + float(seg["energy"].sum())
         if order == 0:
             return Evaluation(energy, None, None, ev.force_scale, True)
@@ -278,9 +279,9 @@ class FrictionModel:
         H = sp.csc_matrix((data, self._indices, self._indptr), shape=(self.n_dofs, self.n_dofs))
         return Evaluation(energy, g, H, scale, True)
 
-    def mixed_r(self, x, r, c) -> np.ndarray:
+    def mixed_r(self, x, r, c, seg: dict | None = None) -> np.ndarray:
         """d2E/dx dr, dense (n_dofs, n_segments)."""
-        seg = self.segments(x, r, c)
+        seg = self.segments(x, r, c) if seg is None else seg
         return self.to_x(seg["dgrad_dr"], self.seg_p).T
 
     def fixed(self, r) -> "FixedRest":

@@ -128,10 +128,10 @@ def tension_scale(fm: FrictionModel, tension: np.ndarray) -> float:
     return float(max(np.max(tension, initial=0.0), floor))
 
 
-def _capstan(fm: FrictionModel, x, r, c):
+def _capstan(fm: FrictionModel, x, r, c, seg=None):
     """Per interior point: f_winch = T_hi - T_lo e, f_stopper = T_lo - T_hi e
     (e = exp(mu theta)), with the segment data and wraps they came from."""
-    seg = fm.segments(x, r, c)
+    seg = fm.segments(x, r, c) if seg is None else seg
     theta, dtheta = fm.wraps(x)
     T = seg["tension"]
     e = np.exp(fm.mu * theta)
@@ -240,7 +240,7 @@ def _step(fm, state, c, options) -> FrictionState:
     mode[_slack(fm, state.tension, options.stick_tol * tension_scale(fm, state.tension))] = STICK
     if state.step_dc is not None and float(dc @ state.step_dc) < 0:
         mode[:] = STICK       # the path turns back: what slipped on the way out sticks first
-    x, delta = _predict(fm, state, dc, mode, r_pred)
+    x, delta = _predict(fm, state, c, mode, r_pred)
     seen = set()
     for _ in range(options.max_mode_changes):
         key = mode.tobytes() + (delta != 0).tobytes()    # stuck points may hold a slip
@@ -268,13 +268,17 @@ def _step(fm, state, c, options) -> FrictionState:
                   f"stick/slip modes still changing after {options.max_mode_changes} rounds")
 
 
-def _predict(fm, state, dc, mode, r_pred):
+def _predict(fm, state, c, mode, r_pred):
     """Start of a step's Newton: the last step's pose change and slips,
     scaled to this step (a secant predictor), where this step goes on the
-    way the last one went; the state's pose and no slip otherwise."""
+    way the last one went; the state's pose and no slip otherwise. (The
+    tangent from the state's factor was tried: with tendons this much
+    stiffer than the body its linear response overshoots, and Newton took
+    twice as many iterations.)"""
     rest = state.x, np.zeros(fm.n_interior)
     if state.step_dc is None or not state.step_dc.any():
         return rest
+    dc = c - state.contraction
     s = float(dc @ state.step_dc) / float(state.step_dc @ state.step_dc)
     if s <= 0:
         return rest
@@ -316,12 +320,12 @@ def _equilibrium(fm, x, r, c, options):
     return eq if eq.converged else None
 
 
-def _residual(fm, x, r, c, active, mode):
+def _residual(fm, x, r, c, active, mode, seg=None):
     """Capstan residuals h of the slipping points (tension units) twice (the
     convergence test's and Newton's), with Newton's Jacobian in x (dense
     rows) and r. (Known weakness: a slip that drives a segment to slack has
     a double root in T, where this Newton converges only linearly.)"""
-    f_w, f_s, seg, theta, dtheta, e = _capstan(fm, x, r, c)
+    f_w, f_s, seg, theta, dtheta, e = _capstan(fm, x, r, c, seg)
     i = np.flatnonzero(active)
     up = mode[i] == SLIP_WINCH
     h = np.where(up, f_w[i], f_s[i])
@@ -364,20 +368,22 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
         r = r_pred + fm.D @ delta
         if np.any(r <= 0):
             return None
-        ev = fm.evaluate(x, c, r, order)
+        seg = fm.segments(x, r, c)
+        ev = fm.evaluate(x, c, r, order, seg)
         if not ev.admissible:
             return None
-        f_w, f_s, seg, *_ = _capstan(fm, x, r, c)
+        f_w, f_s, _, theta, dtheta, e = _capstan(fm, x, r, c, seg)
         h = np.where(mode == SLIP_WINCH, f_w, f_s)[active]
         scale = tension_scale(fm, seg["tension"])
         value = (np.linalg.norm(ev.gradient) / ev.force_scale) ** 2 + (np.linalg.norm(h) / scale) ** 2
-        return value, ev, h, scale, r, seg["tension"]
+        return value, ev, h, scale, r, seg
 
     now = merit(x, delta, 2)
     for it in range(options.max_newton):
         if now is None:
             return None
-        value, ev, h, scale, r, tension = now
+        value, ev, h, scale, r, seg = now
+        tension = seg["tension"]
         # a slipping point gone slack on both sides stops here, holding its
         # slip (_switch then sticks it): its equality has a double root at
         # the slack end, where Newton would crawl
@@ -388,7 +394,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
             now = merit(x, delta, 2)
             continue
         if ev.hessian is None:
-            ev = fm.evaluate(x, c, r, 2)
+            ev = fm.evaluate(x, c, r, 2, seg)
         try:
             factor = fm.factorizer.factor(ev.hessian)
         except NotPositiveDefinite:
@@ -404,9 +410,9 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
             Hg, dd, dx = factor.solve(ev.gradient), np.zeros(0), None
             dx = -Hg
         else:
-            _, hs, dh_dx, dh_dr, _ = _residual(fm, x, r, c, active, mode)
+            _, hs, dh_dx, dh_dr, _ = _residual(fm, x, r, c, active, mode, seg)
             Hg = factor.solve(ev.gradient)
-            HB = factor.solve(fm.mixed_r(x, r, c) @ Ds)
+            HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
             dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
             dx = -Hg - HB @ dd
         log.debug("joint newton %d: |g|/f %.2e, |h|/T %.2e, slipping %s", it, gnorm / ev.force_scale,
