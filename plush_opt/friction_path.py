@@ -128,7 +128,7 @@ def tension_scale(fm: FrictionModel, tension: np.ndarray) -> float:
     return float(max(np.max(tension, initial=0.0), floor))
 
 
-def _capstan(fm: FrictionModel, x, r, c, seg=None):
+def capstan(fm: FrictionModel, x, r, c, seg=None):
     """Per interior point: f_winch = T_hi - T_lo e, f_stopper = T_lo - T_hi e
     (e = exp(mu theta)), with the segment data and wraps they came from."""
     seg = fm.segments(x, r, c) if seg is None else seg
@@ -160,7 +160,7 @@ def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = Non
     want = fm.rest_total(c)
     if np.max(np.abs(total - want) / want) > tol:
         out.append(f"rest lengths sum to {total} instead of a - c = {want}")
-    f_w, f_s, seg, theta, _, _ = _capstan(fm, x, r, c)
+    f_w, f_s, seg, theta, _, _ = capstan(fm, x, r, c)
     scale = tension_scale(fm, seg["tension"])
     names = [fm.model.scene.tendons[t].name for t in fm.seg_tendon[fm.hi]]
     for i in range(fm.n_interior):
@@ -293,7 +293,7 @@ def _switch(fm, x, r, c, mode, delta, options) -> tuple[np.ndarray, np.ndarray]:
     """The modes the solution at (x, r) calls for, and the points whose slip
     in this step is undone (they moved against their direction). A point
     gone slack on both sides sticks where it is, keeping the slip it made."""
-    f_w, f_s, seg, *_ = _capstan(fm, x, r, c)
+    f_w, f_s, seg, *_ = capstan(fm, x, r, c)
     tol = options.stick_tol * tension_scale(fm, seg["tension"])
     new = mode.copy()
     slack = _slack(fm, seg["tension"], tol)
@@ -320,12 +320,12 @@ def _equilibrium(fm, x, r, c, options):
     return eq if eq.converged else None
 
 
-def _residual(fm, x, r, c, active, mode, seg=None):
+def capstan_residual(fm, x, r, c, active, mode, seg=None):
     """Capstan residuals h of the slipping points (tension units) twice (the
     convergence test's and Newton's), with Newton's Jacobian in x (dense
     rows) and r. (Known weakness: a slip that drives a segment to slack has
     a double root in T, where this Newton converges only linearly.)"""
-    f_w, f_s, seg, theta, dtheta, e = _capstan(fm, x, r, c, seg)
+    f_w, f_s, seg, theta, dtheta, e = capstan(fm, x, r, c, seg)
     i = np.flatnonzero(active)
     up = mode[i] == SLIP_WINCH
     h = np.where(up, f_w[i], f_s[i])
@@ -372,7 +372,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
         ev = fm.evaluate(x, c, r, order, seg)
         if not ev.admissible:
             return None
-        f_w, f_s, _, theta, dtheta, e = _capstan(fm, x, r, c, seg)
+        f_w, f_s, _, theta, dtheta, e = capstan(fm, x, r, c, seg)
         h = np.where(mode == SLIP_WINCH, f_w, f_s)[active]
         scale = tension_scale(fm, seg["tension"])
         value = (np.linalg.norm(ev.gradient) / ev.force_scale) ** 2 + (np.linalg.norm(h) / scale) ** 2
@@ -410,7 +410,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
             Hg, dd, dx = factor.solve(ev.gradient), np.zeros(0), None
             dx = -Hg
         else:
-            _, hs, dh_dx, dh_dr, _ = _residual(fm, x, r, c, active, mode, seg)
+            _, hs, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)
             Hg = factor.solve(ev.gradient)
             HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
             dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
@@ -446,7 +446,7 @@ def _nested_newton(fm, x, r_pred, c, mode, delta, options):
     Ds = fm.D[:, active].toarray()
     for _ in range(options.max_newton):
         r = r_pred + fm.D @ delta
-        h, hs, dh_dx, dh_dr, scale = _residual(fm, eq.x, r, c, active, mode)
+        h, hs, dh_dx, dh_dr, scale = capstan_residual(fm, eq.x, r, c, active, mode)
         if np.max(np.abs(h)) <= options.tol * scale:
             return eq.x, delta, eq
         norm = float(np.max(np.abs(hs)))
@@ -461,7 +461,7 @@ def _nested_newton(fm, x, r_pred, c, mode, delta, options):
             eq_t = _equilibrium(fm, eq.x + alpha * (dx_dd @ d), r_t, c, options) \
                 or _equilibrium(fm, eq.x, r_t, c, options)
             if eq_t is not None:
-                h_t = _residual(fm, eq_t.x, r_t, c, active, mode)[1]
+                h_t = capstan_residual(fm, eq_t.x, r_t, c, active, mode)[1]
                 if np.max(np.abs(h_t)) < (1 - ARMIJO * alpha) * norm:
                     accepted = (trial, eq_t)
                     break

@@ -121,7 +121,7 @@ class Problem:
         return self._friction or None
 
     def control(self, method: str = "reparam", contraction: Mapping[str, float] | None = None,
-                frozen: Iterable[str] | None = None, x0=None, options=None):
+                frozen: Iterable[str] | None = None, x0=None, options=None, start=None):
         """Contractions that bring the body to the targets.
 
         Parameters
@@ -132,6 +132,10 @@ class Problem:
         frozen : winch names to hold, besides the scene's frozen ones.
         x0 : a pose near the starting equilibrium (optional).
         options : the method's options (``ControlOptions`` or ``BilevelOptions``).
+        start : with friction at via points, the robot's friction state to
+            start from (default: the scene's start state driven to
+            ``contraction``); each iterate is then reached from the one
+            before (see plush_opt/control/friction_control.py).
 
         Returns
         -------
@@ -142,7 +146,8 @@ class Problem:
             raise SceneError(f"{self.source}: targets: control needs targets; the file has none")
         return run_control(self.model, self.targets, method, self.contraction_vector(contraction),
                            self.frozen_vector(frozen), x0, options,
-                           bilevel=self.bilevel_solver if method == "bilevel" else None)
+                           bilevel=self.bilevel_solver if method == "bilevel" and self.friction is None
+                           else None, friction=self.friction, start=start)
 
     @property
     def bilevel_solver(self):

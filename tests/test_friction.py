@@ -252,3 +252,74 @@ def test_forward_solve_that_cannot_start_reports_it(monkeypatch):
         **{**bad.__dict__, "converged": False, "status": "no equilibrium"}))
     eq = p.equilibrium({"w": 1.0}, steps=2)
     assert not eq.converged and "stopped after 0 of 2" in eq.status and "no equilibrium" in eq.status
+
+
+# -- sensitivities and control with history ----------------------------------
+
+def _settled(fm, path):
+    """States along ``path`` from the start state (all converged)."""
+    states = follow(fm, start_state(fm), np.asarray(path, float)[:, None])
+    assert all(s.converged for s in states), [s.status for s in states]
+    return states
+
+
+@pytest.mark.parametrize("path, direction", [([1.0, 2.0], 1.0), ([1.0, 2.0, 1.5, 1.0], -1.0)])
+def test_path_sensitivity_against_a_small_step_in_the_same_modes(path, direction):
+    from plush_opt.friction_path import step
+    from plush_opt.friction_solve import path_sensitivity
+    fm = problem(arc(0.3, stiff=False)).friction
+    s = _settled(fm, path)[-1]
+    S = path_sensitivity(fm, s, s.equilibrium.factor)[:, 0]
+    errors = []
+    for eps in (1e-3, 1e-4):
+        nxt = step(fm, s, s.contraction + direction * eps, FrictionOptions(tol=1e-12, check_tol=1e-10))
+        assert nxt.converged and np.array_equal(nxt.mode, s.mode)      # the modes hold
+        errors.append(np.abs((nxt.x - s.x) / (direction * eps) - S).max() / np.abs(S).max())
+    assert errors[1] <= 1e-4 and errors[1] < 0.2 * errors[0]          # first order: O(eps)
+
+
+def arc_with_target(friction=0.3):
+    doc = arc(friction, stiff=False)
+    doc["targets"] = [{"at": [0.0, 60.0], "to": [0.0, 57.0]}]
+    return doc
+
+
+def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
+    from plush_opt.control import ControlOptions
+    from plush_opt.friction_solve import FrictionEquilibrium, drive
+    p = problem(arc_with_target())
+    res = p.control("reparam", options=ControlOptions(max_iterations=6))
+    assert isinstance(res.equilibrium, FrictionEquilibrium)
+    assert len(res.history) >= 3
+    # drive a fresh robot through the accepted contractions, in order
+    fm = p.friction
+    eq = drive(fm, start_state(fm), res.history[0].contraction)
+    assert np.max(np.abs(eq.x - res.history[0].x)) <= 1e-6
+    for it in res.history[1:]:
+        eq = drive(fm, eq.friction, it.contraction)
+        assert eq.converged and np.max(np.abs(eq.x - it.x)) <= 1e-6
+        assert not check_state(fm, eq.friction)
+    assert np.max(np.abs(res.equilibrium.x - eq.x)) <= 1e-6
+    assert res.history[-1].objective < res.history[0].objective
+    assert np.allclose(res.equilibrium.path, [it.contraction for it in res.history])
+
+
+def test_control_starts_from_the_robots_state():
+    from plush_opt.control import ControlOptions
+    from plush_opt.friction_solve import drive
+    p = problem(arc_with_target())
+    fm = p.friction
+    # the same contraction reached two ways: straight there, or past it and back
+    there = drive(fm, start_state(fm), [1.0]).friction
+    back = drive(fm, drive(fm, start_state(fm), [3.0]).friction, [1.0]).friction
+    assert np.max(np.abs(there.x - back.x)) > 1e-3          # friction: history matters
+    for state in (there, back):
+        res = p.control("clip", {"w": 1.0}, options=ControlOptions(max_iterations=0), start=state)
+        assert np.max(np.abs(res.history[0].x - state.x)) <= 1e-8
+
+
+def test_bilevel_refuses_a_friction_scene_with_the_reason():
+    from plush_opt.errors import SolverError
+    p = problem(arc_with_target())
+    with pytest.raises(SolverError, match="tendons.friction: the bilevel method .* depends on the path"):
+        p.control("bilevel")
