@@ -323,3 +323,24 @@ def test_bilevel_refuses_a_friction_scene_with_the_reason():
     p = problem(arc_with_target())
     with pytest.raises(SolverError, match="tendons.friction: the bilevel method .* depends on the path"):
         p.control("bilevel")
+
+
+def test_a_run_carries_the_friction_state_from_step_to_step(tmp_path):
+    import yaml
+    from plush_opt.apps.planner import ControlPlanner
+    from plush_opt.friction_solve import drive
+    path = tmp_path / "arc.yaml"
+    path.write_text(yaml.safe_dump(arc_with_target()))
+    straight, round_trip = ControlPlanner(path), ControlPlanner(path)
+    assert straight.forward({"w": 1.0})["converged"]
+    for c in (3.0, 1.0):
+        assert round_trip.forward({"w": c})["converged"]
+    assert np.max(np.abs(straight.x - round_trip.x)) > 1e-3      # same command, other history
+    fm = round_trip.problem.friction
+    by_hand = drive(fm, drive(fm, drive(fm, start_state(fm), [0.0]).friction, [3.0]).friction, [1.0])
+    assert np.max(np.abs(by_hand.x - round_trip.x)) <= 1e-6
+    before = round_trip.state
+    out = list(round_trip.pose([{"at": [0.0, 60.0], "to": [0.0, 57.0]}], [], max_time=30))
+    assert out[-1]["objective"] < out[0]["objective"]
+    assert round_trip.state is not before and not check_state(fm, round_trip.state)
+    assert np.array_equal(round_trip.state.x, round_trip.x)
