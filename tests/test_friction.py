@@ -344,3 +344,22 @@ def test_a_run_carries_the_friction_state_from_step_to_step(tmp_path):
     assert out[-1]["objective"] < out[0]["objective"]
     assert round_trip.state is not before and not check_state(fm, round_trip.state)
     assert np.array_equal(round_trip.state.x, round_trip.x)
+
+
+def test_gui_session_drives_the_robot_and_shows_segment_tensions():
+    from plush_opt.apps.gui.session import PosingSession, status_line
+    from plush_opt.friction_solve import drive, solve_forward
+    p = problem(arc(0.3, stiff=False))
+    session = PosingSession(p)
+    for c in (3.0, 1.0):
+        session.set_contraction("w", c)
+    eq = session.equilibrium
+    assert eq.converged and eq.friction is not None
+    fm = p.friction
+    by_hand = drive(fm, drive(fm, solve_forward(fm, [0.0]).friction, [3.0]).friction, [1.0])
+    assert np.max(np.abs(by_hand.x - eq.x)) <= 1e-6
+    text = status_line(session)
+    shown = text.split("T [N]: arc ")[1].split()[0].split("/")
+    assert len(shown) == 6 and np.allclose([float(v) for v in shown], eq.friction.tension, rtol=2e-3)
+    plain = PosingSession(problem(arc(0.0, stiff=False)))
+    assert "/" not in status_line(plain).split("T [N]: arc ")[1]
