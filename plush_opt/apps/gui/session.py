@@ -219,16 +219,7 @@ class PosingSession:
 
     def _forward(self, contraction, x0) -> Equilibrium:
         t0 = time.perf_counter()
-        if self.problem.friction is None:
-            eq = solve_equilibrium(self.model, contraction, x0, self.equilibrium_options)
-        else:
-            # friction at via points: the robot is driven from the state on
-            # screen (from the scene's start state at first)
-            state = getattr(getattr(self, "equilibrium", None), "friction", None)
-            eq = (solve_forward(self.problem.friction, contraction, DEFAULT_PATH_STEPS,
-                                equilibrium=self.equilibrium_options) if state is None else
-                  drive(self.problem.friction, state, contraction, equilibrium=self.equilibrium_options,
-                        origin="the pose on screen before"))
+        eq = forward_pose(self.problem, contraction, x0, vars(self).get("equilibrium"), self.equilibrium_options)
         self.solve_seconds += time.perf_counter() - t0
         self.forward_solves += 1
         return eq
@@ -513,6 +504,18 @@ def status_line(session: PosingSession) -> str:
         lag = pacer.lag(session.contraction_by_name)
         parts.append(f"board: {pacer.sends} sent" + ("" if lag is None else f", lag {lag:.2f} mm"))
     return "  |  ".join(parts)
+
+
+def forward_pose(problem, contraction, x0, shown: Equilibrium | None, options) -> Equilibrium:
+    """The pose at ``contraction``, warm-started from ``x0``; with friction
+    at via points the robot is driven from the pose ``shown`` on screen
+    (from the scene's start state at first)."""
+    if problem.friction is None:
+        return solve_equilibrium(problem.model, contraction, x0, options)
+    state = getattr(shown, "friction", None)
+    if state is None:
+        return solve_forward(problem.friction, contraction, DEFAULT_PATH_STEPS, equilibrium=options)
+    return drive(problem.friction, state, contraction, equilibrium=options, origin="the pose on screen before")
 
 
 def tension_text(session: PosingSession) -> str:
