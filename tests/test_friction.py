@@ -319,9 +319,8 @@ def test_control_starts_from_the_robots_state():
 
 
 def test_bilevel_refuses_a_friction_scene_with_the_reason():
-    from plush_opt.errors import SolverError
     p = problem(arc_with_target())
-    with pytest.raises(SolverError, match="tendons.friction: the bilevel method .* depends on the path"):
+    with pytest.raises(SceneError, match="tendons.friction: the bilevel method .* depends on the path"):
         p.control("bilevel")
 
 
@@ -363,3 +362,24 @@ def test_gui_session_drives_the_robot_and_shows_segment_tensions():
     assert len(shown) == 6 and np.allclose([float(v) for v in shown], eq.friction.tension, rtol=2e-3)
     plain = PosingSession(problem(arc(0.0, stiff=False)))
     assert "/" not in status_line(plain).split("T [N]: arc ")[1]
+
+
+def test_solve_command_forward_records_the_path_and_bilevel_refuses(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    import yaml
+    from spec_checker import check_result
+    path = tmp_path / "arc.yaml"
+    path.write_text(yaml.safe_dump(arc_with_target()))
+    out = tmp_path / "f.json"
+    run = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(path), "--method", "forward",
+                          "-c", "w=2", "--out", str(out)], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    doc = check_result(json.loads(out.read_text()))
+    assert doc["friction_path"]["steps"] == 10 and doc["friction_path"]["contractions"][-1] == {"w": 2.0}
+    run = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(path), "--method", "bilevel",
+                          "--out", str(tmp_path / "b.json")], capture_output=True, text=True)
+    assert run.returncode != 0 and "Traceback" not in run.stderr
+    assert "tendons.friction: the bilevel method" in run.stderr and not (tmp_path / "b.json").exists()

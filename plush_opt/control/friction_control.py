@@ -28,7 +28,7 @@ import dataclasses
 import numpy as np
 
 from ..equilibrium import EquilibriumOptions
-from ..errors import SolverError
+from ..errors import SceneError
 from ..friction import FrictionModel
 from ..friction_path import FrictionState
 from ..friction_solve import (DEFAULT_PATH_STEPS, FrictionEquilibrium, drive, finish, path_sensitivity,
@@ -39,8 +39,10 @@ CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates i
 
 
 def refuse_bilevel(model) -> None:
-    """The bilevel method on a friction scene: one clear error saying why."""
-    raise SolverError(f"{model.scene.source}: tendons.friction: the bilevel method solves for the pose at "
+    """The bilevel method on a friction scene: one clear error saying why
+    (a :class:`SceneError`: the file's friction and the method chosen do not
+    go together; nothing is solved)."""
+    raise SceneError(f"{model.scene.source}: tendons.friction: the bilevel method solves for the pose at "
                       "the final contractions alone, but with friction at via points the pose depends on "
                       "the path the winches took; use --method reparam or clip (they follow the path)")
 
