@@ -252,8 +252,9 @@ class FrictionModel:
         """Rows of per-item derivatives in via point coordinates (k, m) at
         P dofs ``pdofs`` (k, m) -> dense (k, n_dofs) in pose coordinates."""
         k, m = values.shape
-        Gp = np.zeros((k, self.W.shape[0]))
-        np.add.at(Gp, (np.repeat(np.arange(k), m), pdofs.ravel()), values.ravel())
+        n_p = self.W.shape[0]
+        flat = (np.repeat(np.arange(k), m) * n_p + pdofs.ravel()).astype(np.int64)
+        Gp = np.bincount(flat, weights=values.ravel(), minlength=k * n_p).reshape(k, n_p)
         return np.asarray((self.W.T @ Gp.T).T)
 
     def evaluate(self, x, c, r, order: int = 2, seg: dict | None = None) -> Evaluation:

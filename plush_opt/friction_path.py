@@ -132,7 +132,9 @@ def capstan(fm: FrictionModel, x, r, c, seg=None):
     """Per interior point: f_winch = T_hi - T_lo e, f_stopper = T_lo - T_hi e
     (e = exp(mu theta)), with the segment data and wraps they came from."""
     seg = fm.segments(x, r, c) if seg is None else seg
-    theta, dtheta = fm.wraps(x)
+    if "wrap" not in seg:          # the wraps of this pose, once
+        seg["wrap"] = fm.wraps(x)
+    theta, dtheta = seg["wrap"]
     T = seg["tension"]
     e = np.exp(fm.mu * theta)
     return T[fm.hi] - T[fm.lo] * e, T[fm.lo] - T[fm.hi] * e, seg, theta, dtheta, e
