@@ -37,6 +37,9 @@ from .linalg import NotPositiveDefinite
 log = logging.getLogger(__name__)
 
 STICK, SLIP_WINCH, SLIP_STOPPER = 0, 1, -1
+# how far past the slack edge a point that slipped a segment slack carries
+# it, as a fraction of the smoothing width (where its energy is flat)
+SLACK_MARGIN = 0.01
 ARMIJO = 1e-4     # sufficient decrease of the line searches' merit (the usual Newton choice)
 MODE_NAMES = {STICK: "stick", SLIP_WINCH: "slip toward the winch", SLIP_STOPPER: "slip toward the stopper"}
 
@@ -347,6 +350,31 @@ def capstan_residual(fm, x, r, c, active, mode, seg=None):
     return h, h, dhs_dx, dhs_dr, tension_scale(fm, T)
 
 
+def _past_slack(fm, x, r, c, mode, delta, points):
+    """Slips of ``points`` (slipping, now slack on both sides) carried on
+    until the segment they feed is slack by ``SLACK_MARGIN`` of the
+    smoothing width, where its energy is flat: left at the slack edge
+    (stretch -eps, where the law's second derivative vanishes and its third
+    jumps) it would keep the pose Newton converging only linearly. Both
+    tensions stay 0, so this is still the equality of the slip's direction
+    (0 = e 0); skipped where the other segment would leave its slack."""
+    delta = delta.copy()
+    R = fm.rest_total(c)
+    L = fm.segment_lengths(x)
+    for i in points:
+        up = mode[i] == SLIP_WINCH
+        a, b = (fm.hi[i], fm.lo[i]) if up else (fm.lo[i], fm.hi[i])
+        target = L[a] / (1 - fm.eps * (1 + SLACK_MARGIN) / R[a])      # (L - r) R / r = -eps (1 + margin)
+        move = target - r[a]                                           # material into segment a
+        if move <= 0:
+            continue
+        rb = r[b] - move
+        if rb <= 0 or (L[b] - rb) * R[b] / rb > -fm.eps:
+            continue
+        delta[i] += move if up else -move
+    return delta
+
+
 def _solve_modes(fm, x, r_pred, c, mode, delta, options):
     """Pose and slip amounts for a set of modes: the joint Newton
     (:func:`_joint_newton`), or where it fails the nested one."""
@@ -396,6 +424,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
         if done.any():
             active = active & ~done
             Ds = fm.D[:, active].toarray()
+            delta = _past_slack(fm, x, r, c, mode, delta, np.flatnonzero(done))
             now = merit(x, delta, 2)
             continue
         if ev.hessian is None:
