@@ -40,6 +40,10 @@ STICK, SLIP_WINCH, SLIP_STOPPER = 0, 1, -1
 # how far past the slack edge a point that slipped a segment slack carries
 # it, as a fraction of the smoothing width (where its energy is flat)
 SLACK_MARGIN = 0.01
+# A set of modes is first solved to this (relative gradient and capstan
+# residual): enough to tell which bounds fail, and most sets are switched
+# away from; only the set that holds is then solved to the full tolerance.
+LOOSE_TOL = 1e-6
 ARMIJO = 1e-4     # sufficient decrease of the line searches' merit (the usual Newton choice)
 MODE_NAMES = {STICK: "stick", SLIP_WINCH: "slip toward the winch", SLIP_STOPPER: "slip toward the stopper"}
 
@@ -253,11 +257,18 @@ def _step(fm, state, c, options) -> FrictionState:
             return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                           "the stick/slip modes cycle without settling")
         seen.add(key)
-        solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
+        solved = _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=True)
         if isinstance(solved, str):
             return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
         x, delta, eq = solved
         new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
+        if eq is None and np.array_equal(new, mode) and not reset.any():
+            # these modes hold: now to the full tolerance (a step or two)
+            solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
+            if isinstance(solved, str):
+                return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
+            x, delta, eq = solved
+            new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
         if reset.any():
             # slips undone: the pose at the step's start fits the rest lengths better
             delta[reset] = 0.0
@@ -375,16 +386,17 @@ def _past_slack(fm, x, r, c, mode, delta, points):
     return delta
 
 
-def _solve_modes(fm, x, r_pred, c, mode, delta, options):
+def _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=False):
     """Pose and slip amounts for a set of modes: the joint Newton
-    (:func:`_joint_newton`), or where it fails the nested one."""
-    joint = _joint_newton(fm, x, r_pred, c, mode, delta, options)
+    (:func:`_joint_newton`), or where it fails the nested one. ``loose``:
+    to ``LOOSE_TOL`` only, without the factor (the equilibrium is None)."""
+    joint = _joint_newton(fm, x, r_pred, c, mode, delta, options, loose)
     if joint is not None:
         return joint
     return _nested_newton(fm, x, r_pred, c, mode, delta, options)
 
 
-def _joint_newton(fm, x, r_pred, c, mode, delta, options):
+def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
     """Newton on (x, delta_slipping) together: grad_x E = 0 and the capstan
     equalities h = 0, one factorisation of H per iteration, the slip
     unknowns eliminated by their Schur complement. Backtracks on the sum of
@@ -427,6 +439,9 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options):
             delta = _past_slack(fm, x, r, c, mode, delta, np.flatnonzero(done))
             now = merit(x, delta, 2)
             continue
+        if loose and np.linalg.norm(ev.gradient) <= LOOSE_TOL * ev.force_scale \
+                and np.max(np.abs(h), initial=0.0) <= LOOSE_TOL * scale:
+            return x, delta, None
         if ev.hessian is None:
             ev = fm.evaluate(x, c, r, 2, seg)
         try:
