@@ -28,7 +28,7 @@ import scipy.sparse as sp
 
 from .kernels import compiled
 from .linalg import Factorizer
-from .model import Evaluation, Model, _Mapped
+from .model import Evaluation, Model, Mapped
 from .tendon_law import U_DERIVS
 
 
@@ -120,9 +120,9 @@ class FrictionModel:
         self._build_segments()
         self._build_pattern()
         fseg, wrap = _compiled_kernels()
-        self._fseg = _Mapped(fseg, self.n_segments, {1: np.full(self.n_segments, self.K),
+        self._fseg = Mapped(fseg, self.n_segments, {1: np.full(self.n_segments, self.K),
                                                      2: np.full(self.n_segments, self.eps)})
-        self._wrap = _Mapped(wrap, self.n_interior, {})
+        self._wrap = Mapped(wrap, self.n_interior, {})
         self.factorizer = Factorizer()
 
     # the attributes the equilibrium Newton reads

@@ -455,15 +455,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
                              ev.force_scale, True, None, it, time.perf_counter() - t0, "newton",
                              factor=factor)
             return x, delta, eq
-        if not active.any():
-            Hg, dd, dx = factor.solve(ev.gradient), np.zeros(0), None
-            dx = -Hg
-        else:
-            _, hs, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)
-            Hg = factor.solve(ev.gradient)
-            HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
-            dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
-            dx = -Hg - HB @ dd
+        dx, dd = _joint_step(fm, factor, ev.gradient, x, r, c, active, mode, seg, Ds)
         log.debug("joint newton %d: |g|/f %.2e, |h|/T %.2e, slipping %s", it, gnorm / ev.force_scale,
                   np.max(np.abs(h), initial=0.0) / scale, np.flatnonzero(active))
         alpha = 1.0
@@ -480,6 +472,19 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
             log.debug("joint newton %d: no decrease along the Newton step", it)
             return None
     return None
+
+
+def _joint_step(fm, factor, gradient, x, r, c, active, mode, seg, Ds):
+    """The joint Newton step (dx, d delta_slipping): the pose's Newton step
+    corrected by the slips that keep the capstan equalities (their Schur
+    complement on H's factor)."""
+    Hg = factor.solve(gradient)
+    if not active.any():
+        return -Hg, np.zeros(0)
+    _, hs, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)
+    HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
+    dd = np.linalg.lstsq(dh_dr @ Ds - dh_dx @ HB, -hs + dh_dx @ Hg, rcond=None)[0]
+    return -Hg - HB @ dd, dd
 
 
 def _nested_newton(fm, x, r_pred, c, mode, delta, options):
