@@ -302,6 +302,11 @@ def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
     assert np.max(np.abs(res.equilibrium.x - eq.x)) <= 1e-6
     assert res.history[-1].objective < res.history[0].objective
     assert np.allclose(res.equilibrium.path, [it.contraction for it in res.history])
+    from spec_checker import check_result
+    from plush_opt.results import control_result_dict
+    doc = check_result(control_result_dict(res))
+    assert doc["friction_path"]["steps"] == len(res.history)
+    assert doc["friction_path"]["from"].startswith("the control run's starting state")
 
 
 def test_control_starts_from_the_robots_state():
