@@ -41,7 +41,12 @@ def friction_tendons(scene, include_frictionless: bool = False) -> tuple[int, ..
 
 def via_weights(model: Model, t: int) -> sp.csr_matrix:
     """W_t, (2 n_via, n_dofs): flat via point positions P_t = W_t x of tendon t,
-    stopper end first. Today every via point is its mesh node (a 0/1 selection)."""
+    stopper end first: the model's own via point weights (n_via, n_nodes)
+    where it has them (finite attachments: a weighted average of nodes),
+    each coordinate alike; else every via point is its mesh node."""
+    weights = getattr(model, "via_weights", None)
+    if weights is not None:
+        return sp.kron(sp.csr_matrix(weights[t]), sp.identity(2), format="csr")
     nodes = np.asarray(model.tendon_paths[t], dtype=np.int64)
     dofs = np.stack([2 * nodes, 2 * nodes + 1], axis=1).ravel()
     return sp.csr_matrix((np.ones(len(dofs)), (np.arange(len(dofs)), dofs)),

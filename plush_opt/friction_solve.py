@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from .friction import FrictionModel, friction_tendons
+from .friction import FrictionModel, friction_tendons, via_weights
 from .friction_path import (SLIP_WINCH, STICK, FrictionOptions, FrictionState, capstan, capstan_residual,
                             follow, start_state)
 
@@ -133,13 +133,14 @@ def segment_table(model, x, c, eq: Equilibrium | None = None) -> list[dict]:
     fm = getattr(eq, "friction_model", None)
     one = model.tendon_state(x.reshape(-1), c)["tension"]
     out = []
-    for t, nodes in enumerate(model.tendon_paths):
+    for t in range(model.n_tendons):
         if state is not None and t in fm.tendons:
             seg = np.flatnonzero(fm.seg_tendon == t)
             out.append({"segment_rest_lengths": state.rest[seg].tolist(),
                         "segment_tensions": state.tension[seg].tolist()})
             continue
-        lengths = np.linalg.norm(np.diff(x[np.asarray(nodes)], axis=0), axis=1)
+        P = (via_weights(model, t) @ x.reshape(-1)).reshape(-1, 2)      # the via points
+        lengths = np.linalg.norm(np.diff(P, axis=0), axis=1)
         rest = model.assembly_length[t] - c[model.tendon_winch[t]]
         out.append({"segment_rest_lengths": (lengths * rest / lengths.sum()).tolist(),
                     "segment_tensions": [float(one[t])] * len(lengths)})
