@@ -87,7 +87,7 @@ def _dofs(nodes: np.ndarray) -> np.ndarray:
     return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], -1)
 
 
-class _Mapped:
+class Mapped:
     """A CasADi Function mapped over ``count`` columns, evaluated into numpy
     arrays through its buffer interface (no DM conversion per call)."""
 
@@ -179,9 +179,9 @@ class Model:
         consts = {1: self._Dinv, 2: self._elem_weight,
                   3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
         kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
-        self._psi = _Mapped(kernels["psi_derivs"], self.n_elems, consts)
-        self._psi_energy = _Mapped(kernels["psi"], self.n_elems, consts)
-        self._psi_grad = _Mapped(kernels["psi_grad"], self.n_elems, consts)
+        self._psi = Mapped(kernels["psi_derivs"], self.n_elems, consts)
+        self._psi_energy = Mapped(kernels["psi"], self.n_elems, consts)
+        self._psi_grad = Mapped(kernels["psi_grad"], self.n_elems, consts)
 
         # pins
         self.pin_stiffness = scene.pin_stiffness
@@ -245,8 +245,8 @@ class Model:
             self.assembly_length = np.bincount(self._seg_tendon, weights=seglen,
                                                minlength=self.n_tendons) + self.assembly_offset
             kernels = _fast_kernels()
-            self._seg = _Mapped(kernels["seg_derivs"], self.n_segments, {})
-            self._U = _Mapped(kernels["U_derivs"], self.n_tendons,
+            self._seg = Mapped(kernels["seg_derivs"], self.n_segments, {})
+            self._U = Mapped(kernels["U_derivs"], self.n_tendons,
                               {1: np.full(self.n_tendons, scene.tendon_stiffness),
                                2: np.full(self.n_tendons, scene.tendon_smoothing)})
             # each tendon's local dof list (padded with -1) and where each
@@ -542,14 +542,14 @@ class Model:
         return out
 
     @functools.cached_property
-    def _unit_material(self) -> dict[str, _Mapped]:
+    def _unit_material(self) -> dict[str, Mapped]:
         """The elastic kernels at (mu, lambda) = (1, 0) and (0, 1)."""
         ones, zeros = np.ones(self.n_elems), np.zeros(self.n_elems)
         base = {1: self._Dinv, 2: self._elem_weight}
         kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
         fn = kernels["psi_grad"]
-        return {"mu": _Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
-                "lambda": _Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
+        return {"mu": Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
+                "lambda": Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
 
 
 def build_model(scene: Scene, mesh: Mesh) -> Model:

@@ -39,6 +39,7 @@ class Problem:
         self._scene, self._mesh, self._model, self._targets = scene, mesh, model, targets
         self._mesh_report = mesh_report
         self._bilevel = None     # the bilevel solver keeps its built NLPs: made on first use
+        self._friction = None    # the friction model (False: the scene has none), on first use
 
     scene = property(lambda self: self._scene)
     mesh = property(lambda self: self._mesh)
@@ -93,13 +94,35 @@ class Problem:
     # -- solving -------------------------------------------------------------
 
     def equilibrium(self, contraction: Mapping[str, float] | None = None, x0=None,
-                    options: EquilibriumOptions | None = None) -> Equilibrium:
+                    options: EquilibriumOptions | None = None, steps: int | None = None) -> Equilibrium:
         """The equilibrium at these contractions (by winch name; the others
-        at the scene's values), from ``x0`` (default the rest pose)."""
-        return solve_equilibrium(self.model, self.contraction_vector(contraction), x0, options)
+        at the scene's values), from ``x0`` (default the rest pose).
+
+        With friction at via points the state depends on the path: the
+        winches are driven from the scene's start state along a straight
+        line in ``steps`` steps (default ``DEFAULT_PATH_STEPS``) and the
+        result is a :class:`~plush_opt.friction_solve.FrictionEquilibrium`
+        recording that path; ``x0`` is not used there (a pose alone is not
+        a friction state).
+        """
+        c = self.contraction_vector(contraction)
+        if self.friction is None:
+            return solve_equilibrium(self.model, c, x0, options)
+        from .friction_solve import DEFAULT_PATH_STEPS, solve_forward
+        return solve_forward(self.friction, c, DEFAULT_PATH_STEPS if steps is None else steps,
+                             equilibrium=options)
+
+    @property
+    def friction(self):
+        """The :class:`~plush_opt.friction.FrictionModel` of a scene with
+        friction at via points (built on first use), or None."""
+        if self._friction is None:
+            from .friction import FrictionModel, friction_tendons
+            self._friction = FrictionModel(self.model) if friction_tendons(self.scene) else False
+        return self._friction or None
 
     def control(self, method: str = "reparam", contraction: Mapping[str, float] | None = None,
-                frozen: Iterable[str] | None = None, x0=None, options=None):
+                frozen: Iterable[str] | None = None, x0=None, options=None, start=None):
         """Contractions that bring the body to the targets.
 
         Parameters
@@ -110,6 +133,10 @@ class Problem:
         frozen : winch names to hold, besides the scene's frozen ones.
         x0 : a pose near the starting equilibrium (optional).
         options : the method's options (``ControlOptions`` or ``BilevelOptions``).
+        start : with friction at via points, the robot's friction state to
+            start from (default: the scene's start state driven to
+            ``contraction``); each iterate is then reached from the one
+            before (see plush_opt/control/friction_control.py).
 
         Returns
         -------
@@ -120,7 +147,8 @@ class Problem:
             raise SceneError(f"{self.source}: targets: control needs targets; the file has none")
         return run_control(self.model, self.targets, method, self.contraction_vector(contraction),
                            self.frozen_vector(frozen), x0, options,
-                           bilevel=self.bilevel_solver if method == "bilevel" else None)
+                           bilevel=self.bilevel_solver if method == "bilevel" and self.friction is None
+                           else None, friction=self.friction, start=start)
 
     @property
     def bilevel_solver(self):
@@ -133,7 +161,7 @@ class Problem:
     def with_targets(self, targets: Targets) -> "Problem":
         """The same problem with other targets (model, mesh and solvers shared)."""
         other = Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
-        other._bilevel = self._bilevel
+        other._bilevel, other._friction = self._bilevel, self._friction
         return other
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 
 from .equilibrium import Equilibrium
+from .friction_solve import path_record, segment_table
 from .errors import SceneError, one_line
 from .model import Model
 from .objective import Targets
@@ -84,7 +85,9 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
     """The spec's result document for one solve."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    tension = model.tendon_state(eq.x, eq.contraction)["tension"]
+    segments = segment_table(model, eq.x, eq.contraction, eq)
+    # the tension at the winch (a friction tendon's winch-end segment)
+    tension = [s["segment_tensions"][-1] for s in segments]
     doc = {
         "format": FORMAT,
         "problem": model.scene.name,
@@ -114,6 +117,11 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
         "target_error": targets.errors(eq.x).tolist(),
         "targets_objective": float(targets.value(eq.x)),
     }
+    for entry, seg, t in zip(doc["model"]["tendons"]["list"], segments, model.scene.tendons):
+        entry.update(seg, friction=float(t.friction))
+    record = path_record(eq, model.winch_names)
+    if record is not None:
+        doc["friction_path"] = record
     if extra:
         doc.update(extra)
     return doc

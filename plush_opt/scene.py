@@ -67,6 +67,8 @@ class Tendon:
     ``attachment_radius`` r (length units): with r > 0 each via point is the
     average of the body over the disc of radius r around it (a stopper or a
     felt hole spreads the pull); 0 is the single node.
+    ``friction`` mu >= 0 is the capstan friction coefficient at its interior
+    via points (0: the tendon slides freely, one spring).
     """
 
     name: str
@@ -74,6 +76,7 @@ class Tendon:
     path: np.ndarray  # (n_via, 2) rest coordinates
     assembly_offset: float = 0.0
     attachment_radius: float = 0.0
+    friction: float = 0.0
 
     def __post_init__(self):
         object.__setattr__(self, "path", _points(self.path))
@@ -82,7 +85,8 @@ class Tendon:
         return (isinstance(other, Tendon) and self.name == other.name
                 and self.winch == other.winch and np.array_equal(self.path, other.path)
                 and self.assembly_offset == other.assembly_offset
-                and self.attachment_radius == other.attachment_radius)
+                and self.attachment_radius == other.attachment_radius
+                and self.friction == other.friction)
 
     __hash__ = None
 

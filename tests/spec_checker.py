@@ -127,9 +127,20 @@ def _other_terms(doc, m, X, tri, A, x, E, g):
         seg = P[1:] - P[:-1]
         seglen = np.linalg.norm(seg, axis=1)
         rest = t["assembly_length"] - doc["contractions"][t["winch"]]
-        G = seglen.sum() - rest
-        E += float(tendon_energy(G, K, eps))
-        unit = seg / seglen[:, None] * tendon_tension(G, K, eps)
+        if t.get("friction", 0.0) > 0 and "segment_rest_lengths" in t:
+            # friction at via points: segment j is phi_j U(G_j / phi_j),
+            # phi_j = r_j / (a - c), G_j = |seg_j| - r_j, with the r_j held
+            # (a frictionless tendon is one spring: its segments' rest
+            # lengths follow its length, so only their sum is fixed)
+            phi = np.asarray(t["segment_rest_lengths"], float) / rest
+            z = (seglen - phi * rest) / phi
+            E += float(np.sum(phi * tendon_energy(z, K, eps)))
+            T = tendon_tension(z, K, eps)
+        else:
+            G = seglen.sum() - rest
+            E += float(tendon_energy(G, K, eps))
+            T = tendon_tension(G, K, eps)
+        unit = seg / seglen[:, None] * np.reshape(T, (-1, 1))
         gP = np.zeros_like(P)
         gP[1:] += unit
         gP[:-1] -= unit
@@ -180,6 +191,8 @@ def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
             assert np.allclose(W.sum(axis=1), 1, rtol=0, atol=1e-12), f"weights of {t['name']}"
         assert abs(a - t["assembly_length"]) <= 1e-9 * max(a, 1), f"assembly_length of {t['name']}"
         assert t["winch"] in doc["contractions"], f"tendon {t['name']}: unknown winch"
+        if "segment_rest_lengths" in t:
+            _check_segments(doc, t, x, len(t["nodes"]) - 1)
     for w in m["winches"]:
         lo, hi = w["bounds"]
         c = doc["contractions"][w["name"]]
@@ -220,6 +233,23 @@ def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
         assert reported is not None and abs(reported - lam_min) <= 1e-3 * abs(lam_min) + 1e-6 * np.abs(H).max(), \
             f"min_hessian_eigenvalue {reported} but finite differences give {lam_min}"
     return doc
+
+
+def _check_segments(doc, t, x, n_segments):
+    """Segment rest lengths sum to a - c and the recorded tensions are
+    U'(G_j / phi_j) of them at the nodes."""
+    r = np.asarray(t["segment_rest_lengths"], float)
+    T = np.asarray(t["segment_tensions"], float)
+    assert r.shape == T.shape == (n_segments,), f"tendon {t['name']}: one rest length and tension per segment"
+    rest = t["assembly_length"] - doc["contractions"][t["winch"]]
+    assert np.all(r > 0) and abs(r.sum() - rest) <= 1e-8 * rest, \
+        f"tendon {t['name']}: segment rest lengths sum to {r.sum()}, not a - c = {rest}"
+    seglen = np.linalg.norm(np.diff(via_weights(t, len(x)) @ x, axis=0), axis=1)
+    K, eps = doc["model"]["tendons"]["stiffness"], doc["model"]["tendons"]["smoothing"]
+    phi = r / rest
+    want = tendon_tension((seglen - r) / phi, K, eps)
+    assert np.allclose(T, want, rtol=1e-6, atol=1e-9 * max(1.0, np.abs(want).max())), \
+        f"tendon {t['name']}: segment_tensions {T} but the rest lengths give {want}"
 
 
 def _internal_force_scale(doc, x):

@@ -24,7 +24,7 @@ LAYERS = [
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
     ("model", ("model", "attachments", "pins", "elements", "tendon_law", "objective")),
-    ("solvers", ("equilibrium", "sensitivity", "accuracy")),
+    ("solvers", ("equilibrium", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
     ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),
     ("apps", ("apps", "__init__", "__main__")),

@@ -523,6 +523,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_export(sub)
     from .bench import add_bench_parser
     add_bench_parser(sub)
+    from .sweep import add_sweep_parser
+    add_sweep_parser(sub, _contraction_arg)
     from .gui import add_gui_parser
     add_gui_parser(sub)
     from .compare import add_compare_parser

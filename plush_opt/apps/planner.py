@@ -26,6 +26,9 @@ class ControlPlanner:
 
     Keeps the current contractions and pose: each forward solve and each
     control run starts from where the previous one ended (warm starts).
+    With friction at via points it keeps the robot's friction state too,
+    and drives it from step to step: what the robot does depends on the
+    steps before (plush_opt/friction_solve.py, control/friction_control.py).
     """
 
     def __init__(self, problem: Path | str, options: ControlOptions | None = None):
@@ -40,6 +43,7 @@ class ControlPlanner:
         if not eq.converged:
             raise SolverError(f"{self.problem.source}: starting pose: {eq.status}")
         self.x = eq.x
+        self.state = getattr(eq, "friction", None)    # the robot's friction state, if any
 
     def _named(self, c) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.winch_names, c)}
@@ -47,11 +51,18 @@ class ControlPlanner:
     def forward(self, contraction: dict[str, float]) -> dict:
         """Equilibrium at these contractions (the others keep theirs); raises
         :class:`~plush_opt.errors.SceneError` for an unknown winch or a value outside its bounds."""
-        eq = self.problem.equilibrium({**self._named(self.contraction), **contraction}, self.x,
-                                      self.options.equilibrium)
+        if self.state is None:
+            eq = self.problem.equilibrium({**self._named(self.contraction), **contraction}, self.x,
+                                          self.options.equilibrium)
+        else:
+            from plush_opt.friction_solve import drive
+            c = self.problem.contraction_vector({**self._named(self.contraction), **contraction})
+            eq = drive(self.problem.friction, self.state, c, equilibrium=self.options.equilibrium,
+                       origin="the run's previous step")
         c = eq.contraction
         if eq.converged:
             self.contraction, self.x = c.copy(), eq.x
+            self.state = getattr(eq, "friction", None)
         return {"contraction": self._named(c), "objective": 0.0, "converged": eq.converged,
                 "status": eq.status}
 
@@ -65,11 +76,17 @@ class ControlPlanner:
         goal = Targets.at_points(self.problem.mesh, [t["at"] for t in targets], [t["to"] for t in targets],
                                  [t.get("weight", 1.0) for t in targets])
         frozen = np.array([n in freeze for n in self.winch_names])
-        ctl = Controller(self.problem.model, goal, self.contraction, frozen, self.x,
-                         dataclasses.replace(self.options, max_time=max_time))
+        options = dataclasses.replace(self.options, max_time=max_time)
+        if self.state is None:
+            ctl = Controller(self.problem.model, goal, self.contraction, frozen, self.x, options)
+        else:
+            from plush_opt.control.friction_control import FrictionController
+            ctl = FrictionController(self.problem.model, self.problem.friction, goal, self.contraction,
+                                     frozen, self.state, options)
         t0 = time.perf_counter()
         for it in ctl.iterates():
             self.contraction, self.x = it.contraction.copy(), it.x
+            self.state = getattr(ctl, "state", None)
             yield {"contraction": self._named(it.contraction), "objective": it.objective,
                    "converged": False, "status": "running", "t": time.perf_counter() - t0}
         last = ctl.history[-1]

@@ -22,19 +22,35 @@ __all__ = ["BilevelOptions", "BilevelSolver", "CONVERGED_REASONS", "ControlItera
 
 
 def run_control(model, targets, method: str = "reparam", contraction=None, frozen=None, x0=None,
-                options=None, *, bilevel: BilevelSolver | None = None) -> ControlResult:
+                options=None, *, bilevel: BilevelSolver | None = None, friction=None,
+                start=None) -> ControlResult:
     """Run control method ``method`` to the end.
 
     ``options`` is a :class:`ControlOptions` for 'reparam' and 'clip' (its
     ``bounds`` is set from the method) or a :class:`BilevelOptions` for
-    'bilevel'; ``bilevel`` is a solver whose built NLPs are reused."""
+    'bilevel'; ``bilevel`` is a solver whose built NLPs are reused. On a
+    scene with friction at via points the gradient loop follows the robot's
+    path (:mod:`.friction_control`; ``friction`` its model if built,
+    ``start`` the robot's friction state) and the bilevel method refuses."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if friction is None and method != "bilevel":
+        from ..friction_solve import has_friction
+        if has_friction(model):
+            from ..friction import FrictionModel
+            friction = FrictionModel(model)
     if method == "bilevel":
+        from ..friction_solve import has_friction
+        if has_friction(model):
+            from .friction_control import refuse_bilevel
+            refuse_bilevel(model)
         if options is not None and not isinstance(options, BilevelOptions):
             raise TypeError(f"options: the bilevel method takes BilevelOptions, got {type(options).__name__}")
         return (bilevel or BilevelSolver(model)).solve(targets, contraction, frozen, x0, options)
     if options is not None and not isinstance(options, ControlOptions):
         raise TypeError(f"options: the gradient loop takes ControlOptions, got {type(options).__name__}")
     options = dataclasses.replace(options or ControlOptions(), bounds=method)
+    if friction is not None:
+        from .friction_control import FrictionController
+        return FrictionController(model, friction, targets, contraction, frozen, start, options).result()
     return Controller(model, targets, contraction, frozen, x0, options).result()

@@ -38,8 +38,8 @@ _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "t
                   "density")
 _PIN_KEYS = ("stiffness", "at", "box")
 _WINCH_KEYS = ("name", "bounds", "contraction", "frozen")
-_TENDONS_KEYS = ("stiffness", "smoothing", "list", "attachment_radius")
-_TENDON_KEYS = ("name", "winch", "path", "assembly_offset", "attachment_radius")
+_TENDONS_KEYS = ("stiffness", "smoothing", "list", "attachment_radius", "friction")
+_TENDON_KEYS = ("name", "winch", "path", "assembly_offset", "attachment_radius", "friction")
 _TARGET_KEYS = ("at", "to", "weight")
 
 
@@ -413,6 +413,8 @@ def _tendons_section(ck: Checker, raw, winches):
     smoothing = ck.number(raw["smoothing"], "tendons.smoothing", gt=0)
     radius = _opt(raw, "attachment_radius")
     radius = 0.0 if radius is None else ck.number(radius, "tendons.attachment_radius", ge=0)
+    friction = _opt(raw, "friction")
+    friction = 0.0 if friction is None else ck.number(friction, "tendons.friction", ge=0)
     winch_index = {w.name: i for i, w in enumerate(winches)}
     used = set()
     tendons, seen = [], {}
@@ -441,8 +443,10 @@ def _tendons_section(ck: Checker, raw, winches):
                     f"no length (its path is {format_number(rest)} long)")
         own = _opt(t, "attachment_radius")
         own = radius if own is None else ck.number(own, at_key(path, "attachment_radius"), ge=0)
+        mu = _opt(t, "friction")
+        mu = friction if mu is None else ck.number(mu, at_key(path, "friction"), ge=0)
         tendons.append(Tendon(name=name, winch=winch, path=via, assembly_offset=offset,
-                              attachment_radius=own))
+                              attachment_radius=own, friction=mu))
     for i, w in enumerate(winches):
         if w.name not in used:
             ck.fail(at_index("winches", i), f"winch {w.name!r} has no tendons")

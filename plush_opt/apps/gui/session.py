@@ -21,6 +21,7 @@ import numpy as np
 from ...board.link import BoardLink
 from ...equilibrium import Equilibrium, solve_equilibrium
 from ...errors import SolverError
+from ...friction_solve import DEFAULT_PATH_STEPS, drive, segment_table, solve_forward
 from ...objective import Targets
 from .options import GuiOptions
 from .pacing import BoardPacer
@@ -218,7 +219,7 @@ class PosingSession:
 
     def _forward(self, contraction, x0) -> Equilibrium:
         t0 = time.perf_counter()
-        eq = solve_equilibrium(self.model, contraction, x0, self.equilibrium_options)
+        eq = forward_pose(self.problem, contraction, x0, vars(self).get("equilibrium"), self.equilibrium_options)
         self.solve_seconds += time.perf_counter() - t0
         self.forward_solves += 1
         return eq
@@ -491,6 +492,7 @@ def status_line(session: PosingSession) -> str:
     parts.append(f"bounds: {', '.join(bounds) if bounds else '-'}")
     frozen = [n for n, f in zip(session.winch_names, session.frozen) if f]
     parts.append(f"frozen: {', '.join(frozen) if frozen else '-'}")
+    parts.append(tension_text(session))
     pacer = session.pacer
     if pacer is None:
         parts.append("board: none")
@@ -502,6 +504,31 @@ def status_line(session: PosingSession) -> str:
         lag = pacer.lag(session.contraction_by_name)
         parts.append(f"board: {pacer.sends} sent" + ("" if lag is None else f", lag {lag:.2f} mm"))
     return "  |  ".join(parts)
+
+
+def forward_pose(problem, contraction, x0, shown: Equilibrium | None, options) -> Equilibrium:
+    """The pose at ``contraction``, warm-started from ``x0``; with friction
+    at via points the robot is driven from the pose ``shown`` on screen
+    (from the scene's start state at first)."""
+    if problem.friction is None:
+        return solve_equilibrium(problem.model, contraction, x0, options)
+    state = getattr(shown, "friction", None)
+    if state is None:
+        return solve_forward(problem.friction, contraction, DEFAULT_PATH_STEPS, equilibrium=options)
+    return drive(problem.friction, state, contraction, equilibrium=options, origin="the pose on screen before")
+
+
+def tension_text(session: PosingSession) -> str:
+    """Tendon tensions for the status line, stopper end first: one number
+    for a tendon whose segments all pull the same (no friction), its
+    segments' tensions joined by '/' where friction at via points makes
+    them differ."""
+    segments = segment_table(session.model, session.x, session.contraction, session.equilibrium)
+    parts = []
+    for t, seg in zip(session.model.scene.tendons, segments):
+        T = seg["segment_tensions"]
+        parts.append(f"{t.name} " + (f"{T[0]:.3g}" if max(T) == min(T) else "/".join(f"{v:.3g}" for v in T)))
+    return "T [N]: " + (", ".join(parts) if parts else "-")
 
 
 def timestamped(folder: Path, stem: str) -> Path:

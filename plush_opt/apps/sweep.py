@@ -1,0 +1,107 @@
+"""plush-opt sweep: follow one winch's contraction forward (and back) from
+the scene's start state, each step from the previous one, and write what
+the robot went through: contractions, the scene's ``points`` and the end
+tensions of every tendon (CSV), optionally the hysteresis loop (PNG).
+
+Works with and without friction: a frictionless tendon is one spring, so
+its two end tensions are equal and loading and unloading coincide."""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import SceneError, SolverError
+from ..friction import FrictionModel
+from ..friction_path import follow, start_state
+from ..problem import load
+from ..results import atomic_path
+
+
+def add_sweep_parser(sub, contraction_arg):
+    p = sub.add_parser("sweep", help="follow a winch's contraction in steps (friction: with history)",
+                       description="From the scene's start state (zero contraction; other winches "
+                       "at 0 or their -c value), move winch W to C1 in N steps, then back to C2 "
+                       "(--back) in N more, each step from the previous state.")
+    p.add_argument("problem", type=Path)
+    p.add_argument("--winch", required=True, metavar="W")
+    p.add_argument("--to", type=float, required=True, metavar="C1")
+    p.add_argument("--back", type=float, default=None, metavar="C2")
+    p.add_argument("--steps", type=int, default=20, metavar="N")
+    p.add_argument("--contraction", "-c", action="append", type=contraction_arg, default=[],
+                   metavar="NAME=VALUE", help="a fixed contraction of another winch; repeatable")
+    p.add_argument("--out", type=Path, required=True, metavar="S.csv")
+    p.add_argument("--plot", type=Path, default=None, metavar="S.png")
+    p.add_argument("--max-area", type=float, default=None)
+    p.set_defaults(func=cmd_sweep)
+
+
+def sweep_path(problem, winch: str, to: float, back: float | None, steps: int,
+               fixed: dict[str, float]) -> np.ndarray:
+    """(n_steps, n_winches) contractions of the sweep."""
+    if steps < 1:
+        raise SceneError(f"--steps: expected >= 1, got {steps}")
+    if winch not in problem.winch_names:
+        raise SceneError(f"--winch {winch}: no winch named {winch!r} "
+                         f"(winches: {', '.join(problem.winch_names)})")
+    zero = np.zeros(problem.model.n_winches)
+    base = problem.contraction_vector(fixed, start=zero, what="--contraction")
+    w = problem.winch_names.index(winch)
+    problem.contraction_vector({winch: to}, start=zero, what="--to")
+    legs = [np.linspace(base[w], to, steps + 1)[1:]]
+    if back is not None:
+        problem.contraction_vector({winch: back}, start=zero, what="--back")
+        legs.append(np.linspace(to, back, steps + 1)[1:])
+    values = np.concatenate(legs)
+    path = np.tile(base, (len(values), 1))
+    path[:, w] = values
+    return path
+
+
+def run_sweep(problem, path: np.ndarray):
+    """States from the start state along ``path`` (and the start state)."""
+    fm = FrictionModel(problem.model, include_frictionless=True)
+    start = start_state(fm)
+    if not start.converged:
+        raise SolverError(f"the start state did not converge: {start.status}")
+    return fm, [start] + follow(fm, start, path)
+
+
+def write_csv(problem, fm, states, out: Path) -> None:
+    scene = problem.scene
+    header = ["step"] + [f"c_{w}" for w in problem.winch_names]
+    for k in range(len(problem.mesh.point_nodes)):
+        header += [f"x_{k}", f"y_{k}"]
+    for t in scene.tendons:
+        header += [f"T_{t.name}_winch", f"T_{t.name}_stopper"]
+    with atomic_path(out) as tmp, open(tmp, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        for i, s in enumerate(states):
+            row = [i] + [float(v) for v in s.contraction]
+            for node in problem.mesh.point_nodes:
+                row += [float(v) for v in s.nodes[node]]
+            one = problem.model.tendon_state(s.x, s.contraction)["tension"]
+            for t in range(len(scene.tendons)):
+                seg = np.flatnonzero(fm.seg_tendon == t)
+                ends = (s.tension[seg[-1]], s.tension[seg[0]]) if seg.size else (one[t], one[t])
+                row += [float(v) for v in ends]
+            writer.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
+
+
+def cmd_sweep(args) -> int:
+    t0 = time.perf_counter()
+    problem = load(args.problem, max_area=args.max_area)
+    path = sweep_path(problem, args.winch, args.to, args.back, args.steps, dict(args.contraction))
+    fm, states = run_sweep(problem, path)
+    write_csv(problem, fm, states, args.out)
+    if args.plot is not None:
+        from .sweep_plot import plot_sweep
+        plot_sweep(problem, states, args.winch, args.plot)
+    last = states[-1]
+    print(f"sweep: {len(states) - 1} of {len(path)} steps, {last.status}, "
+          f"{time.perf_counter() - t0:.2f} s; wrote {args.out}")
+    return 0 if last.converged and len(states) == len(path) + 1 else 3
