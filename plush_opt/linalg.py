@@ -58,6 +58,13 @@ BACKEND = _default_backend()
 # unknowns, 1.2x at 30,000, 1.3-1.4x at 40,000-60,000, slower below
 # (docs/benchmarks.md, "Large meshes"). With the reference BLAS it wins less.
 SUPERNODAL_MIN_DOFS = 25_000
+# ... or above this many Hessian entries per unknown at any size: finite
+# tendon attachments on a mesh much finer than their discs make each
+# tendon's Hessian block dense over all its discs' nodes, and there
+# supernodal wins by far (a P2 gripper whose discs were resolved, 11,400
+# unknowns, 700 entries per unknown: 3 s against 65 s). A plain P2 mesh has
+# about 30 per unknown.
+SUPERNODAL_MIN_DENSITY = 150
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 
@@ -94,7 +101,9 @@ class Factorizer:
     Both backends factor without pivoting. QDLDL is a simplicial LDL^T;
     CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_DOFS`
     unknowns (about twice as fast there as its supernodal LL^T) and a
-    supernodal LL^T above (BLAS-3 on dense supernodes wins on large meshes).
+    supernodal LL^T above, or where the matrix has more than
+    :data:`SUPERNODAL_MIN_DENSITY` entries per unknown (BLAS-3 on dense
+    supernodes wins on large meshes and on dense tendon blocks).
     The matrix counts as positive definite when every pivot of D exceeds
     ``PIVOT_MARGIN`` times the largest: a matrix singular to round-off (a
     free rigid mode, a bifurcation point) can factor with tiny positive
@@ -133,7 +142,9 @@ class Factorizer:
         if self._symbolic is None:
             self.mode_used = self.mode
             if self.mode == "auto":
-                self.mode_used = "supernodal" if H.shape[0] >= SUPERNODAL_MIN_DOFS else "simplicial"
+                dense = H.nnz >= SUPERNODAL_MIN_DENSITY * H.shape[0]
+                big = H.shape[0] >= SUPERNODAL_MIN_DOFS
+                self.mode_used = "supernodal" if big or dense else "simplicial"
             self._symbolic = analyze(H, mode=self.mode_used, ordering_method="amd")
         try:
             f = self._symbolic.cholesky(H, beta=shift)

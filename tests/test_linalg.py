@@ -97,6 +97,11 @@ def test_cholmod_takes_supernodal_above_its_size(hessian, monkeypatch):
     x_large = large.factor(hessian).solve(b)
     assert large.mode_used == "supernodal"
     assert np.linalg.norm(x_large - x_small) <= AGREE * np.linalg.norm(x_small)
+    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DOFS", 10 * hessian.shape[0])
+    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DENSITY", hessian.nnz / hessian.shape[0])
+    dense = Factorizer("cholmod")
+    dense.factor(hessian)
+    assert dense.mode_used == "supernodal"        # dense enough, though small
     with pytest.raises(SolverError, match="factorisation mode 'dense'"):
         Factorizer("cholmod", "dense")
 
