@@ -388,3 +388,15 @@ def test_solve_command_forward_records_the_path_and_bilevel_refuses(tmp_path):
                           "--out", str(tmp_path / "b.json")], capture_output=True, text=True)
     assert run.returncode != 0 and "Traceback" not in run.stderr
     assert "tendons.friction: the bilevel method" in run.stderr and not (tmp_path / "b.json").exists()
+
+
+def test_the_bilevel_solver_itself_refuses_friction():
+    """Not only run_control: a BilevelSolver used directly must not return
+    the frictionless answer of a friction scene (nothing is solved)."""
+    from pathlib import Path
+
+    from plush_opt import load
+    from plush_opt.control import BilevelSolver
+    p = load(Path(__file__).resolve().parent.parent / "problems" / "gripper_friction.yaml")
+    with pytest.raises(SceneError, match="tendons.friction"):
+        BilevelSolver(p.model).solve(p.targets)

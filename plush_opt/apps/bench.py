@@ -24,6 +24,7 @@ import numpy as np
 
 from ..control import BilevelOptions, BilevelSolver, run_control
 from ..equilibrium import EquilibriumOptions, solve_equilibrium
+from ..friction_solve import has_friction
 from ..linalg import Factorizer
 from ..mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
@@ -143,6 +144,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
         row.update(_build_times(problem, nodes, mesh.element, repeats))
     problem = from_scene(scene, mesh)
     model, targets = problem.model, problem.targets
+    row["friction"] = has_friction(model)
     c = _default_contraction(model, name)
     row["contraction"] = c.tolist()
 
@@ -186,7 +188,10 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
             if method == "reparam":
                 row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
                 row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
-        row.update(_bench_bilevel(model, targets, repeats, progress, label))
+        if has_friction(model):
+            row["inverse_bilevel_skipped"] = "the bilevel method refuses friction at via points"
+        else:
+            row.update(_bench_bilevel(model, targets, repeats, progress, label))
     return row
 
 
@@ -255,6 +260,23 @@ def _factor_lines(rows) -> list[str]:
     return lines
 
 
+def _status_lines(rows) -> list[str]:
+    """Each inverse solve's status, and what was skipped and why."""
+    lines = ["", "Statuses:", ""]
+    for r in rows:
+        for method in ("reparam", "clip", "bilevel"):
+            key = f"inverse_{method}_status"
+            if key in r:
+                lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}, {method}: {r[key]}")
+        if "inverse_bilevel_skipped" in r:
+            lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}, bilevel: not run "
+                         f"({r['inverse_bilevel_skipped']})")
+        if "inverse_skipped" in r:
+            lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}: inverse solves skipped "
+                         f"({r['inverse_skipped']})")
+    return lines
+
+
 def render_markdown(report: dict) -> str:
     m = report["machine"]
     lines = [
@@ -269,6 +291,10 @@ def render_markdown(report: dict) -> str:
         "",
         "## Forward model",
         "",
+        "A scene with friction at via points (marked *) is timed here without it (its model's "
+        "single-spring equilibrium): with friction a pose depends on its path, which "
+        "`tools/bench_friction.py` times.",
+        "",
         "| problem | element | nodes | elements | build, no cache [s] | build, cached [s] | Hessian [ms] | "
         "factorisation [ms] (mode) | forward from rest [ms] (iterations) | forward / (its x (H + F)) | "
         "warm re-solve [ms] (its; without predictor) | certified |",
@@ -276,7 +302,8 @@ def render_markdown(report: dict) -> str:
     ]
     for r in report["rows"]:
         lines.append(
-            f"| {r['problem']} | {_element(r)} | {r['nodes']} | {r['elements']} | {_s(r.get('build_uncached_s'), 2)} | "
+            f"| {r['problem']}{'*' if r.get('friction') else ''} | {_element(r)} | {r['nodes']} | {r['elements']} | "
+            f"{_s(r.get('build_uncached_s'), 2)} | "
             f"{_s(r.get('build_cached_s'), 3)} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} ({r['factor_mode']}) | "
             f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | "
             f"{'—' if r['forward_ratio'] is None else format(r['forward_ratio'], '.2f')} | "
@@ -298,15 +325,7 @@ def render_markdown(report: dict) -> str:
             f"{r['inverse_reparam_s']:.3f}, {r['inverse_reparam_iterates']}, {r['inverse_reparam_objective']:.4g} | "
             f"{r['inverse_clip_s']:.3f}, {r['inverse_clip_iterates']}, {r['inverse_clip_objective']:.4g} | "
             f"{bil} | {'yes' if _all_certified(r) else 'NO'} |")
-    lines += ["", "Statuses:", ""]
-    for r in report["rows"]:
-        for method in ("reparam", "clip", "bilevel"):
-            key = f"inverse_{method}_status"
-            if key in r:
-                lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}, {method}: {r[key]}")
-        if "inverse_skipped" in r:
-            lines.append(f"- {r['problem']} @ {r['nodes']} nodes {_element(r)}: inverse solves skipped "
-                         f"({r['inverse_skipped']})")
+    lines += _status_lines(report["rows"])
     bil = [r for r in report["rows"] if "inverse_bilevel_s" in r]
     if bil:
         lines += ["", "## Where the bilevel method's time goes", "",

@@ -39,11 +39,7 @@ def run_control(model, targets, method: str = "reparam", contraction=None, froze
         if has_friction(model):
             from ..friction import FrictionModel
             friction = FrictionModel(model)
-    if method == "bilevel":
-        from ..friction_solve import has_friction
-        if has_friction(model):
-            from .friction_control import refuse_bilevel
-            refuse_bilevel(model)
+    if method == "bilevel":            # BilevelSolver refuses a friction scene itself
         if options is not None and not isinstance(options, BilevelOptions):
             raise TypeError(f"options: the bilevel method takes BilevelOptions, got {type(options).__name__}")
         return (bilevel or BilevelSolver(model)).solve(targets, contraction, frozen, x0, options)

@@ -341,7 +341,13 @@ class BilevelSolver:
         SolverError
             Bad sizes, a start outside the bounds, or a starting equilibrium
             that cannot be certified.
+        SceneError
+            A scene with friction at via points (the method has no history).
         """
+        from ..friction_solve import has_friction
+        if has_friction(self.model):      # its pose depends on the path: refuse, never solve without it
+            from .friction_control import refuse_bilevel
+            refuse_bilevel(self.model)
         options = options or BilevelOptions()
         t_start = time.perf_counter()
         c0, frozen = _checked_start(self.model, contraction0, frozen)
