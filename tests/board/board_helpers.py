@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import select
+import signal
 import threading
 import time
 
@@ -80,6 +81,14 @@ class FakeBoard:
             self._thread.join(1)
         for fd in (self.master, self._slave):
             os.close(fd)
+
+
+def default_sigint():
+    """``preexec_fn`` for a child the test interrupts: SIGINT back to its
+    default disposition, so that Python turns it into KeyboardInterrupt even
+    when the suite itself was started with SIGINT ignored (as a background
+    job of a non-interactive shell is)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def wait_until(predicate, timeout=3.0, interval=0.01):

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from board_helpers import fast_calibration_dict, wait_until
+from board_helpers import default_sigint, fast_calibration_dict, wait_until
 from fake_planner import FakePlanner
 from plush_opt.io.run_script import FORMAT, RunScript, load_run_script
 from plush_opt.apps.runs import (add_run_arguments, check_run_script, cli_run,
@@ -296,7 +296,8 @@ def test_sigint_mid_move_stops_the_board_and_leaves_a_parseable_log(tmp_path, ma
                           rate=20, calibration=cal)
     log_path = tmp_path / "log.jsonl"
     child = subprocess.Popen([sys.executable, str(Path(__file__).with_name("sigint_child.py")), str(script),
-                              emu.port, str(log_path)], stderr=subprocess.PIPE, text=True)
+                              emu.port, str(log_path)], stderr=subprocess.PIPE, text=True,
+                             preexec_fn=default_sigint)
     try:
         def sending():
             if not log_path.exists():

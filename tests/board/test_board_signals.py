@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from board_helpers import fast_calibration_dict, wait_until
+from board_helpers import default_sigint, fast_calibration_dict, wait_until
 from plush_opt.io.run_script import FORMAT
 
 CHILD = Path(__file__).with_name("cli_child.py")
@@ -78,7 +78,7 @@ def _interrupt(tmp_path, point, name, board_args):
     steps, ready = POINTS[point]
     log = tmp_path / "run.jsonl"
     child = subprocess.Popen([sys.executable, str(CHILD), str(_script(tmp_path, steps)), str(log), *board_args],
-                             stderr=subprocess.PIPE, text=True)
+                             stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     try:
         assert wait_until(lambda: ready(_lines(log)), timeout=20), \
             child.stderr.read() if child.poll() is not None else f"never reached {point}"
