@@ -20,6 +20,7 @@ from hardlib import (BACKENDS, SHIPPED, assert_honest, assert_within_bounds, bui
 from plush_opt.control.gradient import ControlOptions, solve_control
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.errors import SceneError, SolverError
+from plush_opt.friction_solve import has_friction
 
 try:
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel
@@ -103,7 +104,7 @@ def test_bilevel_claims_are_certified(name):
     _, _, model, targets = built(name)
     if not targets.n_targets:
         pytest.skip("no targets: forward problem only")
-    if any(t.friction > 0 for t in model.scene.tendons):
+    if has_friction(model):
         # no history in the bilevel method: it refuses, naming the key
         with pytest.raises(SceneError, match="tendons.friction"):
             solve_bilevel(model, targets, model.scene.contraction, model.scene.frozen)
