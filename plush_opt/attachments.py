@@ -252,6 +252,10 @@ class TendonPoints:
         self.A = sp.vstack([sp.identity(2 * n, format="csr"), self.extra_dofs]).tocsr()
         self.n_z = 2 * (n + self.n_extra)
 
+    def mean_disc_nodes(self) -> float:
+        """Nodes per attachment disc, on average (0 without discs)."""
+        return float(self.extra_dofs.getnnz() / (2 * self.n_extra)) if self.n_extra else 0.0
+
     def points(self, x: np.ndarray) -> np.ndarray:
         """z of the flat pose x (x itself when every radius is 0)."""
         return x if self.n_extra == 0 else np.concatenate([x, self.extra_dofs @ x])

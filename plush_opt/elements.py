@@ -94,6 +94,22 @@ def element_functions(name: str, psi, args) -> tuple[ca.Function, ca.Function, c
             ca.Function(f"{name}_derivs", args, [psi, g, H], names, ["psi", "grad", "hess"]))
 
 
+def _p1_kernels():
+    """psi(xe, Dinv, w, mu, lam): w * Psi(F) of one linear triangle, and its
+    derivatives. ``xe`` = [xa, ya, xb, yb, xc, yc], ``Dinv`` = Dm^-1
+    column-major, ``w`` = thickness * rest area."""
+    xe = ca.SX.sym("xe", 6)
+    Dinv = ca.SX.sym("Dinv", 4)
+    w = ca.SX.sym("w")
+    mu = ca.SX.sym("mu")
+    lam = ca.SX.sym("lam")
+    d = ca.horzcat(xe[2:4] - xe[0:2], xe[4:6] - xe[0:2])
+    F = d @ ca.reshape(Dinv, 2, 2)
+    logJ = ca.log(ca.det(F))
+    psi = w * (mu / 2 * (ca.sumsqr(F) - 2) - mu * logJ + lam / 2 * logJ**2)
+    return element_functions("psi", psi, [xe, Dinv, w, mu, lam])
+
+
 def _p2_kernels():
     """psi2(xe, Dinv, w, mu, lam): w * sum_q (1/3) Psi(F(l_q)) of one P2
     element, and its derivatives. Same inputs as the P1 kernel except
@@ -116,12 +132,16 @@ def _p2_kernels():
     return element_functions("psi2", psi, [xe, Dinv, w, mu, lam])
 
 
+P1_PSI, P1_PSI_GRAD, P1_PSI_DERIVS = _p1_kernels()
 P2_PSI, P2_PSI_GRAD, P2_PSI_DERIVS = _p2_kernels()
+#: the element energy kernels by element type (the CasADi expression
+#: differentiates these; the fast path evaluates them compiled)
+KERNELS = {"P1": (P1_PSI, P1_PSI_GRAD, P1_PSI_DERIVS), "P2": (P2_PSI, P2_PSI_GRAD, P2_PSI_DERIVS)}
 
 
 @functools.lru_cache(maxsize=None)
-def p2_fast_kernels() -> dict[str, ca.Function]:
-    """The P2 kernels compiled (cached on disk), under the P1 kernels'
-    names, so the model's fast path uses either the same way."""
-    return {"psi": compiled(P2_PSI), "psi_grad": compiled(P2_PSI_GRAD),
-            "psi_derivs": compiled(P2_PSI_DERIVS)}
+def fast_kernels(element: str) -> dict[str, ca.Function]:
+    """An element's kernels compiled (cached on disk) once per process,
+    under one set of names for either element."""
+    psi, grad, derivs = KERNELS[element]
+    return {"psi": compiled(psi), "psi_grad": compiled(grad), "psi_derivs": compiled(derivs)}

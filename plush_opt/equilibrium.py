@@ -163,7 +163,7 @@ def certify(model: Model, eq: Equilibrium) -> Equilibrium:
             lam = eq.factor.min_eigenvalue()
         else:
             ev = model.evaluate(eq.x, eq.contraction, order=2)
-            if ev.hessian is None:
+            if ev.hessian_form is None:
                 return eq
             lam, _ = smallest_eigenpair(ev.hessian)
     except SolverError as exc:
@@ -212,7 +212,7 @@ def _finish(model, c, x, ev: Evaluation, factor, converged, status, it, t0, opti
     try:   # a diagnostic: its failure must not discard a certified pose
         if pd and options.eigenvalue:
             min_eig = factor.min_eigenvalue()
-        elif options.eigenvalue and ev.hessian is not None:
+        elif options.eigenvalue and ev.hessian_form is not None:
             min_eig, _ = smallest_eigenpair(ev.hessian)
     except SolverError as exc:
         log.warning("smallest Hessian eigenvalue not computed: %s", exc)
@@ -280,7 +280,7 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
     factor = None
     it = 0
     while True:
-        g, H = ev.gradient, ev.hessian
+        g, H = ev.gradient, ev.hessian_form
         factor = _try_factor(model, H)
         small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
@@ -417,7 +417,7 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
             return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
                                np.inf, np.inf, np.nan, False, None, iterations,
                                time.perf_counter() - t0, "ipopt")
-        factor = _try_factor(model, ev.hessian)
+        factor = _try_factor(model, ev.hessian_form)
         small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
         if factor is not None and not small and not polished:
             # the residual alone misses the certificate: once more, unscaled

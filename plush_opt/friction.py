@@ -24,10 +24,11 @@ from dataclasses import replace
 
 import casadi as ca
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 
 from .kernels import compiled
-from .linalg import Factorizer
+from .linalg import Factorizer, LowRankHessian
 from .model import Evaluation, Model, Mapped
 from .tendon_law import U_DERIVS
 
@@ -115,6 +116,10 @@ class FrictionModel:
                           replace(mesh, tendon_nodes=tuple(mesh.tendon_nodes[i] for i in keep)))
         self.n_dofs, self.n_winches, self.X = model.n_dofs, model.n_winches, model.X
         self.K, self.eps = model.tendon_stiffness, model.tendon_smoothing
+        # the Hessian's form follows the full model's: with large
+        # attachment discs each segment's coupling of its two discs is kept
+        # out as low rank (a segment here has no rank-one tendon term)
+        self.split = model.split_segments
         self._build_segments()
         self._build_pattern()
         fseg, wrap = _compiled_kernels()
@@ -173,22 +178,30 @@ class FrictionModel:
 
     def _build_pattern(self):
         """One CSC pattern for the base Hessian plus the segment blocks
-        W^T H_P W, and where each contribution lands in its data array."""
+        W^T H_P W, and where each contribution lands in its data array.
+        In the low-rank form a segment's [[K, -K], [-K, K]] is 2 diag(K, K)
+        (here) minus [I; I] K [I, I] (rows ``_pairs``, low rank)."""
         n = self.n_dofs
-        Hb = self.base.evaluate(self.X, np.zeros(self.n_winches), order=2).hessian
+        Hb = _sparse_part(self.base.evaluate(self.X, np.zeros(self.n_winches), order=2).hessian_form)
         bcols = np.repeat(np.arange(n), np.diff(Hb.indptr))
         keys = [bcols * n + Hb.indices]
         rows, cols, entry, weight = [], [], [], []
         W = self.W
+        blocks = ([(a, b) for a in (0, 1) for b in (0, 1)] + [(a, b) for a in (2, 3) for b in (2, 3)]
+                  if self.split else [(a, b) for a in range(4) for b in range(4)])
+        if self.split:
+            pair = sp.csr_matrix((np.ones(4 * self.n_segments),
+                                  (np.tile(np.arange(2 * self.n_segments), 2),
+                                   np.r_[self.seg_p[:, :2].ravel(), self.seg_p[:, 2:].ravel()])),
+                                 shape=(2 * self.n_segments, W.shape[0]))
+            self._pairs = (pair @ W).tocsr()
         for s in range(self.n_segments):
-            for a in range(4):
-                ra = W.getrow(self.seg_p[s, a])
-                for b in range(4):
-                    rb = W.getrow(self.seg_p[s, b])
-                    rows.append(np.repeat(ra.indices, len(rb.indices)))
-                    cols.append(np.tile(rb.indices, len(ra.indices)))
-                    weight.append(np.outer(ra.data, rb.data).ravel())
-                    entry.append(np.full(len(ra.indices) * len(rb.indices), 16 * s + 4 * a + b))
+            for a, b in blocks:
+                ra, rb = W.getrow(self.seg_p[s, a]), W.getrow(self.seg_p[s, b])
+                rows.append(np.repeat(ra.indices, len(rb.indices)))
+                cols.append(np.tile(rb.indices, len(ra.indices)))
+                weight.append(np.outer(ra.data, rb.data).ravel())
+                entry.append(np.full(len(ra.indices) * len(rb.indices), 16 * s + 4 * a + b))
         if rows:
             rows, cols = np.concatenate(rows), np.concatenate(cols)
             keys.append(cols * n + rows)
@@ -273,9 +286,21 @@ class FrictionModel:
         if order == 1:
             return Evaluation(energy, g, None, scale, True)
         # the base model's Hessian always has the pattern seen at build time
-        data = np.bincount(self._slot_base, weights=ev.hessian.data, minlength=self._nnz)
-        data += self._expand @ seg["hess"].ravel()
+        base = ev.hessian_form
+        data = np.bincount(self._slot_base, weights=_sparse_part(base).data, minlength=self._nnz)
+        hess = seg["hess"]
+        data += self._expand @ (2 * hess if self.split else hess).ravel()
         H = sp.csc_matrix((data, self._indices, self._indptr), shape=(self.n_dofs, self.n_dofs))
+        if self.split:
+            m = self.n_segments
+            M = np.zeros((m, 2, m, 2))
+            M[np.arange(m), :, np.arange(m), :] = -hess[:, :2, :2]
+            Q, M = self._pairs, M.reshape(2 * m, 2 * m)
+            if isinstance(base, LowRankHessian):
+                Q, M = sp.vstack([base.Q, Q], format="csr"), sla.block_diag(base.M, M)
+            H = LowRankHessian(H, Q, M)
+        elif isinstance(base, LowRankHessian):
+            H = LowRankHessian(H, base.Q, base.M)
         return Evaluation(energy, g, H, scale, True)
 
     def mixed_r(self, x, r, c, seg: dict | None = None) -> np.ndarray:
@@ -287,6 +312,10 @@ class FrictionModel:
         """This model with the rest lengths held at r: what the equilibrium
         Newton minimises."""
         return FixedRest(self, np.asarray(r, dtype=np.float64).copy())
+
+
+def _sparse_part(H) -> sp.csc_matrix:
+    return H.body if isinstance(H, LowRankHessian) else H
 
 
 class FixedRest:

@@ -442,10 +442,10 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
         if loose and np.linalg.norm(ev.gradient) <= LOOSE_TOL * ev.force_scale \
                 and np.max(np.abs(h), initial=0.0) <= LOOSE_TOL * scale:
             return x, delta, None
-        if ev.hessian is None:
+        if ev.hessian_form is None:
             ev = fm.evaluate(x, c, r, 2, seg)
         try:
-            factor = fm.factorizer.factor(ev.hessian)
+            factor = fm.factorizer.factor(ev.hessian_form)
         except NotPositiveDefinite:
             log.debug("joint newton %d: Hessian not positive definite", it)
             return None

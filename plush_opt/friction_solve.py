@@ -213,7 +213,7 @@ def path_sensitivity(fm: FrictionModel, state: FrictionState, factor=None, colum
     that starts or stops slipping) is not in it."""
     x, r, c = state.x, state.rest, state.contraction
     if factor is None:
-        factor = fm.factorizer.factor(fm.evaluate(x, c, r, 2).hessian)
+        factor = fm.factorizer.factor(fm.evaluate(x, c, r, 2).hessian_form)
     mode = state.mode
     active = mode != STICK
     out = np.zeros((fm.n_dofs, fm.n_winches))

@@ -1,6 +1,8 @@
 """Sparse symmetric factorisation: an LDL^T with the symbolic analysis done
 once per sparsity pattern, a positive-definiteness test for free, and a
-cheap smallest-eigenvalue estimate from the factor.
+cheap smallest-eigenvalue estimate from the factor. A matrix given as a
+sparse part plus a low-rank term (:class:`LowRankHessian`) is factored
+through its sparse part and the Woodbury identity.
 
 Two backends, the same results to round-off:
 
@@ -19,7 +21,11 @@ import logging
 import os
 import weakref
 
+import functools
+from dataclasses import dataclass
+
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -72,6 +78,13 @@ CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 # thousand times that is still far below the softest physical mode of the
 # shipped robots (lambda_min / |H| ~ 1e-8).
 PIVOT_MARGIN = 1e-13
+# Eigenvalues of a low-rank term's M below this fraction of its largest are
+# round-off (a slack tendon, a straight segment): left out of the update.
+LOW_RANK_DROP = 1e-14
+# A Woodbury solve is refined once by the residual it leaves when that is
+# above this fraction of the right-hand side (the update loses digits when
+# the sparse part is much softer than the whole: a stiff tendon on a soft body).
+REFINE_ABOVE = 1e-12
 
 
 class NotPositiveDefinite(Exception):
@@ -124,9 +137,13 @@ class Factorizer:
         self._symbolic = None
         self._pattern = None
         self._spare: list = []      # qdldl: solvers of this pattern no live Factor holds
+        self._parts: dict[str, Factorizer] = {}    # low-rank form: its body's, the assembled one's
 
-    def factor(self, H: sp.csc_matrix, shift: float = 0.0) -> "Factor":
-        """LDL^T of ``H + shift I``; raises :class:`NotPositiveDefinite`."""
+    def factor(self, H, shift: float = 0.0) -> "Factor":
+        """LDL^T of ``H + shift I``; raises :class:`NotPositiveDefinite`.
+        ``H``: a CSC matrix, or a :class:`LowRankHessian`."""
+        if isinstance(H, LowRankHessian):
+            return self._factor_low_rank(H, shift)
         pattern = (H.shape, H.indptr.tobytes(), H.indices.tobytes())
         if self._symbolic is None or pattern != self._pattern:
             self._symbolic = None
@@ -177,6 +194,30 @@ class Factorizer:
         weakref.finalize(f, self._give_back, self._pattern, solver).atexit = False
         return f
 
+    def _part(self, name: str) -> "Factorizer":
+        if name not in self._parts:
+            self._parts[name] = Factorizer(self.backend, self.mode)
+        return self._parts[name]
+
+    def _factor_low_rank(self, H: "LowRankHessian", shift) -> "Factor":
+        """Factor of body + shift I, then Woodbury for the low-rank term
+        (which also decides whether H + shift I is positive definite).
+        Where the body alone is not positive definite H is factored
+        assembled, so that certification never depends on the split (with
+        a regularising shift > 0 that is refused instead: the caller tries
+        a larger shift, and a larger shift is all it needs)."""
+        try:
+            body = self._part("body").factor(H.body, shift)
+        except NotPositiveDefinite:
+            if shift > 0:
+                raise       # a regularising shift: a larger one will do
+            full = self._part("assembled")
+            f = full.factor(H.assemble(), shift)
+            self.mode_used = full.mode_used
+            return f
+        self.mode_used = self._part("body").mode_used
+        return Factor(_WoodburySolve(body, H, shift), H, shift)
+
     def _give_back(self, pattern, solver):
         if pattern == self._pattern:
             self._spare.append(solver)
@@ -223,8 +264,99 @@ class _UpperPattern:
         return sp.csc_matrix((data, self._indices, self._indptr), shape=self._shape)
 
 
+@dataclass(frozen=True)
+class LowRankHessian:
+    """H = body + Q^T M Q: a sparse part and a low-rank symmetric term.
+
+    Finite tendon attachments make a tendon's Hessian dense over all its
+    discs' nodes (its stiffness couples every via point with every other),
+    and assembled, those blocks fill the factor. Kept apart, they cost k
+    solves with the factor of the mesh-sparse part and k x k dense algebra
+    per factorisation.
+
+    body : (n, n) CSC, symmetric; it must be positive definite for the
+        low-rank factorisation (else H is factored assembled).
+    Q : (k, n) CSR.
+    M : (k, k) dense, symmetric, of any inertia.
+    """
+
+    body: sp.csc_matrix
+    Q: sp.csr_matrix
+    M: np.ndarray
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.body.shape
+
+    @functools.cached_property
+    def QT(self) -> sp.csr_matrix:
+        return self.Q.T.tocsr()
+
+    def __matmul__(self, v: np.ndarray) -> np.ndarray:
+        return self.body @ v + self.QT @ (self.M @ (self.Q @ v))
+
+    def diagonal(self) -> np.ndarray:
+        return self.body.diagonal() + np.asarray(self.QT.multiply(self.QT @ self.M).sum(axis=1)).ravel()
+
+    def assemble(self) -> sp.csc_matrix:
+        """The whole matrix, sparse (dense over the tendons' nodes), exactly
+        symmetric (the products leave round-off asymmetry; a factorisation
+        reads one triangle, Lanczos assumes symmetry)."""
+        H = self.body + self.Q.T @ sp.csr_matrix(self.M) @ self.Q
+        return ((H + H.T) * 0.5).tocsc()
+
+
+class _WoodburySolve:
+    """Solves with H + shift I = A + G D G^T, A = body + shift I factored,
+    G D G^T = Q^T M Q (M's eigenpairs, those below round-off dropped).
+    With Y = A^-1 G |D|^1/2 and T = sign(D) + |D|^1/2 G^T A^-1 G |D|^1/2:
+    x = A^-1 b - Y T^-1 Y^T b.
+
+    Inertia (Haynsworth, A positive definite): H + shift I has
+    #pos(T) - #pos(D) negative eigenvalues and #zero(T) zero ones, so it is
+    positive definite exactly when T has as many positive eigenvalues as D.
+    T is scaled so that 1 is its size where the update changes little: an
+    eigenvalue below ``PIVOT_MARGIN`` of its largest is a zero (the test
+    of the sparse factor's pivots). Otherwise :class:`NotPositiveDefinite`."""
+
+    def __init__(self, body: "Factor", H: LowRankHessian, shift: float):
+        self._body, self._H, self._shift = body, H, shift
+        lam, V = np.linalg.eigh(H.M)
+        keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
+        D, V = lam[keep], V[:, keep]
+        G = np.asarray(H.QT @ V) * np.sqrt(np.abs(D)) if D.size else np.zeros((H.shape[0], 0))
+        self._Y = body.solve(G).reshape(H.shape[0], -1)
+        T = np.diag(np.sign(D)) + G.T @ self._Y
+        t, self._U = np.linalg.eigh((T + T.T) / 2)
+        if D.size and (np.count_nonzero(t > 0) != np.count_nonzero(D > 0)
+                       or not np.min(np.abs(t)) > PIVOT_MARGIN * np.max(np.abs(t))):
+            raise NotPositiveDefinite(f"low-rank update: {np.count_nonzero(t > 0) - np.count_nonzero(D > 0)} "
+                                      "negative eigenvalue(s), or one near zero")
+        self._t = t
+
+    def _once(self, b: np.ndarray) -> np.ndarray:
+        u = self._body.solve(b)
+        z = self._U @ ((self._U.T @ (self._Y.T @ b)).T / self._t).T
+        return u - self._Y @ z
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        b = np.asarray(b, dtype=np.float64)
+        x = self._once(b)
+        r = b - (self._H @ x + self._shift * x)
+        size = np.linalg.norm(b, axis=0)
+        if np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * size):
+            x = x + self._once(r)
+        return x
+
+
+def _operator(H) -> spla.LinearOperator:
+    n = H.shape[0]
+    return spla.LinearOperator((n, n), matvec=lambda v: H @ v, dtype=np.float64)
+
+
 class Factor:
-    """An LDL^T factor of ``H + shift I``: solve, and the smallest eigenvalue."""
+    """An LDL^T factor of ``H + shift I``: solve, and the smallest eigenvalue.
+    ``H`` is a CSC matrix or a :class:`LowRankHessian`."""
 
     def __init__(self, chol, H, shift):
         self._chol = chol
@@ -239,10 +371,11 @@ class Factor:
         this factor; a few solves). Only meaningful for ``shift == 0``."""
         n = self.H.shape[0]
         if n <= 200:
-            return float(np.linalg.eigvalsh(self.H.toarray())[0])
+            H = self.H.assemble() if isinstance(self.H, LowRankHessian) else self.H
+            return float(np.linalg.eigvalsh(H.toarray())[0])
         op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
         try:
-            vals = spla.eigsh(self.H, k=1, sigma=0.0, which="LM", OPinv=op,
+            vals = spla.eigsh(_operator(self.H), k=1, sigma=0.0, which="LM", OPinv=op,
                               tol=1e-8, maxiter=2000, return_eigenvectors=False,
                               v0=np.ones(n))
         except spla.ArpackNoConvergence as exc:
@@ -262,7 +395,7 @@ class Factor:
             return None
         op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
         try:
-            w, V = spla.eigsh(self.H, k=1, sigma=-self.shift, which="LM", OPinv=op, tol=1e-10,
+            w, V = spla.eigsh(_operator(self.H), k=1, sigma=-self.shift, which="LM", OPinv=op, tol=1e-10,
                               maxiter=1000, v0=np.ones(n))
         except spla.ArpackNoConvergence:
             return None

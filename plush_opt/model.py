@@ -3,7 +3,8 @@
 Each energy term is defined once, as a small CasADi kernel:
 
 * ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates
-  (``psi2`` in plush_opt/elements.py: a 6-node P2 triangle, 12 coordinates);
+  (``psi2``: a 6-node P2 triangle, 12 coordinates; both in
+  plush_opt/elements.py);
 * ``seg``  length of one tendon segment from its 4 end coordinates, and
 * ``U``    the C2 unilateral tendon energy of one tendon from its stretch
   (both in plush_opt/tendon_law.py).
@@ -37,7 +38,8 @@ from . import elements
 from .attachments import TendonPoints
 from .errors import SceneError
 from .kernels import compiled
-from .linalg import Factorizer
+from .hessian_layout import FORMS, HessianLayout
+from .linalg import Factorizer, LowRankHessian
 from .mesh import Mesh
 from .pins import check_pins
 from .scene import Scene
@@ -47,38 +49,11 @@ from .tendon_law import U as U_FN
 log = logging.getLogger(__name__)
 
 
-# --------------------------------------------------------------------------
-# Kernels: the single definition of each energy term.
-# --------------------------------------------------------------------------
-
-def _neo_hookean_kernels():
-    """psi(xe, Dinv, w, mu, lam): w * Psi(F) of one element, and its derivatives.
-
-    ``xe`` = [xa, ya, xb, yb, xc, yc], ``Dinv`` = Dm^-1 column-major,
-    ``w`` = thickness * rest area.
-    """
-    xe = ca.SX.sym("xe", 6)
-    Dinv = ca.SX.sym("Dinv", 4)
-    w = ca.SX.sym("w")
-    mu = ca.SX.sym("mu")
-    lam = ca.SX.sym("lam")
-    d = ca.horzcat(xe[2:4] - xe[0:2], xe[4:6] - xe[0:2])
-    F = d @ ca.reshape(Dinv, 2, 2)
-    J = ca.det(F)
-    logJ = ca.log(J)
-    psi = w * (mu / 2 * (ca.sumsqr(F) - 2) - mu * logJ + lam / 2 * logJ**2)
-    return elements.element_functions("psi", psi, [xe, Dinv, w, mu, lam])
-
-
-_PSI, _PSI_GRAD, _PSI_DERIVS = _neo_hookean_kernels()
-
-
 @functools.lru_cache(maxsize=None)
-def _fast_kernels() -> dict[str, ca.Function]:
-    """The kernels the fast path evaluates, compiled (cached on disk) once
-    per process. The CasADi expression keeps the symbolic kernels, which it
-    differentiates."""
-    return {fn.name(): compiled(fn) for fn in (_PSI, _PSI_GRAD, _PSI_DERIVS, SEG_DERIVS, U_DERIVS)}
+def _tendon_kernels() -> dict[str, ca.Function]:
+    """The tendon kernels the fast path evaluates, compiled (cached on
+    disk) once per process."""
+    return {fn.name(): compiled(fn) for fn in (SEG_DERIVS, U_DERIVS)}
 
 
 def _dofs(nodes: np.ndarray) -> np.ndarray:
@@ -116,6 +91,10 @@ class Mapped:
 class Evaluation:
     """E, grad_x E and the sparse Hessian at one pose.
 
+    ``hessian_form`` is the Hessian as the model built it: a CSC matrix, or
+    a :class:`~plush_opt.linalg.LowRankHessian` (finite attachments); factor
+    that. ``hessian`` is always the assembled CSC matrix (built on first
+    use in the low-rank case).
     ``force_scale`` is the size of the forces in balance (norm of the
     tendon, pin and gravity forces, at least the elastic force of a unit
     strain on one element): residuals are judged relative to it.
@@ -123,9 +102,14 @@ class Evaluation:
 
     energy: float
     gradient: np.ndarray | None
-    hessian: sp.csc_matrix | None
+    hessian_form: sp.csc_matrix | LowRankHessian | None
     force_scale: float
     admissible: bool
+
+    @functools.cached_property
+    def hessian(self) -> sp.csc_matrix | None:
+        form = self.hessian_form
+        return form.assemble() if isinstance(form, LowRankHessian) else form
 
 
 class Model:
@@ -135,6 +119,9 @@ class Model:
     Attributes
     ----------
     scene, mesh : what it was built from.
+    low_rank : True when each tendon's U'' l' l'^T is kept out of the
+        sparse Hessian as a low-rank term (:class:`~plush_opt.linalg.LowRankHessian`);
+    split_segments : True when each segment's coupling of its two ends is too.
     n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
     X : (n_dofs,) rest positions, flat.
     E, grad_E, hess_E, mixed_E : CasADi Functions of (x, c):
@@ -142,7 +129,16 @@ class Model:
         and d2E/dx dc (n_dofs x n_winches).
     """
 
-    def __init__(self, scene: Scene, mesh: Mesh):
+    def __init__(self, scene: Scene, mesh: Mesh, hessian: str = "auto"):
+        """``hessian``: the Hessian's form, one of :data:`HESSIAN_FORMS`:
+        "assembled" (one sparse matrix); "rank_one" (each tendon's
+        U'' l' l'^T apart: with attachment discs it couples every disc of
+        the tendon with every other, densely); "split" (also each segment's
+        coupling of its two ends' discs); "auto": "split" where the
+        attachment discs are large (:data:`SPLIT_MIN_DISC_NODES`), else
+        "assembled"."""
+        if hessian not in HESSIAN_FORMS:
+            raise ValueError(f"hessian={hessian!r}: expected one of {', '.join(HESSIAN_FORMS)}")
         self.scene = scene
         self.mesh = mesh
         self.n_nodes = mesh.n_nodes
@@ -178,7 +174,7 @@ class Model:
         # (n_elems, k) array is exactly that column-major (k, n_elems) buffer
         consts = {1: self._Dinv, 2: self._elem_weight,
                   3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
-        kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
+        kernels = elements.fast_kernels(self.element)
         self._psi = Mapped(kernels["psi_derivs"], self.n_elems, consts)
         self._psi_energy = Mapped(kernels["psi"], self.n_elems, consts)
         self._psi_grad = Mapped(kernels["psi_grad"], self.n_elems, consts)
@@ -203,7 +199,12 @@ class Model:
             self.f_gravity = None
 
         self._build_tendons()
-        self._build_pattern()
+        if hessian == "auto":
+            hessian = "split" if self._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES else "assembled"
+        self._layout = HessianLayout(self.n_dofs, self._elem_dofs, self._pin_dofs, self._points,
+                                     self._seg_dofs, self._tendon_dofs, hessian)
+        self.low_rank, self.split_segments = self._layout.low_rank, self._layout.split
+        self.hessian_nnz = self._layout.nnz
         # symbolic Cholesky analysis, computed on the first factorisation
         # and reused for every Hessian of this model (fixed pattern)
         self.factorizer = Factorizer()
@@ -244,7 +245,7 @@ class Model:
             seglen = np.linalg.norm(Z[self._seg_dofs[:, 2:]] - Z[self._seg_dofs[:, :2]], axis=1)
             self.assembly_length = np.bincount(self._seg_tendon, weights=seglen,
                                                minlength=self.n_tendons) + self.assembly_offset
-            kernels = _fast_kernels()
+            kernels = _tendon_kernels()
             self._seg = Mapped(kernels["seg_derivs"], self.n_segments, {})
             self._U = Mapped(kernels["U_derivs"], self.n_tendons,
                               {1: np.full(self.n_tendons, scene.tendon_stiffness),
@@ -261,59 +262,7 @@ class Model:
                                     + seg_local[:, None] + np.arange(4)[None, :])
         else:
             self.assembly_length = np.zeros(0)
-
-    def _build_pattern(self):
-        """The Hessian's CSC pattern and, for each contribution, its slot in
-        the CSC data array (computed once; each evaluation is a bincount).
-
-        Tendon terms are z-space entries: those between node dofs go to
-        their slot directly; those touching an attachment point spread over
-        its nodes (W^T H_z W) through one sparse matrix ``_spread``."""
-        n = self.n_dofs
-        e = self._elem_dofs
-        k = self._n_elem_dofs
-        rows = [np.repeat(e, k, axis=1).ravel(), self._pin_dofs]
-        cols = [np.tile(e, (1, k)).ravel(), self._pin_dofs]
-        spread = []                              # (entry, row, col, factor) per kind
-        if self.has_tendons:
-            s = self._seg_dofs
-            L = self._tendon_dofs
-            r = np.repeat(L, L.shape[1], axis=1)
-            c = np.tile(L, (1, L.shape[1]))
-            self._outer_valid = ((r >= 0) & (c >= 0)).ravel()
-            self._direct = {}
-            for name, zr, zc in (("seg", np.repeat(s, 4, axis=1).ravel(), np.tile(s, (1, 4)).ravel()),
-                                 ("outer", r.ravel()[self._outer_valid], c.ravel()[self._outer_valid])):
-                direct = (zr < n) & (zc < n)
-                self._direct[name] = None if direct.all() else direct
-                rows.append(zr[direct])
-                cols.append(zc[direct])
-                spread.append(self._points.expand(zr[~direct], zc[~direct]))
-            rows += [x[1] for x in spread]
-            cols += [x[2] for x in spread]
-        sizes = [len(x) for x in rows]
-        rows = np.concatenate(rows)
-        cols = np.concatenate(cols)
-        keys = cols * n + rows
-        unique_keys, slot = np.unique(keys, return_inverse=True)
-        ucols, urows = np.divmod(unique_keys, n)
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=n))])
-        self._indptr = indptr.astype(np.int32)
-        self._indices = urows.astype(np.int32)
-        self.hessian_nnz = len(unique_keys)
-        parts = np.split(slot, np.cumsum(sizes)[:-1])
-        self._slot_elem, self._slot_pin = parts[0], parts[1]
-        if self.has_tendons:
-            self._slot_seg, self._slot_outer = parts[2], parts[3]
-            # the spread entries index the concatenation [seg entries not
-            # direct, outer entries not direct]
-            n_seg = len(s) * 16 - sizes[2]
-            n_all = n_seg + int(self._outer_valid.sum()) - sizes[3]
-            self._spread = sp.csr_matrix(
-                (np.concatenate([spread[0][3], spread[1][3]]),
-                 (np.concatenate([parts[4], parts[5]]),
-                  np.concatenate([spread[0][0], spread[1][0] + n_seg]))),
-                shape=(self.hessian_nnz, n_all))
+            self._tendon_dofs = np.zeros((0, 0), dtype=np.int64)
 
     @functools.cached_property
     def _casadi(self) -> dict:
@@ -324,7 +273,7 @@ class Model:
         x = ca.MX.sym("x", self.n_dofs)
         c = ca.MX.sym("c", self.n_winches)
         xe = ca.reshape(x[self._elem_dofs.ravel().tolist()], self._n_elem_dofs, self.n_elems)
-        psi = (elements.P2_PSI if self.element == "P2" else _PSI).map(self.n_elems, "serial")(
+        psi = elements.KERNELS[self.element][0].map(self.n_elems, "serial")(
             xe, ca.DM(self._Dinv.T), ca.DM(self._elem_weight).T,
             ca.DM.ones(1, self.n_elems) * self.mu, ca.DM.ones(1, self.n_elems) * self.lam)
         E = ca.sum2(psi)
@@ -461,26 +410,13 @@ class Model:
         if order == 1:
             return Evaluation(energy, g, None, force_scale, True)
 
-        data = np.bincount(self._slot_elem, weights=He.ravel(),
-                           minlength=self.hessian_nnz)
-        data += np.bincount(self._slot_pin, weights=np.full(len(self._pin_dofs), self.pin_stiffness),
-                            minlength=self.hessian_nnz)
-        if self.has_tendons:
-            # U' l'' per segment, and U'' l' l'^T per tendon
-            # (in z-space; attachment points spread over their nodes)
-            seg_h = (ts["seg_hess"] * tension[self._seg_tendon][:, None]).ravel()
-            lgrad = self.length_gradient_local(ts["seg_grad"])
-            outer = ts["dtension"][:, None, None] * lgrad[:, :, None] * lgrad[:, None, :]
-            outer = outer.ravel()[self._outer_valid]
-            ds, do = self._direct["seg"], self._direct["outer"]
-            data += np.bincount(self._slot_seg, weights=seg_h if ds is None else seg_h[ds],
-                                minlength=self.hessian_nnz)
-            data += np.bincount(self._slot_outer, weights=outer if do is None else outer[do],
-                                minlength=self.hessian_nnz)
-            if self._points.n_extra:
-                rest = [v[~d] for v, d in ((seg_h, ds), (outer, do)) if d is not None]
-                data += self._spread @ np.concatenate(rest)
-        H = sp.csc_matrix((data, self._indices, self._indptr), shape=(n, n))
+        if not self.has_tendons:
+            H = self._layout.assemble(He.ravel(), self.pin_stiffness)
+        else:
+            # U' l'' per segment, U'' l' l'^T per tendon (z-space)
+            seg_h = ts["seg_hess"] * tension[self._seg_tendon][:, None]
+            H = self._layout.assemble(He.ravel(), self.pin_stiffness, seg_h,
+                                      self.length_gradient_local(ts["seg_grad"]), ts["dtension"])
         return Evaluation(energy, g, H, force_scale, True)
 
     def length_gradient_local(self, seg_grad: np.ndarray) -> np.ndarray:
@@ -546,10 +482,19 @@ class Model:
         """The elastic kernels at (mu, lambda) = (1, 0) and (0, 1)."""
         ones, zeros = np.ones(self.n_elems), np.zeros(self.n_elems)
         base = {1: self._Dinv, 2: self._elem_weight}
-        kernels = elements.p2_fast_kernels() if self.element == "P2" else _fast_kernels()
-        fn = kernels["psi_grad"]
+        fn = elements.fast_kernels(self.element)["psi_grad"]
         return {"mu": Mapped(fn, self.n_elems, {**base, 3: ones, 4: zeros}),
                 "lambda": Mapped(fn, self.n_elems, {**base, 3: zeros, 4: ones})}
+
+
+#: the Hessian forms a Model can build (Model's ``hessian`` argument)
+HESSIAN_FORMS = ("auto",) + FORMS
+# "auto" splits where attachment discs hold at least this many nodes on
+# average: the dense disc blocks then fill the factor more than the update's
+# solves cost (2 per segment, 1 per tendon, each factorisation); below it
+# the assembled factor is as fast or faster (docs/benchmarks.md, "Finite
+# attachments and the factor")
+SPLIT_MIN_DISC_NODES = 10
 
 
 def build_model(scene: Scene, mesh: Mesh) -> Model:

@@ -400,3 +400,30 @@ def test_the_bilevel_solver_itself_refuses_friction():
     p = load(Path(__file__).resolve().parent.parent / "problems" / "gripper_friction.yaml")
     with pytest.raises(SceneError, match="tendons.friction"):
         BilevelSolver(p.model).solve(p.targets)
+
+
+def test_friction_hessian_forms_agree():
+    """On discs large enough for the split form, the friction model's
+    Hessian (segment couplings of two discs kept as low rank) is the
+    assembled one, and the equilibrium at fixed rest lengths is the same."""
+    from pathlib import Path
+
+    from plush_opt.equilibrium import solve_equilibrium
+    from plush_opt.mesh import mesh_for_nodes
+    from plush_opt.model import Model
+    from plush_opt.problem import load
+    scene = load(Path(__file__).resolve().parent.parent / "problems" / "gripper_friction.yaml").scene
+    scene = scene.replace(element="P2")
+    mesh = mesh_for_nodes(scene, 700)
+    split, assembled = (FrictionModel(Model(scene, mesh, hessian=f)) for f in ("split", "assembled"))
+    assert split.split and not assembled.split
+    c = assembled.model.lower + 0.5 * (assembled.model.upper - assembled.model.lower)
+    r = assembled.start_rest_lengths()
+    eq = solve_equilibrium(assembled.fixed(r), c)
+    assert eq.converged
+    H = assembled.evaluate(eq.x, c, r).hessian
+    ev = split.evaluate(eq.x, c, r)
+    assert type(ev.hessian_form).__name__ == "LowRankHessian"
+    assert abs(ev.hessian - H).max() <= 1e-11 * abs(H).max()
+    eq_split = solve_equilibrium(split.fixed(r), c)
+    assert eq_split.converged and np.abs(eq_split.x - eq.x).max() <= 1e-9 * np.abs(eq.x).max()

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plush_opt import model as model_mod
+from plush_opt import elements
 from plush_opt import tendon_law
 from plush_opt.io import scene_from_dict
 from plush_opt.mesh import build_mesh
@@ -118,20 +118,20 @@ def test_element_kernel_alone():
     X = np.array([0, 0, 10, 0.5, 3, 8.0])
     xe = X + rng.normal(scale=0.8, size=6)
     args = (Dinv, 4.0, 0.01, 0.02)
-    psi, g, H = (np.array(v) for v in model_mod._PSI_DERIVS(xe, *args))
-    g_fd = _fd_kernel(lambda x, *a: model_mod._PSI(x, *a), xe, args)
+    psi, g, H = (np.array(v) for v in elements.P1_PSI_DERIVS(xe, *args))
+    g_fd = _fd_kernel(lambda x, *a: elements.P1_PSI(x, *a), xe, args)
     assert_close(g.ravel(), g_fd, 1e-6, "element gradient")
     H_fd = np.empty((6, 6))
     for i in range(6):
         e = np.zeros(6)
         e[i] = 1e-6
-        H_fd[:, i] = (np.array(model_mod._PSI_DERIVS(xe + e, *args)[1]).ravel()
-                      - np.array(model_mod._PSI_DERIVS(xe - e, *args)[1]).ravel()) / 2e-6
+        H_fd[:, i] = (np.array(elements.P1_PSI_DERIVS(xe + e, *args)[1]).ravel()
+                      - np.array(elements.P1_PSI_DERIVS(xe - e, *args)[1]).ravel()) / 2e-6
     assert_close(H, H_fd, 1e-6, "element Hessian")
     # no deformation, no energy; rigid rotation neither
-    assert abs(float(model_mod._PSI(X, *args))) < 1e-14
+    assert abs(float(elements.P1_PSI(X, *args))) < 1e-14
     R = np.array([[np.cos(0.7), -np.sin(0.7)], [np.sin(0.7), np.cos(0.7)]])
-    assert abs(float(model_mod._PSI((X.reshape(3, 2) @ R.T).ravel() + 5, *args))) < 1e-12
+    assert abs(float(elements.P1_PSI((X.reshape(3, 2) @ R.T).ravel() + 5, *args))) < 1e-12
 
 
 def test_segment_kernel_alone():
@@ -255,3 +255,64 @@ def test_gravity_term_only_when_the_scene_has_gravity():
         _, _, model, _ = built(name)
         assert not model.has_gravity and model.f_gravity is None
         assert "mtimes" not in str(model.E)  # no gravity dot product in the expression
+
+
+# -- the Hessian's forms: one matrix, or tendon terms kept as low rank --------
+
+@pytest.fixture(scope="module")
+def large_discs():
+    """The gripper (attachment radius 2) on a P2 mesh fine enough that its
+    discs hold more than SPLIT_MIN_DISC_NODES nodes: one model per form."""
+    from plush_opt.mesh import mesh_for_nodes
+    from plush_opt.model import Model
+    from plush_opt.problem import load
+    from shipped import ROOT
+    scene = load(ROOT / "problems" / "gripper.yaml").scene.replace(element="P2")
+    mesh = mesh_for_nodes(scene, 700)
+    return {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
+
+
+def test_auto_splits_where_the_discs_are_large(large_discs):
+    from plush_opt.model import SPLIT_MIN_DISC_NODES
+    auto = large_discs["auto"]
+    assert auto._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES
+    assert auto.low_rank and auto.split_segments
+    assert not large_discs["assembled"].low_rank
+    assert large_discs["rank_one"].low_rank and not large_discs["rank_one"].split_segments
+    coarse = built("gripper")[2]            # its file mesh: small discs
+    assert coarse._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES and not coarse.low_rank
+
+
+def test_hessian_forms_agree_and_match_differences(large_discs):
+    """Every form gives the same Hessian (assembled) and the same solves,
+    at poses with slack, smoothing-zone and taut tendons; the split form's
+    product with a direction matches central differences of the gradient."""
+    ref = large_discs["assembled"]
+    rng = np.random.default_rng(11)
+    x, c = random_state(ref, rng)
+    H = ref.evaluate(x, c).hessian
+    scale = abs(H).max()
+    v = rng.standard_normal(ref.n_dofs)
+    for form in ("rank_one", "split"):
+        model = large_discs[form]
+        ev = model.evaluate(x, c)
+        assert type(ev.hessian_form).__name__ == "LowRankHessian"
+        assert abs(ev.hessian - H).max() <= 1e-12 * scale, form
+        assert_close(ev.hessian_form @ v, H @ v, 1e-12, f"{form}: H v")
+    model = large_discs["split"]
+    h = 1e-6 * np.sqrt(np.mean(model.rest_area))
+    fd = (model.evaluate(x + h * v, c, 1).gradient - model.evaluate(x - h * v, c, 1).gradient) / (2 * h)
+    assert_close(model.evaluate(x, c).hessian_form @ v, fd, 1e-6, "split: H v against differences")
+
+
+def test_equilibria_agree_across_hessian_forms(large_discs):
+    from plush_opt.equilibrium import solve_equilibrium
+    model = large_discs["assembled"]
+    c = model.lower + 0.6 * (model.upper - model.lower)
+    ref = solve_equilibrium(model, c)
+    assert ref.converged
+    for form in ("rank_one", "split"):
+        eq = solve_equilibrium(large_discs[form], c)
+        assert eq.converged and eq.positive_definite, form
+        assert np.abs(eq.x - ref.x).max() <= 1e-9 * np.abs(ref.x).max(), form
+        assert eq.min_eigenvalue == pytest.approx(ref.min_eigenvalue, rel=1e-6), form

@@ -23,7 +23,7 @@ LAYERS = [
     ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
-    ("model", ("model", "attachments", "pins", "elements", "tendon_law", "objective")),
+    ("model", ("model", "hessian_layout", "attachments", "pins", "elements", "tendon_law", "objective")),
     ("solvers", ("equilibrium", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
     ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),

@@ -153,7 +153,10 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     ev = model.evaluate(eq.x, c)
     row["hessian_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 2), 5 * repeats)
     row["energy_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 0), 5 * repeats)
-    row.update(_factor_times(model, ev.hessian, repeats))
+    form = ev.hessian_form
+    row["hessian_form"] = "low_rank" if model.low_rank else "assembled"
+    row["low_rank_k"] = form.M.shape[0] if model.low_rank else None
+    row.update(_factor_times(model, form, repeats))
     row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
     row["forward_iterations"] = fwd.iterations
     row["forward_ratio"] = (row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))

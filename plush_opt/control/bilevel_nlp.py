@@ -225,7 +225,7 @@ def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) 
     rel = float(np.linalg.norm(ev.gradient) / ev.force_scale)
     out["relative_residual"] = rel
     try:
-        model.factorizer.factor(ev.hessian)
+        model.factorizer.factor(ev.hessian_form)
         # positive definite: the certified pose's eigenvalue is reported instead
         out["positive_definite"] = True
     except NotPositiveDefinite:

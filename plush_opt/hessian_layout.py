@@ -1,0 +1,164 @@
+"""Where each term of the Hessian lands: the CSC pattern of one model and,
+for each contribution, its slot in the data array (computed once per mesh;
+each evaluation is a few bincounts).
+
+Element and pin terms sit on node dofs. Tendon terms are z-space entries
+(z = [x; attachment points], plush_opt/attachments.py): those between node
+dofs go to their slot directly; those touching an attachment point spread
+over its nodes (W^T H_z W) through one sparse matrix.
+
+Three forms (Model's ``hessian`` argument):
+
+- ``assembled``: everything in one sparse matrix;
+- ``rank_one``: each tendon's U'' l' l'^T kept apart as a low-rank term
+  (:class:`~plush_opt.linalg.LowRankHessian`): with attachment discs it
+  couples every disc of the tendon with every other, densely;
+- ``split``: also each segment's coupling of its two ends. A segment's
+  U' l'' is [[K, -K], [-K, K]] on its two ends (K 2 x 2, positive
+  semi-definite); it is written as 2 diag(K, K), which stays in the sparse
+  part (one disc at a time), minus [I; I] K [I, I], which joins the low-rank
+  term. The sparse part then holds no block coupling two discs, and is at
+  least as positive definite as with the whole segment term in it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from .linalg import LowRankHessian
+
+#: the forms (Model's ``hessian`` argument; "auto" is decided by the model)
+FORMS = ("assembled", "rank_one", "split")
+
+
+class HessianLayout:
+    """The Hessian's pattern and scatter slots for one model.
+
+    ``elem_dofs`` (n_elems, k) and ``pin_dofs`` in node dofs; ``points``
+    the model's TendonPoints; ``seg_dofs`` (n_segments, 4) and
+    ``tendon_dofs`` (n_tendons, local, padded with -1) in z-space dofs.
+    """
+
+    def __init__(self, n_dofs: int, elem_dofs, pin_dofs, points, seg_dofs, tendon_dofs, form: str):
+        if form not in FORMS:
+            raise ValueError(f"Hessian form {form!r}: expected one of {', '.join(FORMS)}")
+        self.n = n = n_dofs
+        self.form = form
+        self.low_rank = form != "assembled" and len(seg_dofs) > 0
+        self.split = self.low_rank and form == "split"
+        self._points, self._seg_dofs, self._tendon_dofs = points, seg_dofs, tendon_dofs
+        k = elem_dofs.shape[1]
+        rows = [np.repeat(elem_dofs, k, axis=1).ravel(), pin_dofs]
+        cols = [np.tile(elem_dofs, (1, k)).ravel(), pin_dofs]
+        self._direct, spread = {}, []
+        kinds = self._tendon_kinds() if len(seg_dofs) else []
+        for name, zr, zc in kinds:
+            direct = (zr < n) & (zc < n)
+            self._direct[name] = None if direct.all() else direct
+            rows.append(zr[direct])
+            cols.append(zc[direct])
+            spread.append((len(zr) - int(direct.sum()),) + points.expand(zr[~direct], zc[~direct]))
+        rows += [x[2] for x in spread]
+        cols += [x[3] for x in spread]
+        sizes = [len(x) for x in rows]
+        keys = np.concatenate(cols) * n + np.concatenate(rows)
+        unique_keys, slot = np.unique(keys, return_inverse=True)
+        ucols, urows = np.divmod(unique_keys, n)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=n))]).astype(np.int32)
+        self.indices = urows.astype(np.int32)
+        self.nnz = len(unique_keys)
+        parts = np.split(slot, np.cumsum(sizes)[:-1])
+        self._slot_elem, self._slot_pin = parts[0], parts[1]
+        self._slot = {name: parts[2 + i] for i, (name, _, _) in enumerate(kinds)}
+        self._spread = None
+        if spread:
+            # the spread entries index the concatenation, kind by kind, of
+            # the entries that are not direct
+            offsets = np.cumsum([0] + [x[0] for x in spread])
+            self._spread = sp.csr_matrix(
+                (np.concatenate([x[4] for x in spread]),
+                 (np.concatenate(parts[2 + len(kinds):]),
+                  np.concatenate([x[1] + o for x, o in zip(spread, offsets)]))),
+                shape=(self.nnz, offsets[-1]))
+        if self.low_rank:
+            self._build_low_rank()
+
+    def _tendon_kinds(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
+        """The z-space (row, col) entries of each kind of tendon term."""
+        s, L = self._seg_dofs, self._tendon_dofs
+        r = np.repeat(L, L.shape[1], axis=1).ravel()
+        c = np.tile(L, (1, L.shape[1])).ravel()
+        self._outer_valid = (r >= 0) & (c >= 0)
+        if self.split:
+            ends = np.concatenate([s[:, :2], s[:, 2:]], axis=0)
+            kinds = [("ends", np.repeat(ends, 2, axis=1).ravel(), np.tile(ends, (1, 2)).ravel())]
+        else:
+            kinds = [("seg", np.repeat(s, 4, axis=1).ravel(), np.tile(s, (1, 4)).ravel())]
+        if not self.low_rank:
+            kinds.append(("outer", r[self._outer_valid], c[self._outer_valid]))
+        return kinds
+
+    def _build_low_rank(self):
+        """The low-rank term's constant parts: per segment (when split) the
+        two rows (a_d + b_d) of its ends' coordinates as node coordinates,
+        and where tendon t's length gradient l' sits (one row each)."""
+        A = self._points.A
+        n_z, n_tendons = A.shape[0], self._tendon_dofs.shape[0]
+        m = len(self._seg_dofs) if self.split else 0
+        s = self._seg_dofs[:m]
+        pair = sp.csr_matrix((np.ones(4 * m), (np.tile(np.arange(2 * m), 2),
+                                               np.r_[s[:, :2].ravel(), s[:, 2:].ravel()])),
+                             shape=(2 * m, n_z))
+        self._pairs = (pair @ A).tocsr()
+        self._valid = self._tendon_dofs.ravel() >= 0
+        self._l_rows = np.repeat(np.arange(n_tendons), self._tendon_dofs.shape[1])[self._valid]
+        self._l_cols = self._tendon_dofs.ravel()[self._valid]
+        self._k = k = 2 * m + n_tendons
+        i = 2 * np.arange(m)[:, None, None] + np.arange(2)[None, :, None]
+        j = 2 * np.arange(m)[:, None, None] + np.arange(2)[None, None, :]
+        self._pair_slots = (i * k + j).ravel()
+        t = 2 * m + np.arange(n_tendons)
+        self._tendon_slots = t * k + t
+
+    def assemble(self, elem_hess: np.ndarray, pin_stiffness: float, seg_hess=None, length_grad=None,
+                 dtension=None):
+        """The Hessian from its terms: element Hessians (flat), the pin
+        stiffness, and with tendons each segment's U' l'' (n_segments, 16),
+        each tendon's l' on its local dofs (n_tendons, local) and U''.
+        A CSC matrix, or a LowRankHessian."""
+        data = np.bincount(self._slot_elem, weights=elem_hess, minlength=self.nnz)
+        data += np.bincount(self._slot_pin, weights=np.full(len(self._slot_pin), pin_stiffness),
+                            minlength=self.nnz)
+        if seg_hess is not None:
+            K = seg_hess.reshape(-1, 4, 4)[:, :2, :2]
+            terms = {"ends": np.concatenate([2 * K, 2 * K]).ravel()} if self.split else {"seg": seg_hess.ravel()}
+            if not self.low_rank:
+                outer = dtension[:, None, None] * length_grad[:, :, None] * length_grad[:, None, :]
+                terms["outer"] = outer.ravel()[self._outer_valid]
+            rest = []
+            for name, values in terms.items():
+                d = self._direct[name]
+                data += np.bincount(self._slot[name], weights=values if d is None else values[d],
+                                    minlength=self.nnz)
+                if d is not None:
+                    rest.append(values[~d])
+            if rest:
+                data += self._spread @ np.concatenate(rest)
+        H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+        if not self.low_rank:
+            return H
+        return LowRankHessian(H, *self._low_rank_term(K, length_grad, dtension))
+
+    def _low_rank_term(self, K, length_grad, dtension) -> tuple[sp.csr_matrix, np.ndarray]:
+        """Q and M of the terms kept apart: minus each segment's
+        [I; I] K [I, I] (when split), plus each tendon's U'' l' l'^T."""
+        k, A = self._k, self._points.A
+        lz = sp.csr_matrix((length_grad.ravel()[self._valid], (self._l_rows, self._l_cols)),
+                           shape=(len(dtension), A.shape[0]))
+        Q = sp.vstack([self._pairs, lz @ A], format="csr")
+        M = np.zeros(k * k)
+        if self.split:
+            M[self._pair_slots] = -K.ravel()
+        M[self._tendon_slots] = dtension
+        return Q, M.reshape(k, k)
