@@ -58,6 +58,12 @@ BACKEND = _default_backend()
 # unknowns, 1.2x at 30,000, 1.3-1.4x at 40,000-60,000, slower below
 # (docs/benchmarks.md, "Large meshes"). With the reference BLAS it wins less.
 SUPERNODAL_MIN_DOFS = 25_000
+# ... or above this many Hessian entries per unknown at any size: finite
+# tendon attachments on a mesh that resolves their discs make each tendon's
+# Hessian block dense over all its discs' nodes, and there supernodal wins
+# by far (a P2 gripper at 11,400 unknowns, 700 entries per unknown: 3 s
+# against 65 s). A plain P2 mesh has about 30 per unknown.
+SUPERNODAL_MIN_DENSITY = 150
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 
@@ -133,7 +139,9 @@ class Factorizer:
         if self._symbolic is None:
             self.mode_used = self.mode
             if self.mode == "auto":
-                self.mode_used = "supernodal" if H.shape[0] >= SUPERNODAL_MIN_DOFS else "simplicial"
+                dense = H.nnz >= SUPERNODAL_MIN_DENSITY * H.shape[0]
+                big = H.shape[0] >= SUPERNODAL_MIN_DOFS
+                self.mode_used = "supernodal" if big or dense else "simplicial"
             self._symbolic = analyze(H, mode=self.mode_used, ordering_method="amd")
         try:
             f = self._symbolic.cholesky(H, beta=shift)
