@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from plush_opt.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import Mesh, build_mesh, mesh_for_nodes
+from plush_opt.mesh_rings import disc_area_bound, ring_sides
 
 
 def problem(**mesh):
@@ -267,3 +268,104 @@ def test_explicit_mesh_from_any_orientation_and_order(data):
     np.testing.assert_allclose(
         np.einsum("kj,kjd->kd", mesh.target_beta, mesh.X[mesh.triangles[mesh.target_triangles]]),
         [t["at"] for t in d["targets"]], atol=1e-12)
+
+
+# --- attachment rings (finite tendon attachments as element edges) -------------------
+
+RADIUS = 1.5
+
+
+def ring_scene(max_area=10.0, **extra):
+    d = problem(max_area=max_area)
+    d["tendons"]["attachment_radius"] = RADIUS
+    d.update(extra)
+    return scene_from_dict(d, "bar.yaml")
+
+
+def edge_set(mesh):
+    e = np.sort(mesh.triangles[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2), axis=1)
+    return set(map(tuple, e.tolist()))
+
+
+def ring_vertices(mesh, centre, max_area, file_max_area=10.0):
+    """Nodes of the ring around ``centre`` (None if a ring vertex is no node)."""
+    n = ring_sides(RADIUS, disc_area_bound(RADIUS, max_area, file_max_area))
+    ang = 2 * np.pi * np.arange(n) / n
+    want = np.asarray(centre) + RADIUS * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    d = np.linalg.norm(mesh.X[:, None, :] - want[None], axis=2)
+    if d.min(axis=0).max() > 1e-9:
+        return None
+    return d.argmin(axis=0)
+
+
+# via points of the bar far enough from every edge, hole and forced point
+RING_CENTRES = ([55.5, 2.7], [20.25, 17.125])
+
+
+@pytest.mark.parametrize("max_area", [10.0, 2.5])
+def test_attachment_rings_are_element_edges(max_area):
+    mesh = build_mesh(ring_scene(), max_area=max_area)
+    edges = edge_set(mesh)
+    for c in RING_CENTRES:
+        ring = ring_vertices(mesh, c, max_area)
+        assert ring is not None, c
+        # each side is a chain of mesh edges (the mesher may split a side)
+        for a, b in zip(ring, np.roll(ring, -1)):
+            pa, pb = mesh.X[a], mesh.X[b]
+            ab = pb - pa
+            t = (mesh.X - pa) @ ab / (ab @ ab)
+            off = np.abs((mesh.X[:, 0] - pa[0]) * ab[1] - (mesh.X[:, 1] - pa[1]) * ab[0])
+            on = np.flatnonzero((off <= 1e-9 * np.linalg.norm(ab)) & (t >= -1e-12) & (t <= 1 + 1e-12))
+            chain = on[np.argsort(t[on])]
+            assert chain[0] == a and chain[-1] == b
+            assert all(tuple(sorted(e)) in edges for e in zip(chain[:-1], chain[1:]))
+        # the via point stays the ring's centre node
+        assert np.min(np.linalg.norm(mesh.X - c, axis=1)) < 1e-12
+
+
+@pytest.mark.parametrize("max_area", [10.0, 2.5])
+def test_disc_element_size_follows_the_level(max_area):
+    mesh = build_mesh(ring_scene(), max_area=max_area)
+    bound = disc_area_bound(RADIUS, max_area, 10.0)
+    assert bound < max_area
+    centroid = mesh.X[mesh.triangles].mean(axis=1)
+    for c in RING_CENTRES:
+        inside = np.linalg.norm(centroid - c, axis=1) < RADIUS
+        assert inside.sum() >= 6
+        assert mesh.areas[inside].max() <= bound * (1 + 1e-9)
+    # the disc's bound refines with max_area, so a sweep stays one refinement sequence
+    assert disc_area_bound(RADIUS, max_area / 2, 10.0) == pytest.approx(bound / 2)
+
+
+def test_rings_skipped_near_edges_holes_points_and_other_rings():
+    mesh = build_mesh(ring_scene())
+    # on the outline, on the hole's edge, next to the pinned edge: no ring
+    for c in ([80, 2], [30, 10], [1.3, 2.1], [80, 18]):
+        assert ring_vertices(mesh, c, 10.0) is None, c
+    # a `points` entry inside the disc (plus margin): no ring there
+    d = problem()
+    d["tendons"]["attachment_radius"] = RADIUS
+    d["points"] = [[56.5, 3.2]]
+    m = build_mesh(scene_from_dict(d, "bar.yaml"))
+    assert ring_vertices(m, [55.5, 2.7], 10.0) is None
+    assert ring_vertices(m, [20.25, 17.125], 10.0) is not None
+    # two discs that overlap: neither gets a ring
+    d = problem()
+    d["tendons"]["attachment_radius"] = RADIUS
+    d["tendons"]["list"][1]["path"] = [[80, 18], [22.5, 16.0]]
+    d["points"] = []
+    d["tendons"]["list"][0]["path"][1] = [25.0, 15.5]
+    m = build_mesh(scene_from_dict(d, "bar.yaml"))
+    assert ring_vertices(m, [22.5, 16.0], 10.0) is None
+    assert ring_vertices(m, [25.0, 15.5], 10.0) is None
+
+
+def test_no_rings_without_attachment_radius_and_explicit_mesh_untouched():
+    plain = build_mesh(scene())
+    assert ring_vertices(plain, RING_CENTRES[0], 10.0) is None
+    d = problem()
+    d["tendons"]["attachment_radius"] = RADIUS
+    d["mesh"] = {"nodes": plain.X.tolist(), "triangles": plain.triangles.tolist()}
+    mesh = build_mesh(scene_from_dict(d, "x.yaml"))
+    np.testing.assert_array_equal(mesh.X, plain.X)
+    np.testing.assert_array_equal(mesh.triangles, plain.triangles)
