@@ -12,7 +12,6 @@ from scipy.spatial import cKDTree
 
 from .errors import SceneError, format_point
 from .geometry import diameter, distance_to_segments, locate_in_triangles, ring_area
-from .mesh_rings import attachment_rings, region_seed
 from .scene import POINT_TOL, Scene
 
 # The three edges of a P2 triangle, in the order of its midside nodes.
@@ -235,18 +234,6 @@ def _mesh_outline(scene: Scene, max_area, tol):
         segments += list(zip(chain[:-1], chain[1:]))
     vertices = np.vstack([ring_pts, np.array(extra).reshape(-1, 2)])
 
-    # the boundary of each finite attachment as a ring of segments, with a
-    # finer region inside (mesh_rings.py; skipped where it could cut anything)
-    regions = []
-    for u, poly, area in attachment_rings(scene, forced, rep, ring_pts[seg_a], ring_pts[seg_b],
-                                          max_area):
-        first = len(vertices)
-        vertices = np.vstack([vertices, poly])
-        idx = first + np.arange(len(poly))
-        segments += list(zip(idx.tolist(), np.roll(idx, -1).tolist()))
-        r = float(np.hypot(*(poly[0] - forced[u])))
-        regions.append([*region_seed(forced[u], r, len(poly)), 0.0, area])
-
     min_angle = DEFAULT_MIN_ANGLE if scene.min_angle is None else scene.min_angle
     opts = "pzQ"
     if min_angle > 0:
@@ -254,9 +241,6 @@ def _mesh_outline(scene: Scene, max_area, tol):
     if max_area is not None:
         opts += "a" + _num(max_area)
     pslg = {"vertices": vertices, "segments": np.array(segments, dtype=np.int32)}
-    if regions:
-        opts += "a"                           # a bare 'a': the regions' own area bounds too
-        pslg["regions"] = np.array(regions, dtype=np.float64)
     if scene.holes:
         pslg["holes"] = np.array([_hole_seed(h) for h in scene.holes])
     out = _triangle.triangulate(pslg, opts)

@@ -188,11 +188,7 @@ def test_result_file_round_trip_through_the_spec_checker(element):
     assert "points" not in high
     assert len(low["points"]) == len(low["nodes"]) == 4
     for point, node in zip(low["points"], low["nodes"]):
-        # the via node itself: on P2 a corner function integrates to zero over a
-        # whole triangle, so a disc the mesh resolves (a ring of element edges
-        # around the node) gives the node weight zero, and it is left out
-        assert node in point["nodes"] or element == "P2"
-        assert abs(sum(point["weights"]) - 1) < 1e-12
+        assert node in point["nodes"] and abs(sum(point["weights"]) - 1) < 1e-12
     check_result(doc)
 
 
