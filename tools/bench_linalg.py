@@ -6,7 +6,12 @@ Newton does).
     python tools/bench_linalg.py --modes --element P1 P2 --nodes 5000 10000 15000 20000 --repeats 12
 
 ``--modes`` compares CHOLMOD's simplicial LDL^T and supernodal LL^T instead
-(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``).
+(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``). ``--forms`` compares
+the Hessian's forms with finite attachments (assembled, rank_one, split:
+docs/model.md, "The tendon terms as a low-rank update"; the crossover
+behind ``model.SPLIT_MIN_DISC_NODES``):
+
+    python tools/bench_linalg.py --forms --element P1 P2 --nodes 500 1000 3000 10000 --repeats 12
 
 For each problem and node count: the Hessian at the equilibrium of a
 mid-range contraction, then the time of ``factor(H)`` +
@@ -33,7 +38,7 @@ import scipy.sparse.linalg as spla
 from plush_opt import linalg
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.mesh import mesh_for_nodes
-from plush_opt.model import build_model
+from plush_opt.model import Model, build_model
 from plush_opt.io import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -112,6 +117,36 @@ def bench_modes(name: str, nodes: int, element: str, repeats: int) -> dict:
             **_best_seconds(fns, repeats)}
 
 
+def bench_forms(name: str, nodes: int, element: str, repeats: int) -> dict:
+    """factor + solve of one Hessian in each form, at the same pose."""
+    scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
+    mesh = mesh_for_nodes(scene, nodes)
+    models = {form: Model(scene, mesh, hessian=form) for form in ("assembled", "rank_one", "split")}
+    ref = models["assembled"]
+    c = ref.lower + CONTRACTION_FRACTION * (ref.upper - ref.lower)
+    x = solve_equilibrium(ref, c, options=EquilibriumOptions(eigenvalue=False)).x
+    b = np.random.default_rng(0).standard_normal(ref.n_dofs)
+    forms = {form: m.evaluate(x, c).hessian_form for form, m in models.items()}
+    fns = {form: (lambda fz, H: lambda: fz.factor(H).solve(b))(linalg.Factorizer(), H)
+           for form, H in forms.items()}
+    auto = build_model(scene, mesh)
+    return {"problem": name, "element": element, "nodes": mesh.n_nodes,
+            "disc_nodes": auto._points.mean_disc_nodes(), "k": forms["split"].M.shape[0],
+            "auto": "split" if auto.split_segments else "assembled", **_best_seconds(fns, repeats)}
+
+
+def main_forms(args):
+    print("| problem | element | nodes | nodes per disc | k (split) | assembled (ms) | rank_one (ms) | "
+          "split (ms) | assembled / split | auto |\n|---|---|---|---|---|---|---|---|---|---|")
+    for name in args.problems:
+        for element in args.element:
+            for nodes in args.nodes:
+                r = bench_forms(name, nodes, element, args.repeats)
+                print(f"| {name} | {element} | {r['nodes']} | {r['disc_nodes']:.1f} | {r['k']} | "
+                      f"{1e3 * r['assembled']:.1f} | {1e3 * r['rank_one']:.1f} | {1e3 * r['split']:.1f} | "
+                      f"{r['assembled'] / r['split']:.2f} | {r['auto']} |", flush=True)
+
+
 def main_modes(args):
     print("| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
           "simplicial / supernodal |\n|---|---|---|---|---|---|---|---|")
@@ -130,10 +165,13 @@ def main(argv=None):
     ap.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=PROBLEMS)
     ap.add_argument("--repeats", type=int, default=40)
     ap.add_argument("--modes", action="store_true", help="CHOLMOD simplicial against supernodal")
+    ap.add_argument("--forms", action="store_true", help="the Hessian's forms with finite attachments")
     ap.add_argument("--element", nargs="+", default=["P1"], choices=("P1", "P2"))
     args = ap.parse_args(argv)
     if args.modes:
         return main_modes(args)
+    if args.forms:
+        return main_forms(args)
     backends = [b for b in linalg.BACKENDS if b == "qdldl" or linalg._cholmod_installed()]
     print(f"Python {platform.python_version()}, scipy {_version('scipy')}, "
           f"scikit-sparse {_version('scikit-sparse')}, qdldl {_version('qdldl')}; "
