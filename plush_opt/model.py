@@ -134,9 +134,10 @@ class Model:
         "assembled" (one sparse matrix); "rank_one" (each tendon's
         U'' l' l'^T apart: with attachment discs it couples every disc of
         the tendon with every other, densely); "split" (also each segment's
-        coupling of its two ends' discs); "auto": "split" where the
-        attachment discs are large (:data:`SPLIT_MIN_DISC_NODES`), else
-        "assembled"."""
+        coupling of its two ends' discs); "auto": "assembled" where the
+        attachment discs are small (:data:`SPLIT_MIN_DISC_NODES`), else
+        "split", or "rank_one" where splitting would make the update's rank
+        larger than :data:`SPLIT_MAX_RANK`."""
         if hessian not in HESSIAN_FORMS:
             raise ValueError(f"hessian={hessian!r}: expected one of {', '.join(HESSIAN_FORMS)}")
         self.scene = scene
@@ -200,7 +201,8 @@ class Model:
 
         self._build_tendons()
         if hessian == "auto":
-            hessian = "split" if self._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES else "assembled"
+            hessian = ("assembled" if self._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES else
+                       "split" if 2 * self.n_segments + self.n_tendons <= SPLIT_MAX_RANK else "rank_one")
         self._layout = HessianLayout(self.n_dofs, self._elem_dofs, self._pin_dofs, self._points,
                                      self._seg_dofs, self._tendon_dofs, hessian)
         self.low_rank, self.split_segments = self._layout.low_rank, self._layout.split
@@ -495,6 +497,10 @@ HESSIAN_FORMS = ("auto",) + FORMS
 # the assembled factor is as fast or faster (docs/benchmarks.md, "Finite
 # attachments and the factor")
 SPLIT_MIN_DISC_NODES = 10
+# ... and only up to this rank of the update (2 per segment + 1 per tendon),
+# above which its solves cost more than the segments' fill: "rank_one" then
+# (the hexapod's 84 against the gripper's 36; same table)
+SPLIT_MAX_RANK = 48
 
 
 def build_model(scene: Scene, mesh: Mesh) -> Model:

@@ -272,8 +272,9 @@ def large_discs():
     return {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
 
 
-def test_auto_splits_where_the_discs_are_large(large_discs):
-    from plush_opt.model import SPLIT_MIN_DISC_NODES
+def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
+    from plush_opt import model as model_module
+    from plush_opt.model import SPLIT_MIN_DISC_NODES, Model
     auto = large_discs["auto"]
     assert auto._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES
     assert auto.low_rank and auto.split_segments
@@ -281,6 +282,10 @@ def test_auto_splits_where_the_discs_are_large(large_discs):
     assert large_discs["rank_one"].low_rank and not large_discs["rank_one"].split_segments
     coarse = built("gripper")[2]            # its file mesh: small discs
     assert coarse._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES and not coarse.low_rank
+    # too many segments to split (the update's rank): each tendon's rank-one term only
+    monkeypatch.setattr(model_module, "SPLIT_MAX_RANK", 2 * auto.n_segments + auto.n_tendons - 1)
+    many = Model(auto.scene, auto.mesh)
+    assert many.low_rank and not many.split_segments
 
 
 def test_hessian_forms_agree_and_match_differences(large_discs):
