@@ -17,15 +17,13 @@ forces one; :data:`BACKEND` names the one in use.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import weakref
-
-import functools
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -302,7 +300,7 @@ class LowRankHessian:
         """The whole matrix, sparse (dense over the tendons' nodes), exactly
         symmetric (the products leave round-off asymmetry; a factorisation
         reads one triangle, Lanczos assumes symmetry)."""
-        H = self.body + self.Q.T @ sp.csr_matrix(self.M) @ self.Q
+        H = self.body + self.QT @ sp.csr_matrix(self.M) @ self.Q
         return ((H + H.T) * 0.5).tocsc()
 
 

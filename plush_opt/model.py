@@ -36,7 +36,6 @@ import scipy.sparse as sp
 
 from . import elements
 from .attachments import TendonPoints
-from .errors import SceneError
 from .kernels import compiled
 from .hessian_layout import FORMS, HessianLayout
 from .linalg import Factorizer, LowRankHessian
