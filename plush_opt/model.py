@@ -199,11 +199,8 @@ class Model:
             self.f_gravity = None
 
         self._build_tendons()
-        if hessian == "auto":
-            hessian = ("assembled" if self._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES else
-                       "split" if 2 * self.n_segments + self.n_tendons <= SPLIT_MAX_RANK else "rank_one")
         self._layout = HessianLayout(self.n_dofs, self._elem_dofs, self._pin_dofs, self._points,
-                                     self._seg_dofs, self._tendon_dofs, hessian)
+                                     self._seg_dofs, self._tendon_dofs, self._auto_form(hessian))
         self.low_rank, self.split_segments = self._layout.low_rank, self._layout.split
         self.hessian_nnz = self._layout.nnz
         # symbolic Cholesky analysis, computed on the first factorisation
@@ -211,6 +208,13 @@ class Model:
         self.factorizer = Factorizer()
 
     # -- construction -------------------------------------------------------
+
+    def _auto_form(self, hessian: str) -> str:
+        if hessian != "auto":
+            return hessian
+        if self._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES:
+            return "assembled"
+        return "split" if 2 * self.n_segments + self.n_tendons <= SPLIT_MAX_RANK else "rank_one"
 
     def _build_tendons(self):
         """Segments between consecutive via points. A via point with an
