@@ -214,13 +214,17 @@ def recorded_pose(problem, result_path, options=None):
     where = str(result_path)
     try:
         doc = json.loads(Path(result_path).read_text())
-        if doc.get("format") != FORMAT:
-            raise SceneError(f"{where}: format: expected {FORMAT!r}, got {doc.get('format')!r}")
+        fmt = doc.get("format")
         contraction, nodes = doc["contractions"], np.asarray(doc["nodes"], dtype=np.float64)
         rest_nodes = np.asarray(doc["model"]["rest_nodes"], dtype=np.float64)
+        tendons = list(doc["model"]["tendons"]["list"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise SceneError(f"{where}: not a result file of plush-opt solve ({exc})") from None
+    if fmt != FORMAT:
+        raise SceneError(f"{where}: format: expected {FORMAT!r}, got {fmt!r}")
     model = problem.model
+    if len(tendons) != model.n_tendons:
+        raise SceneError(f"{where}: model.tendons.list: {len(tendons)} tendons, the problem has {model.n_tendons}")
     if doc.get("problem") != model.scene.name:
         raise SceneError(f"{where}: problem: {doc.get('problem')!r}, but {problem.source} is {model.scene.name!r}")
     X = model.X.reshape(-1, 2)
@@ -242,7 +246,8 @@ def recorded_pose(problem, result_path, options=None):
         note = "the equilibrium at the recorded contractions, solved from the recorded pose"
     elif rest is None:
         eq = problem.equilibrium(contraction, options=options)
-        return eq, f"{where} records no segment rest lengths: {FRESH_PATH}"
+        note = f"{where} records no segment rest lengths: {FRESH_PATH}"
+        return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
     else:
         state = _state(fm, x, c, rest, f"recorded in {where}")
         eq = finish(fm, state, np.atleast_2d(c), 1, options)
@@ -251,7 +256,8 @@ def recorded_pose(problem, result_path, options=None):
         note = ("the state recorded (segment rest lengths), its equilibrium solved from the recorded pose"
                 + "".join(f"; recorded state: {v}" for v in check_state(fm, state)))
     moved = float(np.max(np.abs(eq.x - x), initial=0.0))
-    return eq, f"{note}; moved the recorded pose by at most {moved:.2g} (length units)"
+    note += f"; moved the recorded pose by at most {moved:.2g} (length units)"
+    return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
 
 
 def export_result(folder, problem_path, result_path) -> tuple[Path, str, bool]:
