@@ -453,6 +453,7 @@ def cmd_run(args) -> int:
         _run_plot(args.plot, args.log, args.script)
     if code == EXIT_OK and args.vtk:
         say(f"run: writing the poses of the run to {args.vtk}", err=True)
+        from .export import export_run
         export_run(args.vtk, args.log)
     return code
 
@@ -466,18 +467,6 @@ def _run_plot(png: Path, log_path: Path, script: Path) -> None:
     plot_run_log(png, rows, title=f"{Path(script).stem}: commanded and measured contractions")
 
 
-def export_run(folder: Path, log_path: Path) -> Path:
-    """A run log replayed (the pose at each command) as folder/run.pvd."""
-    import json
-
-    from ..problem import load
-    from .export import write_run
-    first = json.loads(Path(log_path).read_text().splitlines()[0])
-    if first.get("kind") != "start" or not first.get("problem"):
-        raise SceneError(f"{log_path}: line 1: not the start line of a run log (no problem named)")
-    return write_run(folder, log_path, load(first["problem"]))
-
-
 # --------------------------------------------------------------------------
 # export
 # --------------------------------------------------------------------------
@@ -486,24 +475,36 @@ def _add_export(sub):
     p = sub.add_parser("export", help="write a run log or a problem's pose for ParaView (meshio)",
                        description="A run log (JSON lines of plush-opt run) becomes DIR/run.pvd, the "
                        "pose at every command; a problem file becomes DIR/pose.vtu, the equilibrium at "
-                       "its contractions (and -c), with displacement, J and tendon tensions.")
+                       "its contractions (and -c) or the pose --result recorded. With friction at via points "
+                       "a run is replayed command by command, a result keeps its segment rest lengths, "
+                       "a problem alone is driven from the start state (see docs/model.md).")
     p.add_argument("source", type=Path, help="a run log (.jsonl) or a problem file (.yaml)")
     p.add_argument("--out", "-o", type=Path, required=True, metavar="DIR", help="output folder")
     p.add_argument("--contraction", "-c", action="append", type=_contraction_arg, default=[],
                    metavar="NAME=VALUE", help="contraction of a winch (problem files); repeatable")
+    p.add_argument("--result", "-r", type=Path, metavar="FILE", help="a result file of this problem: its pose")
     p.set_defaults(func=cmd_export)
 
 
 def cmd_export(args) -> int:
+    from .export import FRESH_PATH, export_result, export_run, write_pose
+    if args.source.suffix == ".json":
+        raise SceneError(f"{args.source}: a result file: export PROBLEM.yaml --result {args.source} --out DIR")
+    if (args.contraction or args.result) and (args.source.suffix == ".jsonl" or args.contraction and args.result):
+        raise SceneError("--contraction, --result: one of them, with a problem file (a run log has its own poses)")
     if args.source.suffix == ".jsonl":
-        if args.contraction:
-            raise SceneError("--contraction: only for a problem file; a run log has its own")
         say(str(export_run(args.out, args.source)))
         return EXIT_OK
-    from .export import write_pose
-    p, eq, doc, _ = solve_problem(args.source, args.contraction, method="forward")
-    say(str(write_pose(args.out / "pose.vtu", p.model, eq.x, eq.contraction)))
-    return EXIT_OK if doc["converged"] else EXIT_SOLVER
+    if args.result is not None:
+        path, note, converged = export_result(args.out, args.source, args.result)
+        say(f"export: {note}", err=True)
+    else:
+        p, eq, doc, _ = solve_problem(args.source, args.contraction, method="forward")
+        if p.friction is not None:
+            say(f"export: {p.source}: {FRESH_PATH}; --result FILE exports a state a solve recorded", err=True)
+        path, converged = write_pose(args.out / "pose.vtu", p.model, eq.x, eq.contraction, eq), doc["converged"]
+    say(str(path))
+    return EXIT_OK if converged else EXIT_SOLVER
 
 
 # --------------------------------------------------------------------------

@@ -6,22 +6,46 @@ polylines (as line segments) in one unstructured grid, with
 
 - point data ``displacement`` (x - X, 3 components, z = 0) and ``rest`` (X),
 - cell data ``J`` (area ratio det F of each triangle; NaN on tendon
-  segments), ``tension`` (N, of the segment's tendon; NaN on triangles)
-  and ``tendon`` (index into the problem's tendon list, -1 on triangles).
+  segments), ``tension`` (N, of the segment: with friction at via points
+  the segments of one tendon pull differently; NaN on triangles) and
+  ``tendon`` (index into the problem's tendon list, -1 on triangles).
 
 A sequence (control iterates, the commands of a run) is a ``.pvd`` file
 naming one ``.vtu`` per frame with its time: ParaView plays it.
+
+With friction at via points a pose depends on the robot's history
+(docs/model.md), so an export never solves "the" pose at some
+contractions without saying which history it assumed:
+
+- a result file (:func:`recorded_pose`) gives the state it recorded: the
+  segment rest lengths, then the equilibrium at those rest lengths from
+  the recorded pose (a result without them: a fresh path from the start
+  state, and the note says so);
+- a run log (:func:`run_frames`) is replayed by driving the robot from
+  command to command in order;
+- a problem file alone gets the pose reached from the scene's start state
+  along a straight path (:data:`FRESH_PATH`, which the command prints).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from ..errors import SceneError, SolverError
+from ..friction_path import STICK, FrictionState, check_state
+from ..friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table
+
 NO_VALUE = np.nan   # a field that does not apply to a cell (J of a tendon segment)
+# The recorded rest nodes must be the problem's mesh: JSON keeps doubles
+# exactly, so only a mesh of another file or size differs beyond this.
+REST_MATCH = 1e-9
+FRESH_PATH = (f"friction at via points: the pose reached from the scene's start state along a straight "
+              f"path to these contractions ({DEFAULT_PATH_STEPS} steps), not any earlier history")
 
 
 def _xyz(points2d: np.ndarray) -> np.ndarray:
@@ -36,13 +60,14 @@ def area_ratio(X: np.ndarray, x: np.ndarray, triangles: np.ndarray) -> np.ndarra
     return signed(x) / signed(X)
 
 
-def pose_mesh(model, x, contraction):
-    """The pose as a :class:`meshio.Mesh` (see the module docstring)."""
+def pose_mesh(model, x, contraction, eq=None):
+    """The pose as a :class:`meshio.Mesh` (see the module docstring); ``eq``
+    the equilibrium it is, whose friction state (if any) gives the segment tensions."""
     import meshio
     X = model.X.reshape(-1, 2)
     xn = np.asarray(x, dtype=np.float64).reshape(-1, 2)
     tri = np.asarray(model.mesh.triangles, dtype=np.int64)
-    tension = model.tendon_state(xn.reshape(-1), contraction)["tension"]
+    tension = [T for seg in segment_table(model, xn, contraction, eq) for T in seg["segment_tensions"]]
     segs, seg_tendon = [], []
     for k, path in enumerate(model.tendon_paths):
         path = np.asarray(path, dtype=np.int64)
@@ -59,29 +84,30 @@ def pose_mesh(model, x, contraction):
 
     cell_data = {
         "J": per_cell(area_ratio(X, xn, tri), np.full(n_seg, NO_VALUE)),
-        "tension": per_cell(np.full(len(tri), NO_VALUE), np.asarray(tension, dtype=np.float64)[seg_tendon]),
+        "tension": per_cell(np.full(len(tri), NO_VALUE), np.asarray(tension, dtype=np.float64)),
         "tendon": per_cell(np.full(len(tri), -1, dtype=np.int64), seg_tendon),
     }
     return meshio.Mesh(_xyz(xn), cells, point_data={"displacement": _xyz(xn - X), "rest": _xyz(X)},
                        cell_data=cell_data)
 
 
-def write_pose(path, model, x, contraction) -> Path:
-    """Write one pose as ``.vtu``; returns its path."""
+def write_pose(path, model, x, contraction, eq=None) -> Path:
+    """Write one pose as ``.vtu`` (``eq`` as in :func:`pose_mesh`); returns its path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    pose_mesh(model, x, contraction).write(path, file_format="vtu")
+    pose_mesh(model, x, contraction, eq).write(path, file_format="vtu")
     return path
 
 
 def write_series(folder, name: str, model, frames) -> Path:
-    """Write ``frames`` (``(time, x, contraction)`` triples) as
-    ``folder/name_0000.vtu``... and the time series ``folder/name.pvd``."""
+    """Write ``frames`` (``(time, x, contraction)`` triples, or with the
+    frame's equilibrium as a fourth) as ``folder/name_0000.vtu``... and the
+    time series ``folder/name.pvd``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     entries = []
-    for k, (t, x, c) in enumerate(frames):
-        vtu = write_pose(folder / f"{name}_{k:04d}.vtu", model, x, c)
+    for k, (t, x, c, *eq) in enumerate(frames):
+        vtu = write_pose(folder / f"{name}_{k:04d}.vtu", model, x, c, *eq)
         entries.append(f'    <DataSet timestep="{float(t)!r}" part="0" file={quoteattr(vtu.name)}/>')
     pvd = folder / f"{name}.pvd"
     pvd.write_text('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
@@ -92,18 +118,19 @@ def write_series(folder, name: str, model, frames) -> Path:
 def write_control(folder, model, eq, history=()) -> list[Path]:
     """The final pose (``pose.vtu``) and, for a control run, its iterates as
     ``trace.pvd`` (time: the iterate's wall time, s)."""
-    files = [write_pose(Path(folder) / "pose.vtu", model, eq.x, eq.contraction)]
+    files = [write_pose(Path(folder) / "pose.vtu", model, eq.x, eq.contraction, eq)]
     if history:
         files.append(write_series(folder, "trace", model,
-                                  [(h.t_wall, h.x, h.contraction) for h in history]))
+                                  [(h.t_wall, h.x, h.contraction, h.equilibrium) for h in history]))
     return files
 
 
 def run_frames(log_path, problem):
-    """``(time, x, contraction)`` of each command in a run log, the pose
-    recomputed (the equilibrium at the commanded contractions, each solve
-    starting from the previous pose)."""
-    from ..errors import SceneError, SolverError
+    """``(time, x, contraction, equilibrium)`` of each command in a run log,
+    the pose recomputed: the equilibrium at the commanded contractions, each
+    solve starting from the previous pose; with friction at via points the
+    robot driven from command to command in order, from the scene's start
+    state driven to the scene's contractions (where the run's planner starts)."""
     rows = []
     for i, line in enumerate(Path(log_path).read_text().splitlines()):
         try:
@@ -113,16 +140,130 @@ def run_frames(log_path, problem):
     commands = [r for r in rows if r.get("event") in ("start", "command") and r.get("commanded")]
     if not commands:
         raise SceneError(f"{log_path}: no commanded contractions (a run log from plush-opt run?)")
-    frames, x = [], None
+    frames, eq = [], None if problem.friction is None else problem.equilibrium()
     for r in commands:
-        eq = problem.equilibrium(r["commanded"], x)
+        if problem.friction is None:
+            eq = problem.equilibrium(r["commanded"], None if eq is None else eq.x)
+        elif eq.converged:
+            eq = drive(problem.friction, eq.friction, problem.contraction_vector(r["commanded"]),
+                       origin="the run's previous command")
         if not eq.converged:
             raise SolverError(f"{log_path}: t = {r['t']} s: no equilibrium at {r['commanded']}: {eq.status}")
-        x = eq.x
-        frames.append((r["t"], eq.x, eq.contraction))
+        frames.append((r["t"], eq.x, eq.contraction, eq))
     return frames
 
 
 def write_run(folder, log_path, problem) -> Path:
     """A run log replayed as ``run.pvd`` (time: the log's t, s)."""
     return write_series(folder, "run", problem.model, run_frames(log_path, problem))
+
+
+def export_run(folder: Path, log_path: Path) -> Path:
+    """A run log replayed (the pose at each command) as folder/run.pvd."""
+    from ..problem import load
+    first = json.loads(Path(log_path).read_text().splitlines()[0])
+    if first.get("kind") != "start" or not first.get("problem"):
+        raise SceneError(f"{log_path}: line 1: not the start line of a run log (no problem named)")
+    return write_run(folder, log_path, load(first["problem"]))
+
+
+def _state(fm, x, c, rest, status: str) -> FrictionState:
+    """A friction state at pose x, contractions c, segment rest lengths
+    ``rest``, every via point taken as stuck (a recorded state has no last step)."""
+    zero = np.zeros(fm.n_interior)
+    return FrictionState(x=x, contraction=c, rest=rest, tension=fm.segments(x, rest, c)["tension"],
+                         wrap=fm.wraps(x)[0], mode=np.full(fm.n_interior, STICK, dtype=np.int8), slip=zero,
+                         converged=True, status=status)
+
+
+def _recorded_rest(doc: dict, fm, where: str) -> np.ndarray | None:
+    """The friction tendons' segment rest lengths recorded in a result
+    document, in the friction model's order; None if it has none."""
+    entries = doc["model"]["tendons"]["list"]
+    scene = fm.model.scene
+    rest = []
+    for t in fm.tendons:
+        key = f"{where}: model.tendons.list[{t}]"
+        entry = entries[t]
+        if entry.get("name") != scene.tendons[t].name:
+            raise SceneError(f"{key}.name: {entry.get('name')!r}, but the problem's tendon {t} is "
+                             f"{scene.tendons[t].name!r}")
+        if "segment_rest_lengths" not in entry:
+            return None
+        if entry.get("friction", scene.tendons[t].friction) != scene.tendons[t].friction:
+            raise SceneError(f"{key}.friction: {entry['friction']!r}, but the problem has "
+                             f"{scene.tendons[t].friction!r}: a result of another friction")
+        r = np.asarray(entry["segment_rest_lengths"], dtype=np.float64)
+        want = int(np.sum(fm.seg_tendon == t))
+        if r.shape != (want,) or not np.all(np.isfinite(r) & (r > 0)):
+            raise SceneError(f"{key}.segment_rest_lengths: expected {want} positive lengths, got {r.tolist()}")
+        rest.append(r)
+    return np.concatenate(rest)
+
+
+def recorded_pose(problem, result_path, options=None):
+    """The pose a result file of ``problem`` recorded, as an equilibrium of
+    the problem: at its recorded segment rest lengths with friction at via
+    points (the robot's state; every point taken as stuck), else at its
+    contractions, each solved from the recorded pose. Returns (equilibrium,
+    note): the note says what was done and how far the solve moved the
+    recorded pose; a friction result without rest lengths gets a fresh
+    path from the start state, and the note says so."""
+    from ..equilibrium import EquilibriumOptions, solve_equilibrium
+    from ..results import FORMAT
+    where = str(result_path)
+    try:
+        doc = json.loads(Path(result_path).read_text())
+        fmt = doc.get("format")
+        contraction, nodes = doc["contractions"], np.asarray(doc["nodes"], dtype=np.float64)
+        rest_nodes = np.asarray(doc["model"]["rest_nodes"], dtype=np.float64)
+        tendons = list(doc["model"]["tendons"]["list"])
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise SceneError(f"{where}: not a result file of plush-opt solve ({exc})") from None
+    if fmt != FORMAT:
+        raise SceneError(f"{where}: format: expected {FORMAT!r}, got {fmt!r}")
+    model = problem.model
+    if len(tendons) != model.n_tendons:
+        raise SceneError(f"{where}: model.tendons.list: {len(tendons)} tendons, the problem has {model.n_tendons}")
+    if doc.get("problem") != model.scene.name:
+        raise SceneError(f"{where}: problem: {doc.get('problem')!r}, but {problem.source} is {model.scene.name!r}")
+    X = model.X.reshape(-1, 2)
+    same = (nodes.shape == X.shape and rest_nodes.shape == X.shape
+            and np.max(np.abs(rest_nodes - X)) <= REST_MATCH * (1 + float(np.max(np.abs(X)))))
+    if not same:
+        raise SceneError(f"{where}: model.rest_nodes: {len(rest_nodes)} nodes, not the mesh of {problem.source} "
+                         f"({len(X)} nodes): a result of another mesh size?")
+    if set(contraction) != set(model.winch_names):
+        raise SceneError(f"{where}: contractions: winches {sorted(contraction)}, the problem has "
+                         f"{sorted(model.winch_names)}")
+    c = problem.contraction_vector(contraction, what=f"{where}: contractions:")
+    x = nodes.reshape(-1)
+    options = options or EquilibriumOptions()
+    fm = problem.friction
+    rest = None if fm is None else _recorded_rest(doc, fm, where)
+    if fm is None:
+        eq = solve_equilibrium(model, c, x, options)
+        note = "the equilibrium at the recorded contractions, solved from the recorded pose"
+    elif rest is None:
+        eq = problem.equilibrium(contraction, options=options)
+        note = f"{where} records no segment rest lengths: {FRESH_PATH}"
+        return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
+    else:
+        state = _state(fm, x, c, rest, f"recorded in {where}")
+        eq = finish(fm, state, np.atleast_2d(c), 1, options)
+        eq = dataclasses.replace(eq, friction=_state(fm, eq.x, c, rest, state.status),
+                                 origin=f"the state recorded in {where}")
+        note = ("the state recorded (segment rest lengths), its equilibrium solved from the recorded pose"
+                + "".join(f"; recorded state: {v}" for v in check_state(fm, state)))
+    moved = float(np.max(np.abs(eq.x - x), initial=0.0))
+    note += f"; moved the recorded pose by at most {moved:.2g} (length units)"
+    return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
+
+
+def export_result(folder, problem_path, result_path) -> tuple[Path, str, bool]:
+    """``folder/pose.vtu`` of the pose a result file of the problem file
+    recorded (:func:`recorded_pose`); returns (its path, the note, converged)."""
+    from ..problem import load
+    problem = load(problem_path)
+    eq, note = recorded_pose(problem, result_path)
+    return write_pose(Path(folder) / "pose.vtu", problem.model, eq.x, eq.contraction, eq), note, eq.converged

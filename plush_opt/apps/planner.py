@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt import problem as problems
-from plush_opt.control.gradient import ControlOptions, Controller
+from plush_opt.control.friction_control import gradient_controller
+from plush_opt.control.gradient import ControlOptions
 from plush_opt.errors import SolverError
 from plush_opt.objective import Targets
 
@@ -77,12 +78,8 @@ class ControlPlanner:
                                  [t.get("weight", 1.0) for t in targets])
         frozen = np.array([n in freeze for n in self.winch_names])
         options = dataclasses.replace(self.options, max_time=max_time)
-        if self.state is None:
-            ctl = Controller(self.problem.model, goal, self.contraction, frozen, self.x, options)
-        else:
-            from plush_opt.control.friction_control import FrictionController
-            ctl = FrictionController(self.problem.model, self.problem.friction, goal, self.contraction,
-                                     frozen, self.state, options)
+        ctl = gradient_controller(self.problem.model, goal, self.contraction, frozen, self.x, options,
+                                  friction=self.problem.friction, start=self.state)
         t0 = time.perf_counter()
         for it in ctl.iterates():
             self.contraction, self.x = it.contraction.copy(), it.x

@@ -13,12 +13,14 @@ from __future__ import annotations
 import dataclasses
 
 from .bilevel import BilevelOptions, BilevelSolver
+from .friction_control import FrictionController, gradient_controller
 from .gradient import ControlOptions, Controller
 from .result import (CONVERGED_REASONS, METHODS, REASONS, ControlIterate, ControlResult,
                      ControlStats)
 
 __all__ = ["BilevelOptions", "BilevelSolver", "CONVERGED_REASONS", "ControlIterate", "ControlOptions",
-           "ControlResult", "ControlStats", "Controller", "METHODS", "REASONS", "run_control"]
+           "ControlResult", "ControlStats", "Controller", "FrictionController", "METHODS", "REASONS",
+           "gradient_controller", "run_control"]
 
 
 def run_control(model, targets, method: str = "reparam", contraction=None, frozen=None, x0=None,
@@ -34,11 +36,6 @@ def run_control(model, targets, method: str = "reparam", contraction=None, froze
     ``start`` the robot's friction state) and the bilevel method refuses."""
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-    if friction is None and method != "bilevel":
-        from ..friction_solve import has_friction
-        if has_friction(model):
-            from ..friction import FrictionModel
-            friction = FrictionModel(model)
     if method == "bilevel":            # BilevelSolver refuses a friction scene itself
         if options is not None and not isinstance(options, BilevelOptions):
             raise TypeError(f"options: the bilevel method takes BilevelOptions, got {type(options).__name__}")
@@ -46,7 +43,5 @@ def run_control(model, targets, method: str = "reparam", contraction=None, froze
     if options is not None and not isinstance(options, ControlOptions):
         raise TypeError(f"options: the gradient loop takes ControlOptions, got {type(options).__name__}")
     options = dataclasses.replace(options or ControlOptions(), bounds=method)
-    if friction is not None:
-        from .friction_control import FrictionController
-        return FrictionController(model, friction, targets, contraction, frozen, start, options).result()
-    return Controller(model, targets, contraction, frozen, x0, options).result()
+    return gradient_controller(model, targets, contraction, frozen, x0, options, friction=friction,
+                               start=start).result()

@@ -31,8 +31,8 @@ from ..equilibrium import EquilibriumOptions
 from ..errors import SceneError
 from ..friction import FrictionModel
 from ..friction_path import FrictionState
-from ..friction_solve import (DEFAULT_PATH_STEPS, FrictionEquilibrium, drive, finish, path_sensitivity,
-                              solve_forward)
+from ..friction_solve import (DEFAULT_PATH_STEPS, FrictionEquilibrium, drive, finish, has_friction,
+                              path_sensitivity, solve_forward)
 from .gradient import ControlOptions, Controller
 
 CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
@@ -47,6 +47,21 @@ def refuse_bilevel(model) -> None:
                       "the path the winches took; use --method reparam or clip (they follow the path)")
 
 
+def gradient_controller(model, targets, contraction=None, frozen=None, x0=None,
+                        options: ControlOptions | None = None, *, friction: FrictionModel | None = None,
+                        start: FrictionState | None = None) -> Controller:
+    """The gradient loop the scene needs: a :class:`FrictionController`
+    with friction at via points (``friction`` its model if built, ``start``
+    the robot's friction state, default the scene's start state driven to
+    ``contraction``; ``x0`` is not used: a pose alone is not a friction
+    state), else a :class:`Controller` (``start`` not used)."""
+    if friction is None and has_friction(model):
+        friction = FrictionModel(model)
+    if friction is None:
+        return Controller(model, targets, contraction, frozen, x0, options)
+    return FrictionController(model, friction, targets, contraction, frozen, start, options)
+
+
 class FrictionController(Controller):
     """:class:`Controller` whose iterates follow the robot's path.
 
@@ -56,6 +71,8 @@ class FrictionController(Controller):
     start : the robot's friction state to start from (default: the scene's
         start state driven to ``contraction`` in ``DEFAULT_PATH_STEPS``).
     """
+
+    follows_friction = True
 
     def __init__(self, model, friction: FrictionModel, targets, contraction=None, frozen=None,
                  start: FrictionState | None = None, options: ControlOptions | None = None):

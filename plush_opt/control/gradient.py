@@ -28,7 +28,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
-from ..errors import SolverError
+from ..errors import SceneError, SolverError
+from ..friction_solve import has_friction
 from ..model import Model
 from ..objective import Targets
 from ..sensitivity import objective_gradient, state_sensitivity
@@ -151,10 +152,23 @@ class Controller:
         (default: the scene's ``frozen`` flags).
     x0 : a starting pose near the equilibrium at ``contraction`` (optional).
     options : :class:`ControlOptions`.
+
+    Raises :class:`~plush_opt.errors.SceneError` for a scene with friction at
+    via points: its poses depend on the robot's history, which this loop
+    does not follow (:class:`~plush_opt.control.friction_control.FrictionController` does).
     """
+
+    #: the loop follows the robot's friction state (only FrictionController)
+    follows_friction = False
 
     def __init__(self, model: Model, targets: Targets, contraction=None, frozen=None,
                  x0=None, options: ControlOptions | None = None):
+        if not self.follows_friction and has_friction(model):
+            raise SceneError(
+                f"{model.scene.source}: tendons.friction: the gradient Controller solves every pose "
+                "without friction, but with friction at via points the pose depends on the path the "
+                "winches took; use FrictionController (plush_opt.control.friction_control) or "
+                "run_control / Problem.control, which choose it")
         self.model = model
         self.options = options or ControlOptions()
         self.targets = targets
@@ -429,7 +443,8 @@ class Controller:
 
 def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,
                   options: ControlOptions | None = None) -> ControlResult:
-    """Run the gradient loop to the end (see :class:`Controller`)."""
+    """Run the gradient loop to the end (see :class:`Controller`; a friction
+    scene is refused: :func:`plush_opt.control.run_control` follows its path)."""
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 

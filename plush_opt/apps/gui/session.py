@@ -21,7 +21,7 @@ import numpy as np
 from ...board.link import BoardLink
 from ...equilibrium import Equilibrium, solve_equilibrium
 from ...errors import SolverError
-from ...friction_solve import DEFAULT_PATH_STEPS, drive, segment_table, solve_forward
+from ...friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table, solve_forward
 from ...objective import Targets
 from .options import GuiOptions
 from .pacing import BoardPacer
@@ -33,6 +33,9 @@ TIMES_KEPT = 100_000
 # iterate clock times kept for the status line's rate (more than the timer
 # can produce within GuiOptions.rate_window)
 RATE_TIMES_KEPT = 128
+# where a friction state on screen was driven from (slider moves and loop
+# iterates alike: each is reached from the pose shown before it)
+SHOWN_BEFORE = "the pose on screen before"
 
 
 class AnytimeLoop:
@@ -42,6 +45,11 @@ class AnytimeLoop:
     step from the pose on screen; a target or frozen-set change is passed
     on to it (the loop continues from the current pose), or, once its
     history holds ``max_history`` iterates, the next step starts a fresh one.
+    With friction at via points (``friction``, the scene's
+    :class:`~plush_opt.friction.FrictionModel`) it is a
+    :class:`~plush_opt.control.friction_control.FrictionController` started
+    from the robot's friction state on screen: every iterate is a state the
+    robot reaches when driven through the iterates in order.
 
     Attributes
     ----------
@@ -51,8 +59,9 @@ class AnytimeLoop:
     iterate_seconds : wall time of each iterate taken (for timing tables).
     """
 
-    def __init__(self, model, options, max_history: int):
+    def __init__(self, model, options, max_history: int, friction=None):
         self.model = model
+        self.friction = friction
         self.options = options
         self.max_history = max_history
         self.controller = None
@@ -86,16 +95,17 @@ class AnytimeLoop:
         if self.controller is not None:
             self.controller.set_frozen(i, frozen)
 
-    def step(self, targets: Targets, contraction, frozen, x):
-        """Take one iterate (starting a controller at the given state if
-        there is none). Returns it, or None when the loop has stopped
-        (``finished``). Raises SolverError (after dropping the controller)
-        when the loop cannot start."""
-        from ...control.gradient import Controller
+    def step(self, targets: Targets, contraction, frozen, shown: Equilibrium):
+        """Take one iterate (starting a controller if there is none at the
+        equilibrium ``shown``: its pose, with friction its friction state).
+        Returns it, or None when the loop has stopped (``finished``). Raises
+        SolverError (after dropping the controller) when the loop cannot start."""
+        from ...control.friction_control import gradient_controller
         try:
             if self.controller is None:
-                self.controller = Controller(self.model, targets, contraction, frozen, x0=x,
-                                             options=self.options)
+                self.controller = gradient_controller(
+                    self.model, targets, contraction, frozen, shown.x, self.options, friction=self.friction,
+                    start=getattr(shown, "friction", None))
             if self._iterates is None:
                 self._iterates = self.controller.iterates()
             t0 = time.perf_counter()
@@ -163,7 +173,7 @@ class PosingSession:
         self.closed = False
         self.message = ("loop held: press space or drag a target to run it"
                         if self.held else "drag the body to pose it")
-        self.loop = AnytimeLoop(self.model, self.control_options, self.options.max_history)
+        self.loop = AnytimeLoop(self.model, self.control_options, self.options.max_history, problem.friction)
         self.forward_solves = 0
         self.iterates_shown = 0
         self.iterate_clock = deque(maxlen=RATE_TIMES_KEPT)
@@ -352,7 +362,7 @@ class PosingSession:
     def _step(self):
         t0 = time.perf_counter()
         try:
-            it = self.loop.step(self.targets, self.contraction, self.frozen, self.x)
+            it = self.loop.step(self.targets, self.contraction, self.frozen, self.equilibrium)
         except SolverError as exc:
             self.held = True
             self.message = f"loop cannot start: {exc}"
@@ -380,14 +390,13 @@ class PosingSession:
         """The pose on screen with its smallest Hessian eigenvalue, which a
         saved result reports. The loop and the forward solves skip it (it
         costs a few solves), so it is computed here, once per pose: by one
-        Newton check from the pose, unless the equilibrium already has it."""
+        Newton check from the pose (:func:`certify_pose`), unless it has it."""
         eq = self.equilibrium
         if eq.min_eigenvalue is not None:
             return eq
         if self._certified is None or self._certified[0] is not eq:
-            options = dataclasses.replace(self.equilibrium_options, eigenvalue=True)
             t0 = time.perf_counter()
-            checked = solve_equilibrium(self.model, self.contraction, self.x, options)
+            checked = certify_pose(self.model, eq, self.equilibrium_options)
             self.solve_seconds += time.perf_counter() - t0
             self._certified = (eq, checked)
         return self._certified[1]
@@ -414,6 +423,17 @@ class PosingSession:
         self.loop.close()
         if self.pacer is not None:
             self.pacer.stop()
+
+
+def certify_pose(model, eq: Equilibrium, options) -> Equilibrium:
+    """``eq`` checked by one Newton solve from its pose, with the smallest
+    Hessian eigenvalue; with friction at via points at its state's segment
+    rest lengths (the pose stays the one the robot's history reached)."""
+    options = dataclasses.replace(options, eigenvalue=True)
+    if getattr(eq, "friction", None) is None:
+        return solve_equilibrium(model, eq.contraction, eq.x, options)
+    return dataclasses.replace(finish(eq.friction_model, eq.friction, eq.path, eq.steps_done, options),
+                               origin=SHOWN_BEFORE)
 
 
 def rest_point(model, triangle: int, beta) -> np.ndarray:
@@ -515,7 +535,7 @@ def forward_pose(problem, contraction, x0, shown: Equilibrium | None, options) -
     state = getattr(shown, "friction", None)
     if state is None:
         return solve_forward(problem.friction, contraction, DEFAULT_PATH_STEPS, equilibrium=options)
-    return drive(problem.friction, state, contraction, equilibrium=options, origin="the pose on screen before")
+    return drive(problem.friction, state, contraction, equilibrium=options, origin=SHOWN_BEFORE)
 
 
 def tension_text(session: PosingSession) -> str:
