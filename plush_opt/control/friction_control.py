@@ -80,11 +80,12 @@ class FrictionController(Controller):
         self.fm = friction
         self.state = start           # the robot's state at the current iterate
 
-    def _solve(self, c, x0) -> FrictionEquilibrium:
+    def _solve(self, c, x0, options: EquilibriumOptions | None = None) -> FrictionEquilibrium:
+        options = options or self.options.equilibrium
         if self.state is None:       # the first solve: from the scene's start state
-            eq = solve_forward(self.fm, c, DEFAULT_PATH_STEPS, equilibrium=self.options.equilibrium)
+            eq = solve_forward(self.fm, c, DEFAULT_PATH_STEPS, equilibrium=options)
         else:
-            eq = drive(self.fm, self.state, c, equilibrium=self.options.equilibrium, origin=CONTROL_ORIGIN)
+            eq = drive(self.fm, self.state, c, equilibrium=options, origin=CONTROL_ORIGIN)
         self._solves += 1
         self._newton += eq.iterations
         return eq
