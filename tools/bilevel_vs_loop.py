@@ -26,6 +26,7 @@ from plush_opt.accuracy import base_area
 from plush_opt.apps.compare.settings import LARGE_SHORTFALL
 from plush_opt.control import BilevelOptions, run_control
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.friction_solve import has_friction
 from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.problem import from_scene
@@ -70,8 +71,8 @@ def main() -> None:
         scene = load_scene(f)
         for level, area in _areas(scene):
             p = from_scene(scene, max_area=area)
-            if p.targets.n_targets == 0:
-                break
+            if p.targets.n_targets == 0 or has_friction(p.model):
+                break          # no targets, or friction: bilevel refuses a pose that depends on the path
             # CHOLMOD's symbolic analysis is model set-up, paid by neither method
             solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
             (rl, tl), (rb, tb) = _timed(p, "reparam", args.repeat), _timed(p, "bilevel", args.repeat)

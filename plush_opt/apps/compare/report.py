@@ -358,8 +358,9 @@ def accuracy_section(problem, runs) -> list[str]:
          f"error measured is {_fmt(min(measured, default=math.nan), '.3g')}"
          + ("." if checks and measured and max(checks) <= REFERENCE_MARGIN * min(measured) else
             f": **the reference is not converged to {1 / REFERENCE_MARGIN:g} x below the errors "
-            "measured** (point loads at the tendons' via points, docs/accuracy.md); errors below "
-            "its check difference are not resolved."), "",
+            "measured** (the check level is the sweep's finest P2 mesh, so the smallest error "
+            "measured is at most the check itself; docs/accuracy.md); errors below its check "
+            "difference are not resolved."), "",
          "Least solve time (s) of a stable run whose model error is at most the column's "
          "(default tolerances, any mesh; '-' = no run that accurate):", "",
          "| method | element | " + " | ".join(f"<= {e:g}" for e in ERROR_LEVELS) + " |",
