@@ -287,7 +287,8 @@ def _step(fm, state, c, options) -> FrictionState:
 def _predict(fm, state, c, mode, r_pred):
     """Start of a step's Newton: the last step's pose change and slips,
     scaled to this step (a secant predictor), where this step goes on the
-    way the last one went; the state's pose and no slip otherwise. (The
+    way the last one went; the last step's pose change retraced, without
+    slips, where it turns back; the state's pose otherwise. (The
     tangent from the state's factor was tried: with tendons this much
     stiffer than the body its linear response overshoots, and Newton took
     twice as many iterations.)"""
@@ -296,8 +297,15 @@ def _predict(fm, state, c, mode, r_pred):
         return rest
     dc = c - state.contraction
     s = float(dc @ state.step_dc) / float(state.step_dc @ state.step_dc)
-    if s <= 0:
+    if s == 0:
         return rest
+    if s < 0:
+        # the path turns back: every point sticks, and the pose retraces the
+        # last step (the loading pose there is near, the hysteresis small;
+        # from the state's own pose the slackened tendon lets the body spring
+        # back through indefinite Hessians: 20-30 regularised iterations)
+        x = state.x + max(s, -1.0) * state.step_dx
+        return (x, rest[1]) if fm.model.admissible(x) else rest
     delta = np.where((mode != STICK) & (state.slip * mode > 0), s * state.slip, 0.0)
     x = state.x + s * state.step_dx
     if np.any(r_pred + fm.D @ delta <= 0) or not fm.model.admissible(x):
