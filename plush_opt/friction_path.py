@@ -270,9 +270,11 @@ def _step(fm, state, c, options) -> FrictionState:
             x, delta, eq = solved
             new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
         if reset.any():
-            # slips undone: the pose at the step's start fits the rest lengths better
+            # slips undone; the pose stays where this round's solve put it
+            # (near the step's equilibrium: the step's start pose was tried,
+            # and from it the next round met indefinite Hessians, 29
+            # factorisations of a nested solve at the gripper's turn)
             delta[reset] = 0.0
-            x = state.x
         if np.array_equal(new, mode) and not reset.any():
             result = _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, True, "converged", eq)
             problems = check_state(fm, result, options.check_tol, options.stick_tol)
