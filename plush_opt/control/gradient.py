@@ -383,7 +383,7 @@ class Controller:
                 self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
                 return None
             x0 = self._predict(c_t)
-            eq = self._solve(c_t, x0, self._trial_options())
+            eq = self._solve(c_t, x0, _trial_options(self.options))
             if eq.converged and self.targets.value(eq.x) < last.objective:
                 self._accept(xi_t, eq, last)
                 if gn:
@@ -399,10 +399,6 @@ class Controller:
     def _at_bounds_status(self, last: Iterate) -> str:
         return ("stationary: every free winch is held at a bound"
                 + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
-
-    def _trial_options(self) -> EquilibriumOptions:
-        eo = self.options.equilibrium
-        return dataclasses.replace(eo, max_iterations=min(eo.max_iterations, self.options.trial_newton))
 
     def _predict(self, c_t):
         """First-order predictor x + dx/dc (c_t - c), if it is admissible."""
@@ -489,6 +485,12 @@ def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
     if opts.max_time is not None and last.t_wall >= opts.max_time:
         return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
     return None
+
+
+def _trial_options(options: ControlOptions) -> EquilibriumOptions:
+    """A line-search trial's equilibrium options: at most ``trial_newton`` iterations."""
+    eo = options.equilibrium
+    return dataclasses.replace(eo, max_iterations=min(eo.max_iterations, options.trial_newton))
 
 
 def _direction(ctl: "Controller", last: Iterate, mu: float) -> np.ndarray:
