@@ -28,6 +28,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 
 from .kernels import compiled
+from .hessian_layout import pair_blocks, segment_pairs
 from .linalg import Factorizer, LowRankHessian
 from .model import Evaluation, Model, Mapped
 from .tendon_law import U_DERIVS
@@ -190,11 +191,7 @@ class FrictionModel:
         blocks = ([(a, b) for a in (0, 1) for b in (0, 1)] + [(a, b) for a in (2, 3) for b in (2, 3)]
                   if self.split else [(a, b) for a in range(4) for b in range(4)])
         if self.split:
-            pair = sp.csr_matrix((np.ones(4 * self.n_segments),
-                                  (np.tile(np.arange(2 * self.n_segments), 2),
-                                   np.r_[self.seg_p[:, :2].ravel(), self.seg_p[:, 2:].ravel()])),
-                                 shape=(2 * self.n_segments, W.shape[0]))
-            self._pairs = (pair @ W).tocsr()
+            self._pairs = segment_pairs(self.seg_p, W)
         for s in range(self.n_segments):
             for a, b in blocks:
                 ra, rb = W.getrow(self.seg_p[s, a]), W.getrow(self.seg_p[s, b])
@@ -292,10 +289,7 @@ class FrictionModel:
         data += self._expand @ (2 * hess if self.split else hess).ravel()
         H = sp.csc_matrix((data, self._indices, self._indptr), shape=(self.n_dofs, self.n_dofs))
         if self.split:
-            m = self.n_segments
-            M = np.zeros((m, 2, m, 2))
-            M[np.arange(m), :, np.arange(m), :] = -hess[:, :2, :2]
-            Q, M = self._pairs, M.reshape(2 * m, 2 * m)
+            Q, M = self._pairs, pair_blocks(hess[:, :2, :2])
             if isinstance(base, LowRankHessian):
                 Q, M = sp.vstack([base.Q, Q], format="csr"), sla.block_diag(base.M, M)
             H = LowRankHessian(H, Q, M)

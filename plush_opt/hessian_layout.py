@@ -32,6 +32,25 @@ from .linalg import LowRankHessian
 FORMS = ("assembled", "rank_one", "split")
 
 
+def segment_pairs(seg_dofs: np.ndarray, A: sp.csr_matrix) -> sp.csr_matrix:
+    """Q's rows of split segments: per segment (ends' coordinates ``seg_dofs``
+    (m, 4) in the space A maps from node dofs) the two rows a_d + b_d."""
+    m = len(seg_dofs)
+    pair = sp.csr_matrix((np.ones(4 * m), (np.tile(np.arange(2 * m), 2),
+                                           np.r_[seg_dofs[:, :2].ravel(), seg_dofs[:, 2:].ravel()])),
+                         shape=(2 * m, A.shape[0]))
+    return (pair @ A).tocsr()
+
+
+def pair_blocks(K: np.ndarray) -> np.ndarray:
+    """M's block of split segments: minus each segment's K (m, 2, 2) on the
+    diagonal, (2m, 2m)."""
+    m = len(K)
+    M = np.zeros((m, 2, m, 2))
+    M[np.arange(m), :, np.arange(m), :] = -K
+    return M.reshape(2 * m, 2 * m)
+
+
 class HessianLayout:
     """The Hessian's pattern and scatter slots for one model.
 
@@ -103,23 +122,12 @@ class HessianLayout:
         """The low-rank term's constant parts: per segment (when split) the
         two rows (a_d + b_d) of its ends' coordinates as node coordinates,
         and where tendon t's length gradient l' sits (one row each)."""
-        A = self._points.A
-        n_z, n_tendons = A.shape[0], self._tendon_dofs.shape[0]
+        n_tendons = self._tendon_dofs.shape[0]
         m = len(self._seg_dofs) if self.split else 0
-        s = self._seg_dofs[:m]
-        pair = sp.csr_matrix((np.ones(4 * m), (np.tile(np.arange(2 * m), 2),
-                                               np.r_[s[:, :2].ravel(), s[:, 2:].ravel()])),
-                             shape=(2 * m, n_z))
-        self._pairs = (pair @ A).tocsr()
+        self._pairs = segment_pairs(self._seg_dofs[:m], self._points.A)
         self._valid = self._tendon_dofs.ravel() >= 0
         self._l_rows = np.repeat(np.arange(n_tendons), self._tendon_dofs.shape[1])[self._valid]
         self._l_cols = self._tendon_dofs.ravel()[self._valid]
-        self._k = k = 2 * m + n_tendons
-        i = 2 * np.arange(m)[:, None, None] + np.arange(2)[None, :, None]
-        j = 2 * np.arange(m)[:, None, None] + np.arange(2)[None, None, :]
-        self._pair_slots = (i * k + j).ravel()
-        t = 2 * m + np.arange(n_tendons)
-        self._tendon_slots = t * k + t
 
     def assemble(self, elem_hess: np.ndarray, pin_stiffness: float, seg_hess=None, length_grad=None,
                  dtension=None):
@@ -153,12 +161,11 @@ class HessianLayout:
     def _low_rank_term(self, K, length_grad, dtension) -> tuple[sp.csr_matrix, np.ndarray]:
         """Q and M of the terms kept apart: minus each segment's
         [I; I] K [I, I] (when split), plus each tendon's U'' l' l'^T."""
-        k, A = self._k, self._points.A
+        A, m2 = self._points.A, self._pairs.shape[0]
         lz = sp.csr_matrix((length_grad.ravel()[self._valid], (self._l_rows, self._l_cols)),
                            shape=(len(dtension), A.shape[0]))
         Q = sp.vstack([self._pairs, lz @ A], format="csr")
-        M = np.zeros(k * k)
+        M = np.diag(np.r_[np.zeros(m2), dtension])
         if self.split:
-            M[self._pair_slots] = -K.ravel()
-        M[self._tendon_slots] = dtension
-        return Q, M.reshape(k, k)
+            M[:m2, :m2] = pair_blocks(K)
+        return Q, M
