@@ -136,28 +136,32 @@ def bench_forms(name: str, nodes: int, element: str, repeats: int) -> dict:
             **_best_seconds(fns, repeats)}
 
 
-def main_forms(args):
-    print("| problem | element | nodes | nodes per disc | k (split) | assembled (ms) | rank_one (ms) | "
-          "split (ms) | assembled / split | auto |\n|---|---|---|---|---|---|---|---|---|---|")
+def _table(args, bench, header: str, row) -> None:
+    """One Markdown row per problem, element and node count of ``args``:
+    ``bench(name, nodes, element, repeats)`` measured, ``row(result)`` printed."""
+    print(header + "\n|" + "---|" * header.count(" | ") + "---|")
     for name in args.problems:
         for element in args.element:
             for nodes in args.nodes:
-                r = bench_forms(name, nodes, element, args.repeats)
-                print(f"| {name} | {element} | {r['nodes']} | {r['disc_nodes']:.1f} | {r['k']} | "
+                print(row(bench(name, nodes, element, args.repeats)), flush=True)
+
+
+def main_forms(args):
+    _table(args, bench_forms,
+           "| problem | element | nodes | nodes per disc | k (split) | assembled (ms) | rank_one (ms) | "
+           "split (ms) | assembled / split | auto |",
+           lambda r: (f"| {r['problem']} | {r['element']} | {r['nodes']} | {r['disc_nodes']:.1f} | {r['k']} | "
                       f"{1e3 * r['assembled']:.1f} | {1e3 * r['rank_one']:.1f} | {1e3 * r['split']:.1f} | "
-                      f"{r['assembled'] / r['split']:.2f} | {r['auto']} |", flush=True)
+                      f"{r['assembled'] / r['split']:.2f} | {r['auto']} |"))
 
 
 def main_modes(args):
-    print("| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
-          "simplicial / supernodal |\n|---|---|---|---|---|---|---|---|")
-    for name in args.problems:
-        for element in args.element:
-            for nodes in args.nodes:
-                r = bench_modes(name, nodes, element, args.repeats)
-                print(f"| {name} | {element} | {r['nodes']} | {r['dofs']} | {r['nnz']} | "
+    _table(args, bench_modes,
+           "| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
+           "simplicial / supernodal |",
+           lambda r: (f"| {r['problem']} | {r['element']} | {r['nodes']} | {r['dofs']} | {r['nnz']} | "
                       f"{1e3 * r['simplicial']:.1f} | {1e3 * r['supernodal']:.1f} | "
-                      f"{r['simplicial'] / r['supernodal']:.2f} |", flush=True)
+                      f"{r['simplicial'] / r['supernodal']:.2f} |"))
 
 
 def main(argv=None):
