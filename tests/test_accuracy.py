@@ -9,7 +9,6 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
 
 from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, choose_mesh, default_levels,
                                 estimate_errors, probe_contractions, sweep, transfer_pose)
@@ -19,7 +18,7 @@ from plush_opt.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.mesh import build_mesh
 from plush_opt.problem import load
-from shipped import ROOT
+from shipped import ROOT, with_max_area
 
 CANTILEVER = ROOT / "problems" / "cantilever.yaml"
 TIP = np.array([[200.0, 0.0]])
@@ -31,11 +30,7 @@ def _leg():
 
 def _coarse_leg(tmp_path, max_area=24.0):
     """The leg with a coarser own mesh, so that a whole level sweep is cheap."""
-    doc = yaml.safe_load((ROOT / "problems" / "hexapod_leg.yaml").read_text())
-    doc["mesh"]["max_area"] = max_area
-    path = tmp_path / "leg.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return with_max_area(ROOT / "problems" / "hexapod_leg.yaml", tmp_path, max_area, "leg.yaml")
 
 
 def run(*args):

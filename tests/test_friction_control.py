@@ -14,11 +14,10 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
 
 from plush_opt import load
 from plush_opt.errors import SceneError
-from shipped import ROOT
+from shipped import ROOT, with_max_area
 
 FRICTION = ROOT / "problems" / "gripper_friction.yaml"
 COARSE = 150.0          # max_area (mm^2): ~140 nodes, enough for the stick/slip paths
@@ -34,11 +33,7 @@ def friction_problem():
 @pytest.fixture
 def coarse_file(tmp_path):
     """gripper_friction.yaml with the coarse mesh, for the command line."""
-    doc = yaml.safe_load(FRICTION.read_text())
-    doc["mesh"]["max_area"] = COARSE
-    path = tmp_path / "gripper_friction.yaml"
-    path.write_text(yaml.safe_dump(doc))
-    return path
+    return with_max_area(FRICTION, tmp_path, COARSE, "gripper_friction.yaml")
 
 
 def run(*args):
