@@ -189,7 +189,9 @@ def check_state(fm: FrictionModel, state: FrictionState, tol: float | None = Non
     return out
 
 
-def _state(fm, x, r, c, mode, slip, converged, status, eq=None) -> FrictionState:
+def state_at(fm, x, r, c, mode, slip, converged, status, eq=None) -> FrictionState:
+    """The friction state at pose x, segment rest lengths r, contractions c,
+    modes and slips as given (its tensions and wrap angles computed)."""
     seg = fm.segments(x, r, c)
     theta, _ = fm.wraps(x)
     return FrictionState(x=np.asarray(x, dtype=np.float64).copy(), contraction=np.asarray(c, dtype=np.float64).copy(),
@@ -203,7 +205,7 @@ def start_state(fm: FrictionModel, options: FrictionOptions | None = None) -> Fr
     length shared in proportion to its segments' lengths in X, and the
     equilibrium reached from X with those rest lengths."""
     zero = np.zeros(fm.n_winches)
-    at_rest = _state(fm, fm.X, fm.start_rest_lengths(), zero, np.zeros(fm.n_interior),
+    at_rest = state_at(fm, fm.X, fm.start_rest_lengths(), zero, np.zeros(fm.n_interior),
                      np.zeros(fm.n_interior), True, "rest")
     return step(fm, at_rest, zero, options)
 
@@ -254,19 +256,19 @@ def _step(fm, state, c, options) -> FrictionState:
     for _ in range(options.max_mode_changes):
         key = mode.tobytes() + (delta != 0).tobytes()    # stuck points may hold a slip
         if key in seen:
-            return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
+            return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                           "the stick/slip modes cycle without settling")
         seen.add(key)
         solved = _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=True)
         if isinstance(solved, str):
-            return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
+            return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
         x, delta, eq = solved
         new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
         if eq is None and np.array_equal(new, mode) and not reset.any():
             # these modes hold: now to the full tolerance (a step or two)
             solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
             if isinstance(solved, str):
-                return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
+                return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
             x, delta, eq = solved
             new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
         if reset.any():
@@ -276,13 +278,13 @@ def _step(fm, state, c, options) -> FrictionState:
             # factorisations of a nested solve at the gripper's turn)
             delta[reset] = 0.0
         if np.array_equal(new, mode) and not reset.any():
-            result = _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, True, "converged", eq)
+            result = state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, True, "converged", eq)
             problems = check_state(fm, result, options.check_tol, options.stick_tol)
             if problems:
                 return replace(result, converged=False, status="state check failed: " + "; ".join(problems))
             return replace(result, step_dx=result.x - state.x, step_dc=dc)
         mode = new
-    return _state(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
+    return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                   f"stick/slip modes still changing after {options.max_mode_changes} rounds")
 
 

@@ -37,7 +37,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..errors import SceneError, SolverError
-from ..friction_path import STICK, FrictionState, check_state
+from ..friction_path import STICK, FrictionState, check_state, state_at
 from ..friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table
 
 NO_VALUE = np.nan   # a field that does not apply to a cell (J of a tendon segment)
@@ -167,13 +167,10 @@ def export_run(folder: Path, log_path: Path) -> Path:
     return write_run(folder, log_path, load(first["problem"]))
 
 
-def _state(fm, x, c, rest, status: str) -> FrictionState:
-    """A friction state at pose x, contractions c, segment rest lengths
-    ``rest``, every via point taken as stuck (a recorded state has no last step)."""
+def _stuck(fm, x, c, rest, status: str) -> FrictionState:
+    """A recorded state: every via point taken as stuck (it has no last step)."""
     zero = np.zeros(fm.n_interior)
-    return FrictionState(x=x, contraction=c, rest=rest, tension=fm.segments(x, rest, c)["tension"],
-                         wrap=fm.wraps(x)[0], mode=np.full(fm.n_interior, STICK, dtype=np.int8), slip=zero,
-                         converged=True, status=status)
+    return state_at(fm, x, rest, c, np.full(fm.n_interior, STICK, dtype=np.int8), zero, True, status)
 
 
 def _recorded_rest(doc: dict, fm, where: str) -> np.ndarray | None:
@@ -249,9 +246,9 @@ def recorded_pose(problem, result_path, options=None):
         note = f"{where} records no segment rest lengths: {FRESH_PATH}"
         return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
     else:
-        state = _state(fm, x, c, rest, f"recorded in {where}")
+        state = _stuck(fm, x, c, rest, f"recorded in {where}")
         eq = finish(fm, state, np.atleast_2d(c), 1, options)
-        eq = dataclasses.replace(eq, friction=_state(fm, eq.x, c, rest, state.status),
+        eq = dataclasses.replace(eq, friction=_stuck(fm, eq.x, c, rest, state.status),
                                  origin=f"the state recorded in {where}")
         note = ("the state recorded (segment rest lengths), its equilibrium solved from the recorded pose"
                 + "".join(f"; recorded state: {v}" for v in check_state(fm, state)))
