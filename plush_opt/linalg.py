@@ -304,6 +304,11 @@ class LowRankHessian:
         return ((H + H.T) * 0.5).tocsc()
 
 
+def assembled(H) -> sp.csc_matrix:
+    """H as one sparse matrix (a :class:`LowRankHessian` assembled)."""
+    return H.assemble() if isinstance(H, LowRankHessian) else H
+
+
 class _WoodburySolve:
     """Solves with H + shift I = A + G D G^T, A = body + shift I factored,
     G D G^T = Q^T M Q (M's eigenpairs, those below round-off dropped).
@@ -369,8 +374,7 @@ class Factor:
         this factor; a few solves). Only meaningful for ``shift == 0``."""
         n = self.H.shape[0]
         if n <= 200:
-            H = self.H.assemble() if isinstance(self.H, LowRankHessian) else self.H
-            return float(np.linalg.eigvalsh(H.toarray())[0])
+            return float(np.linalg.eigvalsh(assembled(self.H).toarray())[0])
         op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
         try:
             vals = spla.eigsh(_operator(self.H), k=1, sigma=0.0, which="LM", OPinv=op,

@@ -38,7 +38,7 @@ from . import elements
 from .attachments import TendonPoints
 from .kernels import compiled
 from .hessian_layout import FORMS, HessianLayout
-from .linalg import Factorizer, LowRankHessian
+from .linalg import Factorizer, LowRankHessian, assembled
 from .mesh import Mesh
 from .pins import check_pins
 from .scene import Scene
@@ -107,8 +107,7 @@ class Evaluation:
 
     @functools.cached_property
     def hessian(self) -> sp.csc_matrix | None:
-        form = self.hessian_form
-        return form.assemble() if isinstance(form, LowRankHessian) else form
+        return assembled(self.hessian_form)
 
 
 class Model:
