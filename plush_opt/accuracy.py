@@ -19,8 +19,11 @@ best expected order gives for the level's refinement, so a coincidentally
 small difference never makes the estimate optimistic; a ratio near 1 (no
 convergence, e.g. under a point load) gives no estimate at all. The picked
 level is the one with the least measured solve time whose estimate is below
-the tolerance and whose next level confirms it; docs/accuracy.md has the
-reasoning and the measurements.
+the tolerance and whose next level confirms it, or whose distance to such
+a level plus that level's estimate is below it (:func:`bound_errors`: a
+coarse level whose own differences were too uneven to estimate can still be
+shown close enough); docs/accuracy.md has the reasoning and the
+measurements.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
 (interpolation of the displacement); the finer level's solve starts from
@@ -173,16 +176,19 @@ class Level:
     ratio: float | None = None
     estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
     confirmed: bool = False          # the next level's estimate agrees (see estimate_errors)
+    bound: float | None = None       # error bound the pick uses (see bound_errors)
+    bound_via: int | None = None     # the level (index among those bounded together) it comes from
 
     def meets(self, tol: float) -> bool:
-        return self.confirmed and self.estimate <= tol
+        return self.bound is not None and self.bound <= tol
 
     def row(self) -> dict:
         return {"element": self.element, "max_area": self.max_area, "n_nodes": self.mesh.n_nodes,
                 "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
                 "newton_iterations": self.newton_iterations,
                 "difference_to_next": self.difference_to_next, "ratio": self.ratio,
-                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed}
+                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed,
+                "error_bound": _json_number(self.bound), "bound_via": self.bound_via}
 
 
 def _json_number(v):
@@ -223,9 +229,32 @@ def estimate_errors(ys, nodes, element: str) -> list[dict]:
         out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
     for k in range(n - 1):
         here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
-        out[k]["confirmed"] = (here is not None and nxt is not None and math.isfinite(nxt)
-                               and nxt <= here)
+        out[k]["confirmed"] = (here is not None and nxt is not None and math.isfinite(here)
+                               and math.isfinite(nxt) and nxt <= here)
     return out
+
+
+def bound_errors(levels: list[Level]) -> None:
+    """Set each level's error bound: the least, over the levels M whose
+    estimate is confirmed (the level itself included), of
+
+        max |y - y_M| + estimate_M
+
+    (the triangle inequality: the distance of y to the converged answer is
+    at most its distance to y_M plus y_M's). A coarse level whose own
+    differences scatter too much to be estimated is then still shown within
+    a tolerance by a finer level solved anyway to confirm that one (on the
+    gripper at 1 mm: the 499-node P2 level instead of 2,501 nodes), and a
+    level of one element by a level of the other. Never below the
+    estimate of the level it comes from, so no optimism is added."""
+    anchors = [(j, m) for j, m in enumerate(levels)
+               if m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]
+    for lv in levels:
+        lv.bound = lv.bound_via = None
+        for j, m in anchors:
+            b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.y - m.y, axis=-1))))
+            if lv.bound is None or b < lv.bound:
+                lv.bound, lv.bound_via = b, j
 
 
 def _solve_level(scene: Scene, area: float, cs, points, prev: Level | None,
@@ -276,6 +305,7 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
         for lv, e in zip(done, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
             lv.confirmed = e["confirmed"]
+        bound_errors(done)
         if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
             break
     return done
@@ -321,8 +351,11 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         (False: no level met ``tol``; the finest level computed is returned
         and ``estimated_error`` is the estimate of the level before it, a
         bound while the levels converge), ``status``, ``max_area``,
+        ``bound_via`` (the index in ``levels`` of the level whose estimate
+        the picked level's bound rests on, see :func:`bound_errors`),
         ``levels`` (per level computed: element, max_area, n_nodes,
-        t_solve_s, difference_to_next, ratio, estimated_error), ``points``,
+        t_solve_s, difference_to_next, ratio, estimated_error, confirmed,
+        error_bound, bound_via), ``points``,
         ``contractions``, ``summary``.
 
     Raises
@@ -353,18 +386,20 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         done = sweep(scene, element, levels, cs, points, tol, options,
                       math.inf if best is None else best.t_solve)
         computed += done
-        for lv in done:
+        bound_errors(computed)
+        for lv in computed:
             if lv.meets(tol) and (best is None or lv.t_solve < best.t_solve):
                 best = lv
     reached = best is not None
     if not reached:
         best = _fallback(computed, elements)
     report = {
-        "tolerance": tol, "estimated_error": _json_number(best.estimate if reached else _bound(computed, best)),
+        "tolerance": tol, "estimated_error": _json_number(best.bound if reached else _bound(computed, best)),
         "element": best.element, "nodes": best.mesh.n_nodes, "reached": reached,
         "status": "met" if reached else "tolerance_not_met", "max_area": best.max_area,
         "n_elems": best.mesh.n_elems, "t_solve_s": best.t_solve,
-        "picked": computed.index(best), "points": kind, "n_points": int(len(points)),
+        "picked": computed.index(best), "bound_via": best.bound_via if reached else None,
+        "points": kind, "n_points": int(len(points)),
         "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],
     }
     report["summary"] = summary(report)
@@ -394,8 +429,12 @@ def summary(report: dict) -> str:
              f"one solve {row['t_solve_s']:.3f} s)")
     est = report["estimated_error"]
     if report["reached"]:
+        via = report.get("bound_via")
+        how = "" if via in (None, report["picked"]) else \
+            (f", its distance to the {report['levels'][via]['n_nodes']}-node "
+             f"{report['levels'][via]['element']} level plus that level's estimate")
         return (f"{where}: estimated error of the {report['points']} {est:.3g} <= tolerance "
-                f"{report['tolerance']:.3g} (the cheapest level that meets it)")
+                f"{report['tolerance']:.3g} (the cheapest level that meets it{how})")
     bound = "no estimate (the levels do not converge)" if est is None else \
         f"estimated error {est:.3g} (bound from the level before it)"
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "

@@ -10,8 +10,8 @@ import sys
 import numpy as np
 import pytest
 
-from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, choose_mesh, default_levels,
-                                estimate_errors, probe_contractions, sweep, transfer_pose)
+from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, bound_errors, choose_mesh,
+                                default_levels, estimate_errors, probe_contractions, sweep, transfer_pose)
 from plush_opt.apps.cantilever import beam_deflection
 from plush_opt.equilibrium import EquilibriumOptions
 from plush_opt.errors import SceneError
@@ -75,12 +75,38 @@ def test_differences_that_do_not_shrink_give_no_estimate():
     assert est[1]["ratio"] >= MAX_RATIO and est[1]["estimate"] == math.inf
 
 
+def _level(y, estimate=None, confirmed=False):
+    return Level("P2", 1.0, None, 0.0, 0.0, 0, [], np.array([[y]], dtype=np.float64),
+                 estimate=estimate, confirmed=confirmed)
+
+
+def test_a_level_without_its_own_estimate_is_bounded_through_a_confirmed_one():
+    levels = [_level([0.0, 0.0], math.inf),          # coarse, differences too uneven to estimate
+              _level([0.0, 0.2], 0.10, True),
+              _level([0.0, 0.3], 0.05, True),
+              _level([0.0, 0.31], 0.04, False)]       # its estimate is not confirmed: no anchor
+    bound_errors(levels)
+    # |y0 - y1| + 0.10 = 0.30 beats |y0 - y2| + 0.05 = 0.35
+    assert levels[0].bound == pytest.approx(0.30) and levels[0].bound_via == 1
+    # a confirmed level keeps its own estimate unless another level bounds it tighter
+    assert levels[1].bound == pytest.approx(0.10) and levels[1].bound_via == 1
+    assert levels[2].bound == pytest.approx(0.05) and levels[2].bound_via == 2
+    assert levels[3].bound == pytest.approx(0.06) and levels[3].bound_via == 2
+    assert levels[0].meets(0.3 + 1e-12) and not levels[0].meets(0.29)
+    # never below the estimate it rests on
+    assert all(lv.bound >= levels[lv.bound_via].estimate for lv in levels)
+    # no confirmed level: no bound at all
+    alone = [_level([0.0, 0.0], 0.1), _level([0.0, 0.1], math.inf)]
+    bound_errors(alone)
+    assert all(lv.bound is None and not lv.meets(1e9) for lv in alone)
+
+
 def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
     scene = load_scene(CANTILEVER)
     cs = probe_contractions(scene)
     opts = EquilibriumOptions(eigenvalue=False)
-    levels = sweep(scene, "P2", [32.0, 16.0, 8.0, 4.0, 2.0, 1.0], cs, TIP, 0.0, opts)
-    fine = sweep(scene, "P2", [0.5, 0.25], cs, TIP, 0.0, opts)[-1]   # 4x finer than the finest above
+    levels = sweep(scene, "P2", [32.0, 16.0, 8.0, 4.0, 2.0, 1.0, 0.5], cs, TIP, 0.0, opts)
+    fine = sweep(scene, "P2", [0.25], cs, TIP, 0.0, opts)[-1]   # 2x finer than the finest above
     deflection = -(fine.y[0, 0, 1] - 0.0)
     # the fine solve is beam theory's tip deflection to within the theory's own error
     assert deflection == pytest.approx(beam_deflection(scene), rel=0.02)
@@ -89,6 +115,12 @@ def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
     for lv in estimated:
         true = float(np.linalg.norm(lv.y - fine.y, axis=-1).max())
         assert true <= lv.estimate <= 4 * true, (lv.mesh.n_nodes, true, lv.estimate)
+    # the bounds the pick uses hold too, also where a level has none of its own
+    bounded = [lv for lv in levels if lv.bound is not None]
+    assert len(bounded) == len(levels) and len([lv for lv in estimated if lv.confirmed]) < len(levels)
+    for lv in bounded:
+        true = float(np.linalg.norm(lv.y - fine.y, axis=-1).max())
+        assert true <= lv.bound, (lv.mesh.n_nodes, true, lv.bound)
     p1 = sweep(scene, "P1", [8.0, 4.0, 2.0], cs, TIP, 0.0, opts)[1]
     true = float(np.linalg.norm(p1.y - fine.y, axis=-1).max())
     assert true <= p1.estimate                         # P1 locks in bending: large, but bounded

@@ -11,7 +11,9 @@ For each problem file it writes two tables (markdown) to ``--out``:
    error against the P2 level two steps finer (about 4x the nodes) and
    against the finest level (the reference), the ratio estimate / error
    against 4x finer (the acceptance asks for 0.5-2, and >= 1 for a
-   conservative estimate), and per point whether its distance to the
+   conservative estimate), the bound the pick uses (plush_opt.accuracy.
+   bound_errors: through a confirmed level where the level has no
+   estimate of its own), and per point whether its distance to the
    reference shrinks at every level (monotone convergence).
 2. ``--accuracy TOL`` for each TOL: the element and nodes chosen, the
    estimated error, the true error (against the reference), whether the
@@ -74,7 +76,7 @@ def convergence_rows(scene, finest: float, cs):
         four = levels[k + FOUR_TIMES].y if k + FOUR_TIMES < len(levels) else None
         e4 = None if four is None else float(distance(lv.y, four).max())
         est = lv.estimate
-        rows.append({"nodes": lv.mesh.n_nodes, "max_area": lv.max_area, "estimate": est,
+        rows.append({"nodes": lv.mesh.n_nodes, "max_area": lv.max_area, "estimate": est, "bound": lv.bound,
                      "error_4x": e4, "error_ref": float(distance(lv.y, ref).max()),
                      "ratio": None if est is None or e4 in (None, 0.0) else est / e4,
                      "per_point": distance(lv.y, ref)})
@@ -114,11 +116,11 @@ def check(path: Path, tols, finest: float, file_only: bool = False) -> str:
            f"Compared points: {kind} ({len(points)}); contractions {cs.tolist()}; reference: P2, "
            f"{ref.mesh.n_nodes} nodes (max_area {ref.max_area:.4g}).", "",
            "P2 mesh convergence (error = largest distance over points and contractions):", "",
-           "| nodes | max_area | estimate | error vs 4x finer | error vs reference | estimate / error 4x |",
-           "|---|---|---|---|---|---|"]
+           "| nodes | max_area | estimate | bound | error vs 4x finer | error vs reference | estimate / error 4x |",
+           "|---|---|---|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r['nodes']} | {r['max_area']:.4g} | {fmt(r['estimate'])} | {fmt(r['error_4x'])} | "
-                   f"{fmt(r['error_ref'])} | {fmt(r['ratio'], '.2f')} |")
+        out.append(f"| {r['nodes']} | {r['max_area']:.4g} | {fmt(r['estimate'])} | {fmt(r['bound'])} | "
+                   f"{fmt(r['error_4x'])} | {fmt(r['error_ref'])} | {fmt(r['ratio'], '.2f')} |")
     out += ["", "Distance to the reference shrinking at every level (per point): "
             + ", ".join(f"{tuple(np.round(p, 3).tolist())}: {'yes' if m else 'NO'}"
                         for p, m in zip(points, monotone)), "",
