@@ -252,21 +252,21 @@ def _step(fm, state, c, options) -> FrictionState:
     if state.step_dc is not None and float(dc @ state.step_dc) < 0:
         mode[:] = STICK       # the path turns back: what slipped on the way out sticks first
     x, delta = _predict(fm, state, c, mode, r_pred)
-    seen = set()
+    seen, last = set(), {}       # last: the latest evaluation, which the next round starts at
     for _ in range(options.max_mode_changes):
         key = mode.tobytes() + (delta != 0).tobytes()    # stuck points may hold a slip
         if key in seen:
             return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False,
                           "the stick/slip modes cycle without settling")
         seen.add(key)
-        solved = _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=True)
+        solved = _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=True, last=last)
         if isinstance(solved, str):
             return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
         x, delta, eq = solved
         new, reset = _switch(fm, x, r_pred + fm.D @ delta, c, mode, delta, options)
         if eq is None and np.array_equal(new, mode) and not reset.any():
             # these modes hold: now to the full tolerance (a step or two)
-            solved = _solve_modes(fm, x, r_pred, c, mode, delta, options)
+            solved = _solve_modes(fm, x, r_pred, c, mode, delta, options, last=last)
             if isinstance(solved, str):
                 return state_at(fm, x, r_pred + fm.D @ delta, c, mode, delta, False, solved)
             x, delta, eq = solved
@@ -398,23 +398,25 @@ def _past_slack(fm, x, r, c, mode, delta, points):
     return delta
 
 
-def _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=False):
+def _solve_modes(fm, x, r_pred, c, mode, delta, options, loose=False, last=None):
     """Pose and slip amounts for a set of modes: the joint Newton
     (:func:`_joint_newton`), or where it fails the nested one. ``loose``:
     to ``LOOSE_TOL`` only, without the factor (the equilibrium is None)."""
-    joint = _joint_newton(fm, x, r_pred, c, mode, delta, options, loose)
+    joint = _joint_newton(fm, x, r_pred, c, mode, delta, options, loose, last)
     if joint is not None:
         return joint
     return _nested_newton(fm, x, r_pred, c, mode, delta, options)
 
 
-def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
+def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False, last=None):
     """Newton on (x, delta_slipping) together: grad_x E = 0 and the capstan
     equalities h = 0, one factorisation of H per iteration, the slip
     unknowns eliminated by their Schur complement. Backtracks on the sum of
     the two relative residuals squared (trial points at order 1: only an
     accepted one needs its Hessian); None when it gets stuck (a Hessian
-    that is not positive definite, no decrease), for the nested Newton."""
+    that is not positive definite, no decrease), for the nested Newton.
+    ``last`` (a dict) keeps the latest evaluation: a round of the step
+    starts where the one before it stopped, and need not evaluate again."""
     t0 = time.perf_counter()
     active = mode != STICK
     Ds = fm.D[:, active].toarray()
@@ -425,8 +427,14 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False):
         r = r_pred + fm.D @ delta
         if np.any(r <= 0):
             return None
-        seg = fm.segments(x, r, c)
-        ev = fm.evaluate(x, c, r, order, seg)
+        key = (x.tobytes(), r.tobytes())
+        if last is not None and last.get("key") == key and last["order"] >= order:
+            ev, seg = last["ev"], last["seg"]
+        else:
+            seg = fm.segments(x, r, c)
+            ev = fm.evaluate(x, c, r, order, seg)
+            if last is not None:
+                last.update(key=key, order=order, ev=ev, seg=seg)
         if not ev.admissible:
             return None
         f_w, f_s, _, theta, dtheta, e = capstan(fm, x, r, c, seg)
