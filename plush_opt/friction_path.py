@@ -217,6 +217,10 @@ def step(fm: FrictionModel, state: FrictionState, contraction, options: Friction
     a failing step is retried as two halves, ``max_splits`` deep."""
     options = options or FrictionOptions()
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
+    if state.converged and state.equilibrium is not None and np.array_equal(c, state.contraction):
+        # the winches stand still: a static friction state stays as it is
+        # (solving again could only move it by the tolerances)
+        return state
     out = _step(fm, state, c, options)
     if out.converged or _splits >= options.max_splits or np.array_equal(c, state.contraction):
         return out

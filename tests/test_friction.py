@@ -160,6 +160,16 @@ def test_a_load_unload_cycle_encloses_a_loop_only_with_friction():
     assert areas[0.3] > 0
 
 
+def test_a_step_that_does_not_move_the_winches_keeps_the_state():
+    p = problem(arc(0.2))
+    fm = FrictionModel(p.model)
+    moved, still = follow(fm, start_state(fm), [[1.0], [1.0]])
+    assert moved.converged and still is moved
+    # the rest state before the first solve is not an equilibrium: it is solved
+    at_rest = start_state(fm)
+    assert at_rest.status == "converged" and not check_state(fm, at_rest)
+
+
 def test_check_state_reports_a_violated_bound():
     p = problem(arc(0.2))
     fm = FrictionModel(p.model)
