@@ -366,13 +366,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     """
     options = options or EquilibriumOptions(eigenvalue=False)
     if scene.outline is None:
-        _check_arguments(tol, (3.0, 2.0, 1.0), scene)
-        mesh = build_mesh(scene)
-        report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element,
-                  "nodes": mesh.n_nodes, "reached": False, "status": "explicit_mesh",
-                  "max_area": None, "levels": [],
-                  "summary": "explicit mesh: its resolution is fixed and its error not estimated"}
-        return mesh, report
+        return _explicit(scene, tol)
     tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
         points, kind = probe_points(scene)
@@ -404,6 +398,17 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     }
     report["summary"] = summary(report)
     return best.mesh, report
+
+
+def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
+    """An explicit mesh: returned as it is, its error not estimated."""
+    _check_arguments(tol, (3.0, 2.0, 1.0), scene)
+    mesh = build_mesh(scene)
+    report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element,
+              "nodes": mesh.n_nodes, "reached": False, "status": "explicit_mesh",
+              "max_area": None, "levels": [],
+              "summary": "explicit mesh: its resolution is fixed and its error not estimated"}
+    return mesh, report
 
 
 def _fallback(computed: list[Level], elements) -> Level:

@@ -431,14 +431,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False, last=None
         r = r_pred + fm.D @ delta
         if np.any(r <= 0):
             return None
-        key = (x.tobytes(), r.tobytes())
-        if last is not None and last.get("key") == key and last["order"] >= order:
-            ev, seg = last["ev"], last["seg"]
-        else:
-            seg = fm.segments(x, r, c)
-            ev = fm.evaluate(x, c, r, order, seg)
-            if last is not None:
-                last.update(key=key, order=order, ev=ev, seg=seg)
+        ev, seg = _evaluated(fm, x, r, c, order, last)
         if not ev.admissible:
             return None
         f_w, f_s, _, theta, dtheta, e = capstan(fm, x, r, c, seg)
@@ -496,6 +489,19 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False, last=None
             log.debug("joint newton %d: no decrease along the Newton step", it)
             return None
     return None
+
+
+def _evaluated(fm, x, r, c, order, last):
+    """The evaluation (to ``order``) and segment data at (x, r, c), reused
+    from ``last`` (a dict keeping the latest, or None) if it was there."""
+    key = (x.tobytes(), r.tobytes())
+    if last is not None and last.get("key") == key and last["order"] >= order:
+        return last["ev"], last["seg"]
+    seg = fm.segments(x, r, c)
+    ev = fm.evaluate(x, c, r, order, seg)
+    if last is not None:
+        last.update(key=key, order=order, ev=ev, seg=seg)
+    return ev, seg
 
 
 def _joint_step(fm, factor, gradient, x, r, c, active, mode, seg, Ds):
