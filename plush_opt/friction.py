@@ -158,6 +158,7 @@ class FrictionModel:
             n_s += n_via - 1
         cat = lambda a, shape: np.concatenate(a) if a else np.zeros(shape, np.int64)  # noqa: E731
         self.W = sp.vstack(blocks, format="csr") if blocks else sp.csr_matrix((0, self.n_dofs))
+        self._WT = self.W.T.tocsr()      # W^T once: every gradient and Jacobian row goes through it
         self.n_segments = n_s
         self.seg_p = cat(seg_p, (0, 4))
         self.seg_tendon = cat(seg_t, 0)
@@ -263,7 +264,7 @@ class FrictionModel:
         n_p = self.W.shape[0]
         flat = (np.repeat(np.arange(k), m) * n_p + pdofs.ravel()).astype(np.int64)
         Gp = np.bincount(flat, weights=values.ravel(), minlength=k * n_p).reshape(k, n_p)
-        return np.asarray((self.W.T @ Gp.T).T)
+        return np.asarray((self._WT @ Gp.T).T)
 
     def evaluate(self, x, c, r, order: int = 2, seg: dict | None = None) -> Evaluation:
         """E(x; c, r) (order 0), grad_x (1), and the Hessian (2); ``seg``:
@@ -277,7 +278,7 @@ class FrictionModel:
         if order == 0:
             return Evaluation(energy, None, None, ev.force_scale, True)
         gP = np.bincount(self.seg_p.ravel(), weights=seg["grad"].ravel(), minlength=self.W.shape[0])
-        f = self.W.T @ gP
+        f = self._WT @ gP
         g = ev.gradient + f
         scale = max(ev.force_scale, float(np.linalg.norm(f)))
         if order == 1:
