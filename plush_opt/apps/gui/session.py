@@ -342,7 +342,10 @@ class PosingSession:
         self.message = message
 
     def reset(self) -> None:
-        """Back to rest: the scene's contractions, no targets (frozen flags stay)."""
+        """Back to rest: the scene's contractions, no targets (frozen flags stay).
+        With friction at via points the robot is driven back there from the
+        state on screen, as a real one would be: its history stays (a
+        hysteresis loop does not close by itself)."""
         self.loop.drop()
         self.targets = Targets.empty()
         self.held = False
