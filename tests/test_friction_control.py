@@ -160,11 +160,26 @@ def test_export_of_a_result_refuses_another_problem_or_a_result_as_source(coarse
     _result_file(p, p.equilibrium(), result)
     other = run("export", str(ROOT / "problems" / "gripper.yaml"), "--result", str(result), "--out", str(tmp_path))
     assert other.returncode == 2 and "problem: 'gripper_friction', but gripper.yaml is 'gripper'" in other.stderr
-    fine = run("export", str(FRICTION), "--result", str(result), "--out", str(tmp_path))
-    assert fine.returncode == 2 and "model.rest_nodes" in fine.stderr and "another mesh size" in fine.stderr
     swapped = run("export", str(result), "--out", str(tmp_path))
     assert swapped.returncode == 2 and "--result" in swapped.stderr and "Traceback" not in swapped.stderr
     assert not (tmp_path / "pose.vtu").exists()
+
+
+def test_export_of_a_result_solved_on_another_mesh_uses_the_mesh_it_recorded(coarse_file, tmp_path):
+    meshio = pytest.importorskip("meshio")
+    p = load(coarse_file)              # the friction gripper on a coarser mesh than FRICTION's own
+    result = tmp_path / "r.json"
+    doc = _result_file(p, p.equilibrium({"left": 8.0}), result)
+    out = run("export", str(FRICTION), "--result", str(result), "--out", str(tmp_path / "e"))
+    assert out.returncode == 0, out.stderr
+    pose = meshio.read(tmp_path / "e" / "pose.vtu")
+    assert len(pose.points) == p.mesh.n_nodes != load(FRICTION).mesh.n_nodes
+    assert np.max(np.abs(pose.points[:, :2] - np.asarray(doc["nodes"]))) <= SAME
+    # a recorded mesh that is not one: one clear error naming the key
+    doc["model"]["triangles"] = [[0, 1]]
+    result.write_text(json.dumps(doc))
+    bad = run("export", str(FRICTION), "--result", str(result), "--out", str(tmp_path / "b"))
+    assert bad.returncode == 2 and "model:" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_run_log_export_drives_the_robot_command_by_command(friction_problem, tmp_path):

@@ -257,10 +257,42 @@ def recorded_pose(problem, result_path, options=None):
     return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
 
 
+def result_problem(problem_path, result_path):
+    """The problem of ``problem_path`` on the mesh a result file of it was
+    solved on: the file's own, or (a solve with ``--accuracy``, or on
+    another problem file's mesh) the element and mesh the result recorded in its
+    ``model`` (``element``, ``rest_nodes``, ``triangles``)."""
+    from ..io import load_scene
+    from ..mesh import build_mesh
+    from ..problem import from_scene
+    scene = load_scene(Path(problem_path))
+    try:
+        model = json.loads(Path(result_path).read_text())["model"]
+        element, X = model["element"], np.asarray(model["rest_nodes"], dtype=np.float64)
+        triangles = np.asarray(model["triangles"], dtype=np.int64)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise SceneError(f"{result_path}: not a result file of plush-opt solve ({exc})") from None
+    own = build_mesh(scene)
+    if element == own.element and X.shape == own.X.shape and np.array_equal(triangles, own.elements) \
+            and np.max(np.abs(X - own.X), initial=0.0) <= REST_MATCH * (1 + float(np.max(np.abs(own.X)))):
+        return from_scene(scene, own)
+    corners = {"P1": 3, "P2": 6}.get(element)
+    if corners is None or X.ndim != 2 or X.shape[1] != 2 or triangles.ndim != 2 \
+            or triangles.shape[1] != corners or not len(triangles) \
+            or triangles.min() < 0 or triangles.max() >= len(X):
+        raise SceneError(f"{result_path}: model: element {element!r} with triangles of shape "
+                         f"{triangles.shape} on rest_nodes of shape {X.shape}: not a mesh")
+    # the recorded mesh as an explicit mesh of the same scene (its tendon
+    # and pin points are nodes of it: it was meshed from this scene)
+    recorded = dataclasses.replace(scene, outline=None, holes=(), max_area=None, min_angle=None,
+                                   nodes=X, triangles=triangles, element=element)
+    return from_scene(recorded)
+
+
 def export_result(folder, problem_path, result_path) -> tuple[Path, str, bool]:
     """``folder/pose.vtu`` of the pose a result file of the problem file
-    recorded (:func:`recorded_pose`); returns (its path, the note, converged)."""
-    from ..problem import load
-    problem = load(problem_path)
+    recorded (:func:`recorded_pose`), on the mesh it was solved on
+    (:func:`result_problem`); returns (its path, the note, converged)."""
+    problem = result_problem(problem_path, result_path)
     eq, note = recorded_pose(problem, result_path)
     return write_pose(Path(folder) / "pose.vtu", problem.model, eq.x, eq.contraction, eq), note, eq.converged
