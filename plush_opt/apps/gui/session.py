@@ -342,10 +342,8 @@ class PosingSession:
         self.message = message
 
     def reset(self) -> None:
-        """Back to rest: the scene's contractions, no targets (frozen flags stay).
-        With friction at via points the robot is driven back there from the
-        state on screen, as a real one would be: its history stays (a
-        hysteresis loop does not close by itself)."""
+        """Back to the scene's contractions, no targets (frozen flags stay);
+        with friction driven there from the state on screen (history stays)."""
         self.loop.drop()
         self.targets = Targets.empty()
         self.held = False
