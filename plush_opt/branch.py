@@ -28,7 +28,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certify, solve_equilibrium
+from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, solve_equilibrium
+from .linalg import assembled
 from .model import Model
 
 log = logging.getLogger(__name__)
@@ -38,6 +39,9 @@ log = logging.getLogger(__name__)
 MIN_FRACTION = 1.0 / 32
 # the first sub-step after the direct solve left the branch: half the move
 FIRST_FRACTION = 0.5
+# a smallest eigenvalue within this many eps |H|_inf of zero is round-off:
+# the pose sits on the fold or bifurcation that ends the branch
+ROUNDOFF_EIGENVALUE = 10.0
 
 
 def solve_on_branch(model: Model, c0, x0, c1, guess=None,
@@ -48,8 +52,10 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     ``guess`` : the start of the direct solve at c1 (a predictor; default
     x0). ``options.max_iterations`` bounds the Newton iterations of the
     whole move (every sub-step together). With the IPOPT backend this is
-    one plain solve from ``guess``. A pose that is not returned converged
-    carries no smallest eigenvalue (``min_eigenvalue`` None).
+    one plain solve from ``guess``. A converged answer carries its smallest
+    eigenvalue; one that is round-off (the pose on the fold or bifurcation
+    ending the branch) is returned not converged. A pose that is not
+    returned converged otherwise carries none (``min_eigenvalue`` None).
     """
     options = options or EquilibriumOptions()
     c0 = np.asarray(c0, dtype=np.float64).reshape(-1)
@@ -66,7 +72,7 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     strict = replace(options, regularise=False, eigenvalue=False, escape_saddles=False)
     direct = solve_equilibrium(model, c1, guess, strict)
     if direct.converged:
-        return certify(model, direct) if options.eigenvalue else direct
+        return _at_the_end(direct, time.perf_counter() - t0)
     if not _left(direct):
         return direct
     used, escapes = direct.iterations, 0
@@ -102,10 +108,9 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
             if last:
                 log.info("reached c = %s on the branch in %d sub-steps (%d Newton iterations)",
                          c1, steps, used)
-                sub = certify(model, sub) if options.eigenvalue else sub
                 status = "converged" + (f" (escaped {escapes} saddle(s))" if escapes else "")
-                return replace(sub, iterations=used, saddle_escapes=escapes, status=status,
-                               t_wall=time.perf_counter() - t0)
+                return _at_the_end(replace(sub, iterations=used, saddle_escapes=escapes, status=status),
+                                   time.perf_counter() - t0)
             x_prev, x, h_prev = x, sub.x, h
             done += h
             h, look = 2 * h, False
@@ -115,6 +120,22 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
             status = sub.status
             break
     return replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0)
+
+
+def _at_the_end(eq: Equilibrium, t_wall: float) -> Equilibrium:
+    """A converged answer with its smallest eigenvalue (from its factor, a
+    few solves); not converged if that is round-off against |H|, where the
+    pivots of the factor do not tell a singular H from a definite one: a
+    caller creeping up to the end of the branch must not be handed it."""
+    lam = eq.factor.min_eigenvalue()
+    H = assembled(eq.factor.H)
+    margin = ROUNDOFF_EIGENVALUE * np.finfo(float).eps * float(abs(H).sum(axis=1).max())
+    eq = replace(eq, min_eigenvalue=lam, t_wall=t_wall)
+    if lam > margin:
+        return eq
+    return replace(eq, converged=False,
+                   status=(f"{LEFT_BRANCH}: smallest Hessian eigenvalue {lam:.2e} is round-off "
+                           f"(below {margin:.1e}): the branch ends here"))
 
 
 def _left(eq: Equilibrium) -> bool:

@@ -61,9 +61,12 @@ class EquilibriumOptions:
         starts with ``LEFT_BRANCH`` (the solve cannot stay on the stable
         branch it started on; plush_opt/branch.py then continues in c).
         With ``escape_saddles`` it first checks for a symmetric branch (a
-        regularised factor and a Lanczos run) and escapes from it as usual;
-        after an escape (a pitchfork: the path goes on, buckled) the steps
-        down to the buckled branch are regularised as usual.
+        gradient blind to the negative curvature: a regularised factor and
+        a Lanczos run) and escapes from it as usual; after such an escape (a
+        pitchfork: the path goes on, buckled) the steps down to the buckled
+        branch are regularised as usual. A saddle where the gradient
+        vanishes is reported, not escaped (on a branch, that is the fold at
+        its end).
     ipopt : raw IPOPT options (backend 'ipopt'), passed through.
     """
 
@@ -304,7 +307,10 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
             break
         if small:
-            if options.escape_saddles and escapes < options.max_escapes:
+            # (not when staying on a branch: a converged point with an
+            # indefinite Hessian there is the fold at its end, past which
+            # the escape would snap through)
+            if options.escape_saddles and options.regularise and escapes < options.max_escapes:
                 escaped = _escape_saddle(model, c, x, ev)
                 if escaped is not None:
                     x, ev = escaped
