@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, solve_equilibrium
+from .errors import SolverError
 from .linalg import assembled
 from .model import Model
 
@@ -42,6 +43,11 @@ FIRST_FRACTION = 0.5
 # a smallest eigenvalue within this many eps |H|_inf of zero is round-off:
 # the pose sits on the fold or bifurcation that ends the branch
 ROUNDOFF_EIGENVALUE = 10.0
+# inverse-iteration steps of the cheap screen, and how far above the
+# round-off level its estimate must be to skip the Lanczos run (a near-null
+# eigenvalue dominates after a step or two; the others decay as their ratio)
+INVERSE_STEPS = 3
+SAFETY = 100.0
 
 
 def solve_on_branch(model: Model, c0, x0, c1, guess=None,
@@ -52,10 +58,10 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     ``guess`` : the start of the direct solve at c1 (a predictor; default
     x0). ``options.max_iterations`` bounds the Newton iterations of the
     whole move (every sub-step together). With the IPOPT backend this is
-    one plain solve from ``guess``. A converged answer carries its smallest
-    eigenvalue; one that is round-off (the pose on the fold or bifurcation
-    ending the branch) is returned not converged. A pose that is not
-    returned converged otherwise carries none (``min_eigenvalue`` None).
+    one plain solve from ``guess``. A converged answer whose smallest
+    Hessian eigenvalue is round-off (the pose on the fold or bifurcation
+    ending the branch) is returned not converged. Only a converged answer
+    carries that eigenvalue (with ``options.eigenvalue``).
     """
     options = options or EquilibriumOptions()
     c0 = np.asarray(c0, dtype=np.float64).reshape(-1)
@@ -72,7 +78,7 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     strict = replace(options, regularise=False, eigenvalue=False, escape_saddles=False)
     direct = solve_equilibrium(model, c1, guess, strict)
     if direct.converged:
-        return _at_the_end(direct, time.perf_counter() - t0)
+        return _at_the_end(direct, time.perf_counter() - t0, options.eigenvalue)
     if not _left(direct):
         return direct
     used, escapes = direct.iterations, 0
@@ -110,7 +116,7 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
                          c1, steps, used)
                 status = "converged" + (f" (escaped {escapes} saddle(s))" if escapes else "")
                 return _at_the_end(replace(sub, iterations=used, saddle_escapes=escapes, status=status),
-                                   time.perf_counter() - t0)
+                                   time.perf_counter() - t0, options.eigenvalue)
             x_prev, x, h_prev = x, sub.x, h
             done += h
             h, look = 2 * h, False
@@ -122,20 +128,44 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     return replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0)
 
 
-def _at_the_end(eq: Equilibrium, t_wall: float) -> Equilibrium:
-    """A converged answer with its smallest eigenvalue (from its factor, a
-    few solves); not converged if that is round-off against |H|, where the
-    pivots of the factor do not tell a singular H from a definite one: a
-    caller creeping up to the end of the branch must not be handed it."""
-    lam = eq.factor.min_eigenvalue()
+def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium:
+    """A converged answer, not converged if its smallest Hessian eigenvalue
+    is round-off against |H| (there the pivots of the factor do not tell a
+    singular H from a definite one: a caller creeping up to the end of the
+    branch must not be handed it). With ``eigenvalue``, or where a few steps
+    of inverse iteration say it may be round-off, the eigenvalue is computed
+    (shift-invert Lanczos with the factor) and kept."""
+    eq = replace(eq, t_wall=t_wall)
     H = assembled(eq.factor.H)
-    margin = ROUNDOFF_EIGENVALUE * np.finfo(float).eps * float(abs(H).sum(axis=1).max())
-    eq = replace(eq, min_eigenvalue=lam, t_wall=t_wall)
+    roundoff = ROUNDOFF_EIGENVALUE * np.finfo(float).eps
+    if not eigenvalue and _inverse_estimate(eq.factor) > SAFETY * roundoff * float(np.abs(H.data).sum()):
+        return eq                     # (the sum of |H_ij| bounds |H|_inf from above)
+    try:
+        lam = eq.factor.min_eigenvalue()
+    except SolverError as exc:       # a diagnostic: the certificate stands as it is
+        log.warning("smallest Hessian eigenvalue not computed: %s", exc)
+        return eq
+    eq = replace(eq, min_eigenvalue=lam)
+    margin = roundoff * float(abs(H).sum(axis=1).max())
     if lam > margin:
         return eq
     return replace(eq, converged=False,
                    status=(f"{LEFT_BRANCH}: smallest Hessian eigenvalue {lam:.2e} is round-off "
                            f"(below {margin:.1e}): the branch ends here"))
+
+
+def _inverse_estimate(factor) -> float:
+    """An estimate of the smallest eigenvalue of the factored H from above
+    (the Rayleigh quotient after a few steps of inverse iteration, a solve
+    each): accurate where that eigenvalue is far below the others."""
+    v = np.random.default_rng(0).standard_normal(factor.H.shape[0])
+    v /= np.linalg.norm(v)
+    est = np.inf
+    for _ in range(INVERSE_STEPS):
+        w = factor.solve(v)
+        est = float(v @ w) / float(w @ w)       # w^T H w / w^T w with H w = v
+        v = w / np.linalg.norm(w)
+    return est
 
 
 def _left(eq: Equilibrium) -> bool:

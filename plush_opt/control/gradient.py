@@ -93,11 +93,11 @@ class ControlOptions:
     probe_gain : a probe is taken only if it lowers O by this relative amount
         (a real improvement, not round-off).
     trial_newton : Newton iterations a line-search trial's equilibrium
-        may take (the starting pose and restarts: ``equilibrium``'s own
-        limit). A trial pose that has not settled by then is crossing a
-        snap-through (a limit point where the pose jumps to another branch):
-        the step is halved instead of followed across (a hexapod P2 trial
-        took 500 iterations, and its solves 98 % of the run).
+        may take, its sub-steps along the branch included (the starting
+        pose and restarts: ``equilibrium``'s own limit). A trial stays on
+        the current iterate's stable branch (plush_opt/branch.py): past a
+        limit point it fails, in 5-35 iterations, and the step is cut
+        instead of followed across a snap-through.
     equilibrium : options of every equilibrium solve.
     """
 
