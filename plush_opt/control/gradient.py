@@ -96,8 +96,8 @@ class ControlOptions:
         may take, its sub-steps along the branch included (the starting
         pose and restarts: ``equilibrium``'s own limit). A trial stays on
         the current iterate's stable branch (plush_opt/branch.py): past a
-        limit point it fails, in 5-35 iterations, and the step is cut
-        instead of followed across a snap-through.
+        limit point it fails (0-35 iterations on the P2 hexapod), and the
+        step is cut instead of followed across a snap-through.
     equilibrium : options of every equilibrium solve.
     """
 
