@@ -22,6 +22,7 @@ honest failure that says where (the caller cuts its move). Every returned
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import replace
@@ -158,14 +159,22 @@ def _inverse_estimate(factor) -> float:
     """An estimate of the smallest eigenvalue of the factored H from above
     (the Rayleigh quotient after a few steps of inverse iteration, a solve
     each): accurate where that eigenvalue is far below the others."""
-    v = np.random.default_rng(0).standard_normal(factor.H.shape[0])
-    v /= np.linalg.norm(v)
+    v = _start(factor.H.shape[0])
     est = np.inf
     for _ in range(INVERSE_STEPS):
         w = factor.solve(v)
         est = float(v @ w) / float(w @ w)       # w^T H w / w^T w with H w = v
         v = w / np.linalg.norm(w)
     return est
+
+
+@functools.lru_cache(maxsize=8)
+def _start(n: int) -> np.ndarray:
+    """A fixed generic unit vector (no mode of H is orthogonal to it), read-only."""
+    v = np.random.default_rng(0).standard_normal(n)
+    v /= np.linalg.norm(v)
+    v.flags.writeable = False
+    return v
 
 
 def _left(eq: Equilibrium) -> bool:
