@@ -33,6 +33,9 @@ log = logging.getLogger(__name__)
 
 BACKENDS = ("newton", "ipopt")
 
+# the status of a solve that met an indefinite Hessian with ``regularise=False``
+LEFT_BRANCH = "left the stable branch"
+
 
 @dataclass(frozen=True)
 class EquilibriumOptions:
@@ -53,6 +56,17 @@ class EquilibriumOptions:
     max_escapes : how many saddles may be escaped in one solve.
     eigenvalue : compute the smallest Hessian eigenvalue at the end (a few
         extra solves with the final factor).
+    regularise : take a regularised step where the Hessian is not positive
+        definite (default). False: stop there instead, with a status that
+        starts with ``LEFT_BRANCH`` (the solve cannot stay on the stable
+        branch it started on; plush_opt/branch.py then continues in c).
+        With ``escape_saddles`` it first checks for a symmetric branch (a
+        gradient blind to the negative curvature: a regularised factor and
+        a Lanczos run) and escapes from it as usual; after such an escape (a
+        pitchfork: the path goes on, buckled) the steps down to the buckled
+        branch are regularised as usual. A saddle where the gradient
+        vanishes is reported, not escaped (on a branch, that is the fold at
+        its end).
     ipopt : raw IPOPT options (backend 'ipopt'), passed through.
     """
 
@@ -64,6 +78,7 @@ class EquilibriumOptions:
     escape_saddles: bool = True
     max_escapes: int = 5
     eigenvalue: bool = True
+    regularise: bool = True
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -264,6 +279,10 @@ def _escape_saddle(model: Model, c, x, ev: Evaluation,
     return best[1], model.evaluate(best[1], c, order=2)
 
 
+def _left_branch(it: int) -> str:
+    return f"{LEFT_BRANCH}: Hessian not positive definite after {it} iteration(s)"
+
+
 def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
@@ -288,7 +307,10 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
             break
         if small:
-            if options.escape_saddles and escapes < options.max_escapes:
+            # (not when staying on a branch: a converged point with an
+            # indefinite Hessian there is the fold at its end, past which
+            # the escape would snap through)
+            if options.escape_saddles and options.regularise and escapes < options.max_escapes:
                 escaped = _escape_saddle(model, c, x, ev)
                 if escaped is not None:
                     x, ev = escaped
@@ -306,6 +328,9 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
                       f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
                       "ill-conditioned Hessian)")
+            break
+        if factor is None and not options.regularise and not options.escape_saddles:
+            status = _left_branch(it)      # (no symmetric-branch check to make first)
             break
         if factor is None:
             step_factor = _regularised_factor(model, H, last_shift)
@@ -328,6 +353,9 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
                     it += 1
                     continue
             watch_symmetry = pair is None
+        if factor is None and not options.regularise and escapes == 0:
+            status = _left_branch(it)
+            break
         it += 1
         dx = -step_factor.solve(g)
         slope = float(g @ dx)
@@ -350,6 +378,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
                 accepted = (xt, et)
                 break
             alpha *= 0.5
+        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e",
+                  it, rel, step_factor.shift, alpha if accepted is not None else 0.0)
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break

@@ -24,7 +24,7 @@ LAYERS = [
     ("scene", ("scene", "io")),
     ("mesh", ("mesh",)),
     ("model", ("model", "hessian_layout", "attachments", "pins", "elements", "tendon_law", "objective")),
-    ("solvers", ("equilibrium", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
+    ("solvers", ("equilibrium", "branch", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
     ("control", ("control", "results", "problem", "fit")),
     ("board", ("board",)),
     ("apps", ("apps", "__init__", "__main__")),

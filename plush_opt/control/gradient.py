@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..branch import solve_on_branch
 from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
 from ..errors import SceneError, SolverError
 from ..friction_solve import has_friction
@@ -92,11 +93,11 @@ class ControlOptions:
     probe_gain : a probe is taken only if it lowers O by this relative amount
         (a real improvement, not round-off).
     trial_newton : Newton iterations a line-search trial's equilibrium
-        may take (the starting pose and restarts: ``equilibrium``'s own
-        limit). A trial pose that has not settled by then is crossing a
-        snap-through (a limit point where the pose jumps to another branch):
-        the step is halved instead of followed across (a hexapod P2 trial
-        took 500 iterations, and its solves 98 % of the run).
+        may take, its sub-steps along the branch included (the starting
+        pose and restarts: ``equilibrium``'s own limit). A trial stays on
+        the current iterate's stable branch (plush_opt/branch.py): past a
+        limit point it fails (0-35 iterations on the P2 hexapod), and the
+        step is cut instead of followed across a snap-through.
     equilibrium : options of every equilibrium solve.
     """
 
@@ -382,8 +383,7 @@ class Controller:
             if np.array_equal(c_t, self.contraction):
                 self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
                 return None
-            x0 = self._predict(c_t)
-            eq = self._solve(c_t, x0, _trial_options(self.options))
+            eq = _trial(self, c_t)
             if eq.converged and self.targets.value(eq.x) < last.objective:
                 self._accept(xi_t, eq, last)
                 if gn:
@@ -485,6 +485,21 @@ def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
     if opts.max_time is not None and last.t_wall >= opts.max_time:
         return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
     return None
+
+
+def _trial(ctl: "Controller", c_t) -> Equilibrium:
+    """A line-search trial's equilibrium at ``c_t``, warm-started from the predictor.
+
+    Without friction it stays on the current iterate's stable branch
+    (plush_opt/branch.py): a trial past a limit point fails in a few
+    iterations instead of wandering after a snap-through."""
+    x0 = ctl._predict(c_t)
+    if ctl.follows_friction:
+        return ctl._solve(c_t, x0, _trial_options(ctl.options))
+    eq = solve_on_branch(ctl.model, ctl.contraction, ctl._eq.x, c_t, x0, _trial_options(ctl.options))
+    ctl._solves += 1
+    ctl._newton += eq.iterations
+    return eq
 
 
 def _trial_options(options: ControlOptions) -> EquilibriumOptions:
