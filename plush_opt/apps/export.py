@@ -198,36 +198,52 @@ def _recorded_rest(doc: dict, fm, where: str) -> np.ndarray | None:
     return np.concatenate(rest)
 
 
-def recorded_pose(problem, result_path, options=None):
-    """The pose a result file of ``problem`` recorded, as an equilibrium of
-    the problem: at its recorded segment rest lengths with friction at via
-    points (the robot's state; every point taken as stuck), else at its
-    contractions, each solved from the recorded pose. Returns (equilibrium,
-    note): the note says what was done and how far the solve moved the
-    recorded pose; a friction result without rest lengths gets a fresh
-    path from the start state, and the note says so."""
-    from ..equilibrium import EquilibriumOptions, solve_equilibrium
+def _read_result(result_path, scene) -> dict:
+    """The document of a result file, checked to be a plush-opt result of
+    ``scene`` (its format and problem name)."""
     from ..results import FORMAT
     where = str(result_path)
     try:
         doc = json.loads(Path(result_path).read_text())
         fmt = doc.get("format")
-        contraction, nodes = doc["contractions"], np.asarray(doc["nodes"], dtype=np.float64)
-        rest_nodes = np.asarray(doc["model"]["rest_nodes"], dtype=np.float64)
-        tendons = list(doc["model"]["tendons"]["list"])
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+    except (OSError, ValueError, AttributeError) as exc:
         raise SceneError(f"{where}: not a result file of plush-opt solve ({exc})") from None
     if fmt != FORMAT:
         raise SceneError(f"{where}: format: expected {FORMAT!r}, got {fmt!r}")
+    if doc.get("problem") != scene.name:
+        raise SceneError(f"{where}: problem: {doc.get('problem')!r}, but {scene.source} is {scene.name!r}")
+    return doc
+
+
+def _same_nodes(X, Y) -> bool:
+    """Two rest node arrays of one mesh (equal to round-off)."""
+    return X.shape == Y.shape and bool(np.max(np.abs(X - Y), initial=0.0)
+                                       <= REST_MATCH * (1 + float(np.max(np.abs(Y), initial=0.0))))
+
+
+def recorded_pose(problem, result_path, options=None, doc=None):
+    """The pose a result file of ``problem`` recorded, as an equilibrium of
+    the problem: at its recorded segment rest lengths with friction at via
+    points (the robot's state; every point taken as stuck), else at its
+    contractions, each solved from the recorded pose. ``doc``: the file's
+    document, if already read. Returns (equilibrium, note): the note says
+    what was done and how far the solve moved the recorded pose; a friction
+    result without rest lengths gets a fresh path from the start state, and
+    the note says so."""
+    from ..equilibrium import EquilibriumOptions, solve_equilibrium
+    where = str(result_path)
     model = problem.model
+    doc = _read_result(result_path, model.scene) if doc is None else doc
+    try:
+        contraction, nodes = doc["contractions"], np.asarray(doc["nodes"], dtype=np.float64)
+        rest_nodes = np.asarray(doc["model"]["rest_nodes"], dtype=np.float64)
+        tendons = list(doc["model"]["tendons"]["list"])
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise SceneError(f"{where}: not a result file of plush-opt solve ({exc})") from None
     if len(tendons) != model.n_tendons:
         raise SceneError(f"{where}: model.tendons.list: {len(tendons)} tendons, the problem has {model.n_tendons}")
-    if doc.get("problem") != model.scene.name:
-        raise SceneError(f"{where}: problem: {doc.get('problem')!r}, but {problem.source} is {model.scene.name!r}")
     X = model.X.reshape(-1, 2)
-    same = (nodes.shape == X.shape and rest_nodes.shape == X.shape
-            and np.max(np.abs(rest_nodes - X)) <= REST_MATCH * (1 + float(np.max(np.abs(X)))))
-    if not same:
+    if not (nodes.shape == X.shape and _same_nodes(rest_nodes, X)):
         raise SceneError(f"{where}: model.rest_nodes: {len(rest_nodes)} nodes, not the mesh of {problem.source} "
                          f"({len(X)} nodes): a result of another mesh size?")
     if set(contraction) != set(model.winch_names):
@@ -260,22 +276,23 @@ def recorded_pose(problem, result_path, options=None):
 def result_problem(problem_path, result_path):
     """The problem of ``problem_path`` on the mesh a result file of it was
     solved on: the file's own, or (a solve with ``--accuracy``, or on
-    another problem file's mesh) the element and mesh the result recorded in its
-    ``model`` (``element``, ``rest_nodes``, ``triangles``)."""
+    another problem file's mesh) the element and mesh the result recorded in
+    its ``model`` (``element``, ``rest_nodes``, ``triangles``). Returns
+    (problem, the result file's document)."""
     from ..io import load_scene
     from ..mesh import build_mesh
     from ..problem import from_scene
     scene = load_scene(Path(problem_path))
+    doc = _read_result(result_path, scene)
     try:
-        model = json.loads(Path(result_path).read_text())["model"]
+        model = doc["model"]
         element, X = model["element"], np.asarray(model["rest_nodes"], dtype=np.float64)
         triangles = np.asarray(model["triangles"], dtype=np.int64)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError) as exc:
         raise SceneError(f"{result_path}: not a result file of plush-opt solve ({exc})") from None
     own = build_mesh(scene)
-    if element == own.element and X.shape == own.X.shape and np.array_equal(triangles, own.elements) \
-            and np.max(np.abs(X - own.X), initial=0.0) <= REST_MATCH * (1 + float(np.max(np.abs(own.X)))):
-        return from_scene(scene, own)
+    if element == own.element and np.array_equal(triangles, own.elements) and _same_nodes(X, own.X):
+        return from_scene(scene, own), doc
     corners = {"P1": 3, "P2": 6}.get(element)
     if corners is None or X.ndim != 2 or X.shape[1] != 2 or triangles.ndim != 2 \
             or triangles.shape[1] != corners or not len(triangles) \
@@ -286,13 +303,13 @@ def result_problem(problem_path, result_path):
     # and pin points are nodes of it: it was meshed from this scene)
     recorded = dataclasses.replace(scene, outline=None, holes=(), max_area=None, min_angle=None,
                                    nodes=X, triangles=triangles, element=element)
-    return from_scene(recorded)
+    return from_scene(recorded), doc
 
 
 def export_result(folder, problem_path, result_path) -> tuple[Path, str, bool]:
     """``folder/pose.vtu`` of the pose a result file of the problem file
     recorded (:func:`recorded_pose`), on the mesh it was solved on
     (:func:`result_problem`); returns (its path, the note, converged)."""
-    problem = result_problem(problem_path, result_path)
-    eq, note = recorded_pose(problem, result_path)
+    problem, doc = result_problem(problem_path, result_path)
+    eq, note = recorded_pose(problem, result_path, doc=doc)
     return write_pose(Path(folder) / "pose.vtu", problem.model, eq.x, eq.contraction, eq), note, eq.converged
