@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from .errors import SceneError, format_point
 from .geometry import diameter, distance_to_segments, locate_in_triangles, ring_area
+from .grading import grade
 from .scene import POINT_TOL, Scene
 
 # The three edges of a P2 triangle, in the order of its midside nodes.
@@ -199,8 +200,9 @@ def _merge_close(pts: np.ndarray, tol: float) -> np.ndarray:
     return rep
 
 
-def _mesh_outline(scene: Scene, max_area, tol):
-    """Triangulate the outline; returns X, triangles and the node of every forced point."""
+def _mesh_outline(scene: Scene, max_area, tol, graded: bool = False):
+    """Triangulate the outline (graded towards its singular points if asked:
+    plush_opt.grading); returns X, triangles and the node of every forced point."""
     rings = [scene.outline, *scene.holes]
     ring_pts = np.concatenate(rings)
     n_ring = len(ring_pts)
@@ -235,9 +237,8 @@ def _mesh_outline(scene: Scene, max_area, tol):
     vertices = np.vstack([ring_pts, np.array(extra).reshape(-1, 2)])
 
     min_angle = DEFAULT_MIN_ANGLE if scene.min_angle is None else scene.min_angle
-    opts = "pzQ"
-    if min_angle > 0:
-        opts += "q" + _num(min_angle)
+    quality = "q" + _num(min_angle) if min_angle > 0 else ""
+    opts = "pzQ" + quality
     if max_area is not None:
         opts += "a" + _num(max_area)
     pslg = {"vertices": vertices, "segments": np.array(segments, dtype=np.int32)}
@@ -246,6 +247,8 @@ def _mesh_outline(scene: Scene, max_area, tol):
     out = _triangle.triangulate(pslg, opts)
     X = np.asarray(out["vertices"], dtype=np.float64)
     tris = np.asarray(out["triangles"], dtype=np.int64)
+    if graded:
+        X, tris = grade(scene, X, tris, max_area, quality)
     # Triangle keeps input vertices first and in order; check rather than trust.
     if not (len(X) >= len(vertices) and np.array_equal(X[:len(vertices)], vertices)):
         dist, near = cKDTree(X).query(vertices)
@@ -271,7 +274,7 @@ def _refuse_large(scene: Scene, max_area: float, tol: float) -> None:
                              f"triangles (limit {MAX_ELEMS}); use a larger max_area")
 
 
-def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
+def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False) -> Mesh:
     """Mesh a scene.
 
     Parameters
@@ -280,6 +283,11 @@ def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
     max_area : float, optional
         Largest triangle area (length units squared); overrides
         ``scene.max_area`` (mesh-resolution sweeps). Ignored for explicit meshes.
+    graded : bool
+        Refine towards reentrant corners and the ends of pinned boundary
+        (plush_opt.grading), with ``max_area`` the bound far from them
+        (the accuracy sweep's levels). Needs ``max_area``; ignored for
+        explicit meshes.
 
     Returns
     -------
@@ -302,7 +310,9 @@ def build_mesh(scene: Scene, max_area: float | None = None) -> Mesh:
             raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
         if max_area is not None:
             _refuse_large(scene, max_area, tol)
-        X, tris, node_of, keys = _mesh_outline(scene, max_area, tol)
+        if graded and max_area is None:
+            raise SceneError(f"{src}: mesh: a graded mesh needs max_area")
+        X, tris, node_of, keys = _mesh_outline(scene, max_area, tol, graded)
         if len(tris) > MAX_ELEMS:
             raise SceneError(f"{src}: mesh.max_area: {max_area:g} gives {len(tris)} triangles "
                              f"(limit {MAX_ELEMS}); use a larger max_area")

@@ -222,6 +222,7 @@ def test_result_json_records_the_accuracy(tmp_path):
     assert acc["tolerance"] == 0.002 and acc["element"] in ("P1", "P2") and acc["reached"]
     assert acc["estimated_error"] <= 0.002
     assert acc["nodes"] == len(doc["model"]["rest_nodes"])
+    assert acc["graded"] is True            # the levels are graded towards the clamped end
     assert acc["summary"] in p.stderr and "warning" not in p.stderr
 
 

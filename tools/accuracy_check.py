@@ -90,7 +90,7 @@ def convergence_rows(scene, finest: float, cs):
 def chosen_error(scene, report, ref_level, cs, points) -> float:
     """Largest distance of the chosen mesh's predicted points from the reference's."""
     s = dataclasses.replace(scene, element=report["element"])
-    mesh = build_mesh(s, max_area=report["max_area"])
+    mesh = build_mesh(s, max_area=report["max_area"], graded=report.get("graded", False))
     model = build_model(s, mesh)
     probe = Targets.at_points(mesh, points, points)
     ys, x = [], None

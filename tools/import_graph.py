@@ -22,7 +22,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "plush_opt"
 LAYERS = [
     ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
     ("scene", ("scene", "io")),
-    ("mesh", ("mesh",)),
+    ("mesh", ("mesh", "grading")),
     ("model", ("model", "hessian_layout", "attachments", "pins", "elements", "tendon_law", "objective")),
     ("solvers", ("equilibrium", "branch", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
     ("control", ("control", "results", "problem", "fit")),
