@@ -223,12 +223,11 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
 
 
 def accuracy_record(report: dict) -> dict:
-    """The result JSON's keys for a mesh chosen by ``--accuracy``:
-    ``accuracy`` (tolerance, estimated_error, element, nodes, whether the
-    tolerance was met, the one-line summary) and ``mesh_accuracy`` (every
-    level computed)."""
+    """The result JSON's keys for a mesh chosen by ``--accuracy``: ``accuracy``
+    (tolerance, estimated_error, element, nodes, whether the tolerance was
+    met, whether the mesh is graded, the summary) and ``mesh_accuracy``."""
     keys = ("tolerance", "estimated_error", "element", "nodes", "reached", "status", "max_area",
-            "summary")
+            "graded", "summary")
     return {"accuracy": {k: report.get(k) for k in keys}, "mesh_accuracy": report}
 
 
