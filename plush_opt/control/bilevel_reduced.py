@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from ..branch import solve_on_branch
 from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..model import Model
 from ..objective import Targets
@@ -90,7 +91,11 @@ class Evaluator:
 
     A contraction at which Newton does not certify a stable equilibrium
     gives NaN residuals: IPOPT treats that as an evaluation error and cuts
-    its step back."""
+    its step back. The equilibrium is the one on the stable branch through
+    the nearest point already certified (plush_opt/branch.py, as the
+    gradient loop's line-search trials): past a limit point of that branch
+    the evaluation fails in a few Newton iterations instead of following a
+    snap-through (or running to the iteration limit on the way there)."""
 
     def __init__(self, model: Model, targets: Targets, c_full: np.ndarray, free: np.ndarray,
                  start: Equilibrium, options: EquilibriumOptions, damping: float = 0.0,
@@ -150,14 +155,27 @@ class Evaluator:
         # bound): every point evaluated, kept and returned stays within them
         return np.clip(c, self.model.lower, self.model.upper)
 
-    def at(self, c_free) -> Point | None:
+    def at(self, c_free, on_branch: bool = True) -> Point | None:
+        """The certified point at ``c_free`` (cached), or None where there is none.
+
+        ``on_branch`` : follow the stable branch from the nearest point
+        (IPOPT's evaluations); False for a plain Newton solve from its
+        predictor, which may land on another branch (the look-further
+        probes, as the gradient loop's restart probes)."""
         c = self.contraction(c_free)
         for p in reversed(self.points):
             if np.array_equal(p.c, c):
                 return p
         near = min(self.points, key=lambda p: float(np.max(np.abs(p.c - c))))
         t0 = time.perf_counter()
-        eq = solve_equilibrium(self.model, c, self._predict(near, c), self.options)
+        guess = self._predict(near, c)
+        if on_branch:
+            # Newton without regularisation from the predictor: where every
+            # Hessian on the way is positive definite (no fold near) it takes
+            # the plain solve's iterates exactly
+            eq = solve_on_branch(self.model, near.c, near.eq.x, c, guess, self.options)
+        else:
+            eq = solve_equilibrium(self.model, c, guess, self.options)
         self.t_evaluations += time.perf_counter() - t0
         self.solves += 1
         self.newton_iterations += eq.iterations
