@@ -12,6 +12,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
+from plush_opt.branch import follow_branch
 from plush_opt.control import bilevel_reduced
 from plush_opt.control.bilevel_reduced import Evaluator, ResidualCallback
 from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
@@ -48,14 +49,31 @@ def test_an_evaluation_past_the_fold_fails_in_a_few_newton_iterations():
     assert ev.at([A, 25.0]) is None
     assert (ev.solves, ev.failures) == (1, 1)
     assert ev.newton_iterations <= 40               # 18 measured for this move
-    # IPOPT sees the failure as NaN residuals (an evaluation error: it cuts its step)
+    # IPOPT's next trial, half the step along the same ray, is past the end
+    # the branch follower found: it fails without a solve
+    assert ev.at([A, 23.75]) is None
+    assert (ev.solves, ev.past_end) == (1, 1)
+    # IPOPT sees a failure as NaN residuals (an evaluation error: it cuts its step)
     m = ev.B.shape[0] + 2
     r = np.asarray(ResidualCallback("r", ev, 2, m)(ca.DM([A, 25.0]))).ravel()
     assert r.shape == (m,) and np.isnan(r).all()
+    # short of the end, and off that ray, points are solved as ever
+    assert ev.at([A, 23.1]) is not None and ev.solves == 2
     # the plain solve from the same predictor is still on its way at any limit
     plain = _evaluator(p, start, dataclasses.replace(QUICK, max_iterations=40))
     assert plain.at([A, 25.0], on_branch=False) is None
     assert plain.newton_iterations == 40
+
+
+def test_the_branch_follower_says_how_far_out_the_branch_has_ended():
+    p, start = hexapod_p2()
+    eq, failed = follow_branch(p.model, start.contraction, start.x, [A, 25.0], options=QUICK)
+    assert not eq.converged and failed is not None
+    reached = float(eq.status.split("contraction [")[1].split("]")[0].split()[1])
+    b_failed = 22.5 + failed * 2.5
+    assert 23.0 < reached < b_failed < 23.5          # the fold: just past 23.2
+    # a move that stays on the branch has no end to report
+    assert follow_branch(p.model, start.contraction, start.x, [A, 23.1], options=QUICK)[1] is None
 
 
 def test_an_evaluation_along_the_branch_is_the_certified_plain_equilibrium():
@@ -73,9 +91,9 @@ def test_runs_that_cross_no_fold_are_the_plain_solves_bit_for_bit(name, monkeypa
     on_branch = p.control(method="bilevel")
 
     def plain(model, c0, x0, c1, guess=None, options=None):
-        return solve_equilibrium(model, c1, guess, options)
+        return solve_equilibrium(model, c1, guess, options), None
 
-    monkeypatch.setattr(bilevel_reduced, "solve_on_branch", plain)
+    monkeypatch.setattr(bilevel_reduced, "follow_branch", plain)
     before = p.control(method="bilevel")
     assert on_branch.converged and before.converged
     assert on_branch.contractions == before.contractions
