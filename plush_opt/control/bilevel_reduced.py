@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -55,8 +55,8 @@ CACHE_SIZE = 8
 # force: a winch whose tendons all are there has a (nearly) zero column in
 # dr/dc and gets the absolute damping floor.
 NEAR_SLACK = 0.5
-# Branch ends remembered (from a point, a direction, a distance): IPOPT's
-# line search cuts its step back along one ray from its iterate.
+# Branch ends a point remembers (a direction, a distance): IPOPT's line
+# search cuts its step back along one ray from its iterate.
 MAX_ENDS = 32
 # Two moves from the same point are along the same ray when their unit
 # directions differ by less than this (round-off in IPOPT's c + alpha d).
@@ -82,6 +82,9 @@ class Point:
     r: np.ndarray              # (2 k,) weighted residuals
     J: np.ndarray | None       # (2 k, n_free) dr/dc_free, computed on demand
     dxdc: np.ndarray | None    # (n_dofs, n_winches), free columns filled
+    # (unit direction, distance): the branch through this point ends before
+    # that distance along that ray (it goes with the point out of the cache)
+    ends: list = field(default_factory=list)
 
     @property
     def objective(self) -> float:
@@ -122,7 +125,6 @@ class Evaluator:
         self.newton_iterations = 0
         self.failures = 0
         self.past_end = 0                           # evaluations known to fail without a solve
-        self._ends: list[tuple[np.ndarray, np.ndarray, float]] = []
         self.t_evaluations = 0.0
         self.error: BaseException | None = None
         self.add(start)
@@ -188,8 +190,8 @@ class Evaluator:
             if failed is not None:
                 d = c - near.c
                 dist = float(np.linalg.norm(d))
-                self._ends.append((near.c, d / dist, failed * dist))
-                del self._ends[:-MAX_ENDS]
+                near.ends.append((d / dist, failed * dist))
+                del near.ends[:-MAX_ENDS]
         else:
             eq = solve_equilibrium(self.model, c, guess, self.options)
         self.t_evaluations += time.perf_counter() - t0
@@ -212,8 +214,7 @@ class Evaluator:
         if dist == 0.0:
             return False
         u = d / dist
-        return any(np.array_equal(c0, near.c) and dist >= end and np.max(np.abs(u - v)) <= SAME_RAY
-                   for c0, v, end in self._ends)
+        return any(dist >= end and np.max(np.abs(u - v)) <= SAME_RAY for v, end in near.ends)
 
     def _predict(self, near: Point, c) -> np.ndarray:
         """x + dx/dc (c - c_near) if admissible, else x (the loop's predictor)."""
