@@ -54,7 +54,17 @@ SAFETY = 100.0
 def solve_on_branch(model: Model, c0, x0, c1, guess=None,
                     options: EquilibriumOptions | None = None) -> Equilibrium:
     """The equilibrium at ``c1`` on the stable branch through the certified
-    equilibrium ``x0`` at ``c0``.
+    equilibrium ``x0`` at ``c0`` (:func:`follow_branch` without where the
+    branch ended)."""
+    return follow_branch(model, c0, x0, c1, guess, options)[0]
+
+
+def follow_branch(model: Model, c0, x0, c1, guess=None,
+                  options: EquilibriumOptions | None = None) -> tuple[Equilibrium, float | None]:
+    """The equilibrium at ``c1`` on the stable branch through the certified
+    equilibrium ``x0`` at ``c0``, and, where the branch ends before ``c1``,
+    the fraction of the move c0 -> c1 at which a sub-step found no stable
+    equilibrium left (the branch ends before it; None otherwise).
 
     ``guess`` : the start of the direct solve at c1 (a predictor; default
     x0). ``options.max_iterations`` bounds the Newton iterations of the
@@ -69,7 +79,7 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     c1 = np.asarray(c1, dtype=np.float64).reshape(-1)
     guess = x0 if guess is None else guess
     if options.backend != "newton":
-        return solve_equilibrium(model, c1, guess, options)
+        return solve_equilibrium(model, c1, guess, options), None
     t0 = time.perf_counter()
     # no eigenvalue diagnostic on a pose that failed: without a factor it is
     # a Lanczos run on H itself, seconds on a P2 mesh, for a pose discarded.
@@ -79,10 +89,10 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
     strict = replace(options, regularise=False, eigenvalue=False, escape_saddles=False)
     direct = solve_equilibrium(model, c1, guess, strict)
     if direct.converged:
-        return _at_the_end(direct, time.perf_counter() - t0, options.eigenvalue)
+        return _at_the_end(direct, time.perf_counter() - t0, options.eigenvalue), None
     if not _left(direct):
-        return direct
-    used, escapes = direct.iterations, 0
+        return direct, None
+    used, escapes, failed = direct.iterations, 0, None
     done, h, steps, look = 0.0, FIRST_FRACTION, 0, False
     x = np.asarray(x0, dtype=np.float64).reshape(-1)
     # the first sub-step starts on the line from x0 to the guess (the
@@ -102,7 +112,8 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
             status = (f"no stable equilibrium on the branch: it ends (limit point) past "
                       f"contraction {np.array2string(reached, precision=6)} on the way to "
                       f"{np.array2string(c1, precision=6)}")
-            break
+            return (replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0),
+                    failed)
         last = done + h >= 1.0
         c = c1 if last else c0 + (done + h) * (c1 - c0)
         sub = solve_equilibrium(model, c, _secant(model, x, x_prev, h, h_prev),
@@ -117,16 +128,17 @@ def solve_on_branch(model: Model, c0, x0, c1, guess=None,
                          c1, steps, used)
                 status = "converged" + (f" (escaped {escapes} saddle(s))" if escapes else "")
                 return _at_the_end(replace(sub, iterations=used, saddle_escapes=escapes, status=status),
-                                   time.perf_counter() - t0, options.eigenvalue)
+                                   time.perf_counter() - t0, options.eigenvalue), None
             x_prev, x, h_prev = x, sub.x, h
             done += h
             h, look = 2 * h, False
         elif look or _left(sub):
+            failed = done + h
             h *= 0.5                        # (after a look: nothing found, the branch ends)
         else:
             status = sub.status
             break
-    return replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0)
+    return replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0), None
 
 
 def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium:

@@ -364,7 +364,15 @@ def test_a_run_whose_every_trial_point_fails_is_an_honest_solver_failure(monkeyp
         eq = real(model_, c, x0, options)
         return _replace(eq, converged=False, status="refused on purpose")
 
+    real_branch = bilevel_reduced.follow_branch
+
+    def refusing_on_branch(model_, c0, x0, c1, guess=None, options=None):
+        eq, _ = real_branch(model_, c0, x0, c1, guess, options)
+        return _replace(eq, converged=False, status="refused on purpose"), None
+
+    # IPOPT's points are solved on the branch, the look-further probes plainly
     monkeypatch.setattr(bilevel_reduced, "solve_equilibrium", refusing)
+    monkeypatch.setattr(bilevel_reduced, "follow_branch", refusing_on_branch)
     res = solve_bilevel(model, targets)
     assert not res.converged and res.reason == "solver_failed", res.status
     assert res.status.startswith("ipopt (reduced): ")

@@ -387,8 +387,8 @@ class BilevelSolver:
             stopped_by_time_limit=run.stop == "max_time", t_build=run.t_build, cached_solver=False,
             t_ipopt_total=run.t_ipopt, t_function_evaluations=t_eval,
             t_inside_ipopt=max(run.t_ipopt - t_eval, 0.0),
-            calls={**run.calls, "equilibrium_solves": run.ev.solves,
-                   "failed_equilibrium_solves": run.ev.failures},
+            calls={**run.calls, "equilibrium_solves": run.ev.solves, "failed_equilibrium_solves":
+                   run.ev.failures, "known_past_branch_end": run.ev.past_end},
             options={"ipopt": _jsonable(options.reduced_ipopt_options()), "gtol": options.gtol,
                      "ftol": options.ftol, "patience": options.patience,
                      "objective_floor": options.objective_floor, "max_time": options.max_time},

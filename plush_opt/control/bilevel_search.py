@@ -235,7 +235,7 @@ class ReducedRun:
                 c[w] = float(np.clip(c[w] + inward * frac * self.span[w], model.lower[w], model.upper[w]))
                 if c[w] == point.c[w]:
                     continue
-                trial = self.ev.at(c[self.free])
+                trial = self.ev.at(c[self.free], on_branch=False)
                 if trial is None:
                     continue
                 if frac == 0.0:
