@@ -152,15 +152,21 @@ def probe_points(scene: Scene) -> tuple[np.ndarray, str]:
 
 def probe_contractions(scene: Scene) -> np.ndarray:
     """The contractions the meshes are compared at, (m, n_winches): the
-    scene's own and, for a control problem, also mid-range for every free
-    winch (a representative pose the controller will pass through)."""
+    scene's own and, for a control problem, each free winch alone at
+    mid-range (the others at the scene's): the poses the controller
+    combines. Not all of them at once: antagonists pulling against each
+    other can drive the body past a pitchfork (both side winches of the
+    gripper at mid-range compress its stem until it has two stable bent
+    states 0.03-0.09 mm apart at the tips, and which one a solve finds
+    depends on the mesh and the start), and such a pose measures the
+    branch a mesh picks, not its discretisation error."""
     cs = [scene.contraction.copy()]
     if scene.targets:
-        mid = scene.contraction.copy()
-        free = ~scene.frozen
-        mid[free] = 0.5 * (scene.lower[free] + scene.upper[free])
-        if not np.array_equal(mid, cs[0]):
-            cs.append(mid)
+        for w in np.flatnonzero(~scene.frozen):
+            c = scene.contraction.copy()
+            c[w] = 0.5 * (scene.lower[w] + scene.upper[w])
+            if not any(np.array_equal(c, other) for other in cs):
+                cs.append(c)
     return np.array(cs)
 
 
