@@ -49,8 +49,9 @@ class CompareSettings:
     elements : element types of the mesh sweep (every factor with each);
         the main runs use the problem file's element.
     reference_factor : max_area of the P2 reference, as a multiple of the
-        file's: every run's error is measured against the reference's pose
-        at the run's contractions.
+        file's (away from the corners its mesh is graded towards): every
+        run's error is measured against the reference's pose at the run's
+        contractions.
     check_factor : a coarser P2 level (multiple of the file's max_area)
         whose distance from the reference is reported as the check of the
         reference's own convergence (it must be far below the errors
