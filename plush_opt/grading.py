@@ -11,6 +11,14 @@ uniform P2 levels of 9,803 and 19,426 nodes agree to 0.03 mm at the bar's
 tips while both are 0.15 mm from the limit. Neighbouring levels agreeing
 long before they are right is exactly what fools an error estimate.
 
+The second thing a uniform mesh resolves late is a finite tendon attachment
+(a disc of radius r a few mm across, plush_opt.attachments): while the
+elements are larger than r the disc's pull is spread over them like a
+point load's, and the levels converge slowly and unevenly. On the gripper
+(2 mm discs) the P2 levels' mirrored tips still differed by 0.03 mm at
+17,000 nodes with the corners graded; with the elements at the discs a
+quarter of h they agree to 0.001 mm at 5,000 nodes.
+
 A graded mesh (Babuska's remedy) makes its local element size h g(d) with
 
     g(d) = min(1, max(G_MIN, (d / R) ** gamma)),   gamma = 1 - lambda / p,
@@ -22,7 +30,8 @@ singular point. The grading function is fixed, so the levels of a
 sweep (max_area halving) are the same mesh made uniformly finer, which is
 what the rate-based estimate assumes; the floor G_MIN keeps the elements at
 a singular point a fixed fraction of h rather than letting them shrink
-without bound. It costs about 1.1-1.3x the nodes of the uniform mesh.
+without bound. Within one local element of each attachment disc's rim the
+size is h / 4 (DISC_FACTOR), fixed the same way.
 
 The mesh is made by Triangle as usual and then refined ('r') with a
 per-triangle area bound max_area * g^2 at the triangle's centroid, a few
@@ -45,6 +54,9 @@ G_MIN = 1.0 / 16
 RADIUS = 0.25
 #: Grading exponent per element: gamma = 1 - lambda / p with lambda = 1/2.
 GAMMA = {"P1": 0.5, "P2": 0.75}
+#: Local size at a finite tendon attachment, as a fraction of h (within one
+#: such element of the disc's rim).
+DISC_FACTOR = 1.0 / 4
 #: Refinement passes; a pass that leaves no triangle above its bound stops early.
 PASSES = 6
 #: A corner counts as reentrant above 180 degrees by this much (radians).
@@ -141,17 +153,24 @@ def body_size(scene: Scene) -> float:
 
 
 def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, quality: str):
-    """Refine the triangulation (X, tris) towards the scene's singular points.
+    """Refine the triangulation (X, tris) towards the scene's singular points
+    and its tendons' attachment discs.
 
     ``quality`` is the Triangle switch of the mesh's angle bound ("q28", or
     ""); the input vertices stay first and in order. Returns X, tris."""
     singular = singular_points(scene)
-    if len(singular) == 0:
+    discs = [(p, t.attachment_radius) for t in scene.tendons if t.attachment_radius > 0 for p in t.path]
+    if len(singular) == 0 and not discs:
         return X, tris
     radii = grading_radii(singular, body_size(scene))
+    h_disc = DISC_FACTOR * np.sqrt(max_area)
     for _ in range(PASSES):
         p = X[tris]
-        g = size_factor(p.mean(axis=1), singular, radii, scene.element)
+        centroid = p.mean(axis=1)
+        g = size_factor(centroid, singular, radii, scene.element)
+        for centre, r in discs:
+            near = np.linalg.norm(centroid - centre, axis=1) < r + h_disc
+            g[near] = np.minimum(g[near], DISC_FACTOR)
         bound = max_area * g ** 2
         d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
         area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])

@@ -116,6 +116,23 @@ def test_graded_mesh_meets_its_local_size_bound_and_keeps_the_forced_nodes(eleme
     assert build_mesh(scene, max_area=area, graded=True) == graded          # deterministic
 
 
+def test_attachment_discs_get_elements_a_quarter_of_h():
+    square = [[0, 0], [40, 0], [40, 40], [0, 40]]
+    scene = _scene(outline=square, box=(0, 40, 40, 40))
+    tendon = dataclasses.replace(scene.tendons[0], attachment_radius=2.0)
+    scene = dataclasses.replace(scene, tendons=(tendon,))
+    area = 16.0
+    mesh = build_mesh(scene, max_area=area, graded=True)
+    p = mesh.X[mesh.triangles]
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    tri_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    for centre in ([5, 30], [5, 20]):
+        inside = np.linalg.norm(p.mean(axis=1) - centre, axis=1) < 2.0
+        assert inside.sum() >= 8 and tri_area[inside].max() <= area / 16 * (1 + 1e-9)
+    far = np.linalg.norm(p.mean(axis=1) - [30, 10], axis=1) < 5
+    assert tri_area[far].max() > area / 4                  # the rest stays coarse
+
+
 def test_a_graded_mesh_needs_a_max_area():
     scene = dataclasses.replace(_scene(), max_area=None)
     with pytest.raises(SceneError, match="graded mesh needs max_area"):
