@@ -56,9 +56,10 @@ log = logging.getLogger(__name__)
 #: The finest is an eighth of the file's area (P2 there has ~30x the file's P1
 #: nodes): the budget of a tolerance that cannot be met.
 DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125)
-#: The levels' meshes are graded towards reentrant corners and the ends of
-#: pinned boundary (plush_opt.grading): uniform levels converge there like
-#: h^1.1 whatever the element, and agree long before they are right.
+#: The levels' meshes are graded towards reentrant corners, the ends of
+#: pinned boundary and the tendons' attachment discs (plush_opt.grading):
+#: uniform levels converge there like h^1.1 whatever the element (and
+#: resolve a disc only below its radius), agreeing long before they are right.
 GRADED = True
 #: A level counts as finer than the previous one only with this many times its nodes.
 MIN_REFINEMENT = 1.3
