@@ -268,13 +268,11 @@ def bound_errors(levels: list[Level]) -> None:
                 lv.bound, lv.bound_via = b, j
 
 
-def _solve_level(scene: Scene, area: float, cs, points, prev: Level | None,
-                 options: EquilibriumOptions) -> Level:
-    """Mesh ``scene`` at ``area``, time one cold solve, and solve at every
-    contraction of ``cs`` from the previous level's poses."""
-    t0 = time.perf_counter()
-    mesh = build_mesh(scene, max_area=area, graded=GRADED)
-    t_mesh = time.perf_counter() - t0
+def _solve_level(scene: Scene, area: float, mesh: Mesh, t_mesh: float, cs, points,
+                 prev: Level | None, options: EquilibriumOptions) -> Level:
+    """Time one cold solve on the level's mesh (``scene`` meshed at
+    ``area``), and solve at every contraction of ``cs`` from the previous
+    level's poses."""
     model = build_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
     solve_equilibrium(model, cs[-1], None, options)      # CHOLMOD's symbolic analysis: setup
@@ -306,12 +304,16 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
     scene = dataclasses.replace(scene, element=element)
     done: list[Level] = []
     for area in levels:
-        if done and build_mesh(scene, max_area=area, graded=GRADED).n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
+        t0 = time.perf_counter()
+        mesh = build_mesh(scene, max_area=area, graded=GRADED)
+        t_mesh = time.perf_counter() - t0
+        if done and mesh.n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
             # not really finer (forced points and the angle bound dominate)
             log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
                      element, area)
             continue
-        done.append(_solve_level(scene, area, cs, points, done[-1] if done else None, options))
+        done.append(_solve_level(scene, area, mesh, t_mesh, cs, points, done[-1] if done else None,
+                                 options))
         est = estimate_errors([lv.y for lv in done], [lv.mesh.n_nodes for lv in done], element)
         for lv, e in zip(done, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
