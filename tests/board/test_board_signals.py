@@ -74,14 +74,19 @@ def _alive(pid: int) -> bool:
     return stat[stat.rfind(")") + 2] != "Z"
 
 
-def _interrupt(tmp_path, point, name, board_args):
+def _interrupt(tmp_path, point, name, board_args, board_open=None):
+    """``board_open()``: true once the board has heard from the run (the
+    log is created before the port is opened: without it a signal at the
+    start could land before there is a board to stop)."""
     steps, ready = POINTS[point]
     log = tmp_path / "run.jsonl"
     child = subprocess.Popen([sys.executable, str(CHILD), str(_script(tmp_path, steps)), str(log), *board_args],
                              stderr=subprocess.PIPE, text=True, preexec_fn=default_sigint)
     try:
-        assert wait_until(lambda: ready(_lines(log)), timeout=20), \
+        assert wait_until(lambda: ready(_lines(log)) and (board_open is None or board_open()), timeout=20), \
             child.stderr.read() if child.poll() is not None else f"never reached {point}"
+        if board_open is not None:
+            time.sleep(0.3)         # the rest of the handshake (the run then sleeps 1.5 s in its first solve)
         children = _children(child.pid)
         child.send_signal(getattr(signal, name))
         code = child.wait(20)
@@ -98,7 +103,8 @@ def _interrupt(tmp_path, point, name, board_args):
 def test_a_signal_stops_the_board_and_ends_the_log(tmp_path, make_emulator, name, point):
     emu = make_emulator(3, speed=400.0)
     before = emu.read_state()
-    code, stderr, lines, _ = _interrupt(tmp_path, point, name, ["--port", emu.port])
+    code, stderr, lines, _ = _interrupt(tmp_path, point, name, ["--port", emu.port],
+                                        lambda: emu.read_state()["lines"] > before["lines"])
     assert code == 128 + getattr(signal, name), stderr
     assert f"interrupted ({name})" in stderr and "Traceback" not in stderr, stderr
     assert lines[-1]["kind"] == "end" and lines[-1]["status"] == "interrupted", lines[-1]
