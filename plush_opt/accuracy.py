@@ -42,7 +42,7 @@ import numpy as np
 from .elements import interpolation_weights
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .errors import SceneError
-from .geometry import ring_area
+from .geometry import body_area
 from .mesh import Mesh, build_mesh
 from .model import Model, build_model
 from .objective import Targets
@@ -128,7 +128,7 @@ def base_area(scene: Scene) -> float:
         raise SceneError(f"{scene.source}: mesh: an explicit mesh cannot be resized")
     if scene.max_area is not None:
         return float(scene.max_area)
-    body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+    body = body_area(scene.outline, scene.holes)
     return body / 400.0
 
 

@@ -36,6 +36,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .elements import interpolation_weights
+from .geometry import triangle_areas
 from .mesh import Mesh
 
 # Leaf pieces of a cut triangle are at most this fraction of r wide: the
@@ -46,11 +47,6 @@ LEAF_FRACTION = 1.0 / 16
 WEIGHT_DROP = 1e-13
 # The degree-2 exact rule on a triangle: three interior points, weight A/3 each.
 _RULE = np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
-
-
-def _area(V: np.ndarray) -> np.ndarray:
-    d1, d2 = V[:, 1] - V[:, 0], V[:, 2] - V[:, 0]
-    return 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
 
 
 def _barycentric(V: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -191,7 +187,7 @@ class AttachmentWeights:
             V, owner = _split(V[wide]), np.repeat(owner[wide], 4)
         V, owner = np.concatenate(pieces), np.concatenate(owners)
         qpts = np.concatenate([np.einsum("qk,mkj->mqj", _RULE, V).reshape(-1, 2)] + extra_pts)
-        qw = np.concatenate([np.repeat(_area(V) / 3, 3)] + extra_w)
+        qw = np.concatenate([np.repeat(triangle_areas(V) / 3, 3)] + extra_w)
         q_owner = np.concatenate([np.repeat(owner, 3)] + extra_owner)
         elem = cand[q_owner]
         beta = _barycentric(self.corners[elem], qpts)

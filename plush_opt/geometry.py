@@ -57,6 +57,17 @@ def ring_area(ring: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
+def body_area(outline: np.ndarray, holes=()) -> float:
+    """Area of the body an outline and its holes enclose."""
+    return abs(ring_area(outline)) - sum(abs(ring_area(h)) for h in holes)
+
+
+def triangle_areas(V: np.ndarray) -> np.ndarray:
+    """Unsigned area of each triangle, (m, 3, 2) -> (m,)."""
+    d1, d2 = V[:, 1] - V[:, 0], V[:, 2] - V[:, 0]
+    return 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+
+
 def _segments(rings):
     a = np.concatenate(rings)
     b = np.concatenate([np.roll(r, -1, axis=0) for r in rings])

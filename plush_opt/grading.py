@@ -46,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 import triangle as _triangle
 
-from .geometry import ring_area
+from .geometry import body_area, ring_area, triangle_areas
 from .scene import Scene
 
 #: Smallest local size, as a fraction of the level's h.
@@ -147,12 +147,6 @@ def size_factor(points: np.ndarray, singular: np.ndarray, radii: np.ndarray, ele
     return np.clip(np.min(d, axis=1) ** GAMMA[element], G_MIN, 1.0)
 
 
-def body_size(scene: Scene) -> float:
-    """sqrt of the body's area."""
-    area = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
-    return float(np.sqrt(area))
-
-
 def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, quality: str):
     """Refine the triangulation (X, tris) towards the scene's singular points
     and its tendons' attachment discs.
@@ -163,7 +157,7 @@ def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, qualit
     discs = [(p, t.attachment_radius) for t in scene.tendons if t.attachment_radius > 0 for p in t.path]
     if len(singular) == 0 and not discs:
         return X, tris
-    radii = grading_radii(singular, body_size(scene))
+    radii = grading_radii(singular, np.sqrt(body_area(scene.outline, scene.holes)))
     h_disc = DISC_FACTOR * np.sqrt(max_area)
     for _ in range(PASSES):
         p = X[tris]
@@ -173,9 +167,7 @@ def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, qualit
             near = np.linalg.norm(centroid - centre, axis=1) < r + h_disc
             g[near] = np.minimum(g[near], DISC_FACTOR)
         bound = max_area * g ** 2
-        d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-        area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-        if not np.any(area > bound * (1 + 1e-9)):
+        if not np.any(triangle_areas(p) > bound * (1 + 1e-9)):
             break
         edges = np.sort(np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
         edges, count = np.unique(edges, axis=0, return_counts=True)

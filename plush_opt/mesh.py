@@ -11,7 +11,7 @@ import triangle as _triangle
 from scipy.spatial import cKDTree
 
 from .errors import SceneError, format_point
-from .geometry import diameter, distance_to_segments, locate_in_triangles, ring_area
+from .geometry import body_area, diameter, distance_to_segments, locate_in_triangles
 from .grading import grade
 from .scene import POINT_TOL, Scene
 
@@ -262,7 +262,7 @@ def _refuse_large(scene: Scene, max_area: float, tol: float) -> None:
     """Refuse up front a mesh certain to exceed :data:`MAX_ELEMS`: by area
     alone (each triangle is at most ``max_area``), or by a coarser trial mesh."""
     src = scene.source
-    body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+    body = body_area(scene.outline, scene.holes)
     if body / max_area > MAX_ELEMS:
         raise SceneError(f"{src}: mesh.max_area: {max_area:g} would give more than "
                          f"{body / max_area:.3g} triangles (limit {MAX_ELEMS}); use a larger max_area")
@@ -411,7 +411,7 @@ def mesh_for_nodes(scene: Scene, target_nodes: int, *, rel_tol: float = 0.05,
     if not (isinstance(target_nodes, (int, np.integer)) and target_nodes >= 3):
         raise SceneError(f"{scene.source}: target_nodes must be an integer >= 3, "
                          f"got {target_nodes!r}")
-    body = abs(ring_area(scene.outline)) - sum(abs(ring_area(h)) for h in scene.holes)
+    body = body_area(scene.outline, scene.holes)
     lo, hi = 0.0, math.inf              # bracket on max_area: lo too fine, hi too coarse
     area = body / (2.0 * target_nodes)  # a triangulation has about twice as many elements
     best = None

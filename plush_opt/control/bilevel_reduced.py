@@ -95,6 +95,13 @@ class Point:
         return self.J.T @ self.r
 
 
+def _ray(c0: np.ndarray, c: np.ndarray) -> tuple[np.ndarray, float]:
+    """Unit direction and length of the move c0 -> c (direction 0 for none)."""
+    d = c - c0
+    dist = float(np.linalg.norm(d))
+    return (d / dist if dist > 0.0 else d), dist
+
+
 class Evaluator:
     """O(c), r(c) and dr/dc by Newton and the implicit sensitivity, cached.
 
@@ -188,9 +195,8 @@ class Evaluator:
             # the plain solve's iterates exactly
             eq, failed = follow_branch(self.model, near.c, near.eq.x, c, guess, self.options)
             if failed is not None:
-                d = c - near.c
-                dist = float(np.linalg.norm(d))
-                near.ends.append((d / dist, failed * dist))
+                u, dist = _ray(near.c, c)
+                near.ends.append((u, failed * dist))
                 del near.ends[:-MAX_ENDS]
         else:
             eq = solve_equilibrium(self.model, c, guess, self.options)
@@ -209,12 +215,8 @@ class Evaluator:
         iterate (creeping up to a fold), each halving that is still past
         the end would otherwise cost a branch-following solve that fails
         (0.15-0.6 s on the 1,280-node P2 hexapod; 10-16 per iteration)."""
-        d = c - near.c
-        dist = float(np.linalg.norm(d))
-        if dist == 0.0:
-            return False
-        u = d / dist
-        return any(dist >= end and np.max(np.abs(u - v)) <= SAME_RAY for v, end in near.ends)
+        u, dist = _ray(near.c, c)
+        return dist > 0.0 and any(dist >= end and np.max(np.abs(u - v)) <= SAME_RAY for v, end in near.ends)
 
     def _predict(self, near: Point, c) -> np.ndarray:
         """x + dx/dc (c - c_near) if admissible, else x (the loop's predictor)."""

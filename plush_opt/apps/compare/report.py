@@ -352,7 +352,8 @@ def accuracy_section(problem, runs) -> list[str]:
     measured = [r.model_error for r in runs if math.isfinite(r.model_error)]
     checks = [r.reference_difference for r in runs if math.isfinite(r.reference_difference)]
     L = [f"Accuracy: errors are measured against a P2 reference of {ref.mesh.n_nodes} nodes (graded "
-         f"towards reentrant corners and pinned ends) at each run's contractions. Its check against a coarser P2 level ({chk.mesh.n_nodes} nodes): "
+         f"towards reentrant corners, pinned ends and attachment discs) at each run's contractions. "
+         f"Its check against a coarser P2 level ({chk.mesh.n_nodes} nodes): "
          f"RMS distance of the target points at most {_fmt(max(checks, default=math.nan), '.3g')} "
          f"(the reference's own error is below it where the levels converge); the smallest model "
          f"error measured is {_fmt(min(measured, default=math.nan), '.3g')}"

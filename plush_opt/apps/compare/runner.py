@@ -45,8 +45,7 @@ def _level(scene, factor, element=None, graded=False):
     if element is not None and element != scene.element:
         scene = dataclasses.replace(scene, element=element)
     max_area = None if scene.outline is None else base_area(scene) * factor
-    p = from_scene(scene, build_mesh(scene, max_area, graded=True)) if graded else \
-        from_scene(scene, max_area=max_area)
+    p = from_scene(scene, build_mesh(scene, max_area, graded=graded))
     # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
     solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
     return p, time.perf_counter() - t0
