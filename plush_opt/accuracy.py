@@ -296,24 +296,31 @@ def _solve_level(scene: Scene, area: float, mesh: Mesh, t_mesh: float, cs, point
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
-           time_limit: float = math.inf) -> list[Level]:
+           time_limit: float = math.inf, solved: dict | None = None) -> list[Level]:
     """Levels of one element, coarse to fine, until one meets ``tol`` (its
     confirmed estimate needs the next two levels), the levels run out, or a level's solve
     is slower than ``time_limit`` (the best other candidate's: no finer
-    level of this element can beat it)."""
+    level of this element can beat it). ``solved`` maps (element, max_area)
+    to levels solved before at the same contractions and points: they are
+    reused, and the levels solved here are added."""
     scene = dataclasses.replace(scene, element=element)
+    solved = {} if solved is None else solved
     done: list[Level] = []
     for area in levels:
-        t0 = time.perf_counter()
-        mesh = build_mesh(scene, max_area=area, graded=GRADED)
-        t_mesh = time.perf_counter() - t0
-        if done and mesh.n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
-            # not really finer (forced points and the angle bound dominate)
-            log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
-                     element, area)
-            continue
-        done.append(_solve_level(scene, area, mesh, t_mesh, cs, points, done[-1] if done else None,
-                                 options))
+        level = solved.get((element, area))
+        if level is None:
+            t0 = time.perf_counter()
+            mesh = build_mesh(scene, max_area=area, graded=GRADED)
+            t_mesh = time.perf_counter() - t0
+            if done and mesh.n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
+                # not really finer (forced points and the angle bound dominate)
+                log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
+                         element, area)
+                continue
+            level = _solve_level(scene, area, mesh, t_mesh, cs, points, done[-1] if done else None,
+                                 options)
+            solved[(element, area)] = level
+        done.append(level)
         est = estimate_errors([lv.y for lv in done], [lv.mesh.n_nodes for lv in done], element)
         for lv, e in zip(done, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
@@ -338,7 +345,7 @@ def _check_arguments(tol, levels, scene: Scene):
 
 def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points=None,
                 options: EquilibriumOptions | None = None,
-                elements=ELEMENT_ORDER) -> tuple[Mesh, dict]:
+                elements=ELEMENT_ORDER, solved: dict | None = None) -> tuple[Mesh, dict]:
     """The element and mesh that predict the pose to within ``tol`` at the
     least solve time.
 
@@ -355,6 +362,8 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         :func:`probe_points`.
     options : equilibrium options.
     elements : element types to try ("P2", "P1").
+    solved : levels solved before at the same contractions and points,
+        keyed (element, max_area); reused, and added to (see :func:`sweep`).
 
     Returns
     -------
@@ -391,7 +400,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     best: Level | None = None
     for element in elements:
         done = sweep(scene, element, levels, cs, points, tol, options,
-                      math.inf if best is None else best.t_solve)
+                      math.inf if best is None else best.t_solve, solved)
         computed += done
         bound_errors(computed)
         for lv in computed:

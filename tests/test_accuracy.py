@@ -154,6 +154,23 @@ def test_unreachable_tolerance_says_so(tmp_path):
         row["n_nodes"] for row in report["levels"] if row["element"] == "P2")
 
 
+def test_levels_solved_before_are_reused_not_solved_again(tmp_path, monkeypatch):
+    import plush_opt.accuracy as accuracy
+    scene = load_scene(_coarse_leg(tmp_path))
+    levels = [scene.max_area * f for f in (4, 2, 1)]
+    calls = []
+    solve_level = accuracy._solve_level
+    monkeypatch.setattr(accuracy, "_solve_level", lambda *a, **k: calls.append(a[1]) or solve_level(*a, **k))
+    solved = {}
+    _, first = choose_mesh(scene, 1e-9, levels=levels, solved=solved)
+    n_first = len(calls)
+    assert n_first == len(solved) > 0
+    assert set(solved) == {(row["element"], row["max_area"]) for row in first["levels"]}
+    _, again = choose_mesh(scene, 1e-9, levels=levels, solved=solved)
+    assert len(calls) == n_first                       # nothing solved twice
+    assert again["levels"] == first["levels"] and again["nodes"] == first["nodes"]
+
+
 def test_levels_that_are_not_finer_are_skipped():
     scene = load_scene(ROOT / "problems" / "gripper.yaml")
     # 400 and 200 give the same mesh (forced points and the angle bound rule)

@@ -1,7 +1,7 @@
 """Check the accuracy estimate and ``--accuracy`` against fine P2 solves.
 
 Usage: python tools/accuracy_check.py PROBLEM.yaml ... [--tols 1 0.25 0.05]
-       [--finest 0.0625] [--out accuracy_check.md]
+       [--finest 0.0625] [--out accuracy_check.md] [--save DIR]
 
 For each problem file it writes two tables (markdown) to ``--out``:
 
@@ -62,14 +62,15 @@ def contractions(scene, file_only: bool) -> np.ndarray:
     return cs[:1] if file_only else cs
 
 
-def convergence_rows(scene, finest: float, cs):
+def convergence_rows(scene, finest: float, cs, solved: dict):
     """P2 levels from the coarsest default factor down to ``finest``; returns
-    (levels, rows) with the reference the finest level."""
+    (levels, rows) with the reference the finest level. The levels solved
+    are added to ``solved`` (the ``--accuracy`` picks reuse them)."""
     base = base_area(scene)
     factors = sorted(set(DEFAULT_FACTORS) | {finest}, reverse=True)
     areas = [base * f for f in factors if f >= finest - 1e-12]
     points, _ = probe_points(scene)
-    levels = sweep(scene, "P2", areas, cs, points, 0.0, OPTIONS)
+    levels = sweep(scene, "P2", areas, cs, points, 0.0, OPTIONS, solved=solved)
     ref = levels[-1].y
     rows = []
     for k, lv in enumerate(levels[:-1]):
@@ -104,12 +105,23 @@ def fmt(v, spec=".3g") -> str:
     return "n/a" if v is None else ("inf" if v == float("inf") else format(v, spec))
 
 
-def check(path: Path, tols, finest: float, file_only: bool = False) -> str:
+def save_levels(path: Path, solved: dict) -> None:
+    """Every level's predicted points, to re-evaluate the estimate offline."""
+    levels = sorted(solved.values(), key=lambda lv: (lv.element, -lv.max_area))
+    np.savez(path, element=np.array([lv.element for lv in levels]),
+             max_area=np.array([lv.max_area for lv in levels]),
+             nodes=np.array([lv.mesh.n_nodes for lv in levels]),
+             t_solve=np.array([lv.t_solve for lv in levels]),
+             y=np.array([lv.y for lv in levels]))
+
+
+def check(path: Path, tols, finest: float, file_only: bool = False, save: Path | None = None) -> str:
     scene = load_scene(path)
     points, kind = probe_points(scene)
     cs = contractions(scene, file_only)
     t0 = time.perf_counter()
-    levels, rows, monotone = convergence_rows(scene, finest, cs)
+    solved: dict = {}
+    levels, rows, monotone = convergence_rows(scene, finest, cs, solved)
     ref = levels[-1]
     out = [f"## {scene.name} ({path.name})", "",
            f"Compared points: {kind} ({len(points)}); contractions {cs.tolist()}; reference: P2, "
@@ -126,7 +138,7 @@ def check(path: Path, tols, finest: float, file_only: bool = False) -> str:
             "| TOL | element | nodes | estimated error | true error | reference >= 4x finer | one solve s | within TOL |",
             "|---|---|---|---|---|---|---|---|"]
     for tol in tols:
-        _, report = choose_mesh(scene, tol, contractions=cs)
+        _, report = choose_mesh(scene, tol, contractions=cs, solved=solved)
         true = chosen_error(scene, report, ref, cs, points)
         four = ref.mesh.n_nodes >= 4 * report["nodes"]
         ok = "yes" if true <= tol else "NO"
@@ -135,6 +147,8 @@ def check(path: Path, tols, finest: float, file_only: bool = False) -> str:
                    f"{fmt(report['estimated_error'])}{met} | {fmt(true)} | {'yes' if four else 'no'} | "
                    f"{report['t_solve_s']:.4f} | {ok} |")
     out += ["", f"({time.perf_counter() - t0:.0f} s for this problem)", ""]
+    if save is not None:
+        save_levels(save / f"{path.stem}_levels.npz", solved)
     return "\n".join(out)
 
 
@@ -147,6 +161,9 @@ def main(argv=None) -> int:
     ap.add_argument("--file-contraction", action="store_true",
                     help="compare at the file's contractions only (not also mid-range)")
     ap.add_argument("--out", type=Path, default=Path("accuracy_check.md"))
+    ap.add_argument("--save", type=Path, default=None,
+                    help="a folder to write each problem's levels to (NAME_levels.npz: element, "
+                         "max_area, nodes, t_solve, y)")
     args = ap.parse_args(argv)
     parts = ["# Accuracy estimate check", "",
              f"`python tools/accuracy_check.py {' '.join(str(p) for p in args.problems)} "
@@ -154,7 +171,7 @@ def main(argv=None) -> int:
              f"{' --file-contraction' if args.file_contraction else ''}` "
              f"(Python {platform.python_version()}).", ""]
     for path in args.problems:
-        parts.append(check(path, args.tols, args.finest, args.file_contraction))
+        parts.append(check(path, args.tols, args.finest, args.file_contraction, args.save))
         args.out.write_text("\n".join(parts) + "\n")      # what exists so far, if interrupted
         print(f"accuracy_check: {path.name} done", file=sys.stderr)
     print(f"accuracy_check: wrote {args.out}", file=sys.stderr)
