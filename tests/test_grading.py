@@ -72,8 +72,13 @@ def test_every_vertex_of_a_convex_polygonal_hole_is_reentrant_for_the_body():
 
 
 def test_the_shipped_gripper_grades_its_t_junction_and_its_base():
-    pts = singular_points(load_scene(ROOT / "problems" / "gripper.yaml"))
-    assert _sorted(pts) == [(-20, 0), (-20, 120), (20, 0), (20, 120)]
+    scene = load_scene(ROOT / "problems" / "gripper.yaml")
+    pts = _sorted(singular_points(scene))
+    # the base's ends, and every vertex of the junction's two filleted
+    # corners (each chord turns the boundary inwards by 15 degrees)
+    junction = [p for p in map(tuple, scene.outline) if p[1] >= 115 and abs(p[0]) <= 25]
+    assert len(junction) == 14
+    assert pts == sorted([(-20.0, 0.0), (20.0, 0.0)] + junction)
 
 
 # --- the sizes --------------------------------------------------------------
