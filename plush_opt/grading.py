@@ -6,17 +6,20 @@ behaves like d^lambda in the distance d from the point (lambda about 0.54
 at a 270 degree corner, about 0.7 where a clamped edge meets a free one at
 90 degrees). On a uniform mesh that singularity sets the convergence of
 every point of the body, at about h^(2 lambda), whatever the element's
-degree: the gripper's T junction has two such corners, and there its
-uniform P2 levels of 9,803 and 19,426 nodes agree to 0.03 mm at the bar's
-tips while both are 0.05-0.08 mm from the graded levels' limit there (and
-0.15 mm at a point of the bar's top). Neighbouring levels agreeing
-long before they are right is exactly what fools an error estimate.
+degree: with two such corners at the gripper's T junction (before they
+were rounded) its uniform P2 levels of 9,803 and 19,426 nodes agreed to
+0.03 mm at the bar's tips while both were 0.05-0.08 mm from the graded
+levels' limit there (and 0.15 mm at a point of the bar's top). Neighbouring
+levels agreeing long before they are right is exactly what fools an error
+estimate. A corner rounded as a polyline has every vertex reentrant by a
+few degrees (a mild singularity): each is graded within half a chord,
+which costs little.
 
 The second thing a uniform mesh resolves late is a finite tendon attachment
 (a disc of radius r a few mm across, plush_opt.attachments): while the
 elements are larger than r the disc's pull is spread over them like a
 point load's, and the levels converge slowly and unevenly. On the gripper
-(2 mm discs) the P2 levels' mirrored tips still differed by 0.03 mm at
+(2 mm discs, sharp junction) the P2 levels' mirrored tips still differed by 0.03 mm at
 17,000 nodes with the corners graded; with the elements at the discs a
 quarter of h they agree to 0.001 mm at 5,000 nodes.
 
