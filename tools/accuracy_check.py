@@ -13,8 +13,8 @@ For each problem file it writes two tables (markdown) to ``--out``:
    against 4x finer (the acceptance asks for 0.5-2, and >= 1 for a
    conservative estimate), the bound the pick uses (plush_opt.accuracy.
    bound_errors: through a confirmed level where the level has no
-   estimate of its own), and per point whether its distance to the
-   reference shrinks at every level (monotone convergence).
+   estimate of its own), and per point the level from which its distance
+   to the reference shrinks at every further level (monotone convergence).
 2. ``--accuracy TOL`` for each TOL: the element and nodes chosen, the
    estimated error, the true error (against the reference), whether the
    reference is at least 4x finer than the chosen mesh, the one-solve time,
@@ -84,8 +84,15 @@ def convergence_rows(scene, finest: float, cs, solved: dict):
     per_point = np.array([r["per_point"] for r in rows])          # (levels, points)
     # a point that hardly moves (a stopper on a pinned edge) wobbles at round-off
     floor = NOISE * per_point.max(initial=0.0)
-    monotone = [bool(np.all(np.diff(per_point[:, j]) < floor)) for j in range(per_point.shape[1])]
+    monotone = [monotone_from(per_point[:, j], floor) for j in range(per_point.shape[1])]
     return levels, rows, monotone
+
+
+def monotone_from(errors: np.ndarray, floor: float) -> int:
+    """The first level from which the distances to the reference shrink at
+    every further level (0: all of them; len - 1: only the last one left)."""
+    rising = np.flatnonzero(np.diff(errors) >= floor)
+    return 0 if rising.size == 0 else int(rising[-1] + 1)
 
 
 def chosen_error(scene, report, ref_level, cs, points) -> float:
@@ -132,9 +139,11 @@ def check(path: Path, tols, finest: float, file_only: bool = False, save: Path |
     for r in rows:
         out.append(f"| {r['nodes']} | {r['max_area']:.4g} | {fmt(r['estimate'])} | {fmt(r['bound'])} | "
                    f"{fmt(r['error_4x'])} | {fmt(r['error_ref'])} | {fmt(r['ratio'], '.2f')} |")
-    out += ["", "Distance to the reference shrinking at every level (per point): "
-            + ", ".join(f"{tuple(np.round(p, 3).tolist())}: {'yes' if m else 'NO'}"
-                        for p, m in zip(points, monotone)), "",
+    def shrinking(k):
+        return "at every level" if k == 0 else f"from {rows[k]['nodes']} nodes on"
+    out += ["", "Distance to the reference shrinking (per point): "
+            + ", ".join(f"{tuple(np.round(p, 3).tolist())}: {shrinking(k)}"
+                        for p, k in zip(points, monotone)), "",
             "| TOL | element | nodes | estimated error | true error | reference >= 4x finer | one solve s | within TOL |",
             "|---|---|---|---|---|---|---|---|"]
     for tol in tols:
