@@ -43,6 +43,7 @@ from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
 from plush_opt.objective import Targets
+from plush_opt.results import atomic_path
 
 OPTIONS = EquilibriumOptions(eigenvalue=False)
 #: Levels between a level and the one with about 4x its nodes (areas halve per level).
@@ -115,11 +116,12 @@ def fmt(v, spec=".3g") -> str:
 def save_levels(path: Path, solved: dict) -> None:
     """Every level's predicted points, to re-evaluate the estimate offline."""
     levels = sorted(solved.values(), key=lambda lv: (lv.element, -lv.max_area))
-    np.savez(path, element=np.array([lv.element for lv in levels]),
-             max_area=np.array([lv.max_area for lv in levels]),
-             nodes=np.array([lv.mesh.n_nodes for lv in levels]),
-             t_solve=np.array([lv.t_solve for lv in levels]),
-             y=np.array([lv.y for lv in levels]))
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:      # makes the folder too
+        np.savez(fh, element=np.array([lv.element for lv in levels]),
+                 max_area=np.array([lv.max_area for lv in levels]),
+                 nodes=np.array([lv.mesh.n_nodes for lv in levels]),
+                 t_solve=np.array([lv.t_solve for lv in levels]),
+                 y=np.array([lv.y for lv in levels]))
 
 
 def check(path: Path, tols, finest: float, file_only: bool = False, save: Path | None = None) -> str:
