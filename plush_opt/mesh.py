@@ -274,7 +274,23 @@ def _refuse_large(scene: Scene, max_area: float, tol: float) -> None:
                              f"triangles (limit {MAX_ELEMS}); use a larger max_area")
 
 
-def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False) -> Mesh:
+def refine_uniformly(X: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split every triangle into four at its edge midpoints (red refinement).
+
+    The nodes of ``X`` keep their numbers (new ones follow), so forced
+    points stay the nodes they were; each child is oriented as its parent.
+    A sequence of such meshes is nested: the error of a point's prediction
+    shrinks by the element's rate per level, without the scatter of meshes
+    made independently (docs/accuracy.md)."""
+    X, six = add_midside_nodes(X, tris)
+    a, b, c, ab, bc, ca = six.T
+    children = np.stack([np.stack(t, axis=1) for t in
+                         ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))], axis=1)
+    return X, children.reshape(-1, 3)
+
+
+def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False,
+               refinements: int = 0) -> Mesh:
     """Mesh a scene.
 
     Parameters
@@ -288,6 +304,10 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
         (plush_opt.grading), with ``max_area`` the bound far from them
         (the accuracy sweep's levels). Needs ``max_area``; ignored for
         explicit meshes.
+    refinements : int
+        Split every triangle into four this many times after meshing
+        (:func:`refine_uniformly`): the accuracy sweep's nested levels.
+        Outline scenes only.
 
     Returns
     -------
@@ -303,16 +323,23 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
     """
     src = scene.source
     tol = scene.tolerance
+    if isinstance(refinements, bool) or not (isinstance(refinements, (int, np.integer))
+                                             and 0 <= refinements <= 8):
+        raise SceneError(f"{src}: mesh: refinements must be an integer 0..8, got {refinements!r}")
+    if refinements and scene.outline is None:
+        raise SceneError(f"{src}: mesh: an explicit mesh cannot be refined")
     if scene.outline is not None:
         if max_area is None:
             max_area = scene.max_area
         elif not (isinstance(max_area, (int, float)) and math.isfinite(max_area) and max_area > 0):
             raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
         if max_area is not None:
-            _refuse_large(scene, max_area, tol)
+            _refuse_large(scene, max_area / 4.0 ** refinements, tol)
         if graded and max_area is None:
             raise SceneError(f"{src}: mesh: a graded mesh needs max_area")
         X, tris, node_of, keys = _mesh_outline(scene, max_area, tol, graded)
+        for _ in range(refinements):
+            X, tris = refine_uniformly(X, tris)
         if len(tris) > MAX_ELEMS:
             raise SceneError(f"{src}: mesh.max_area: {max_area:g} gives {len(tris)} triangles "
                              f"(limit {MAX_ELEMS}); use a larger max_area")
@@ -395,11 +422,19 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
 
 def mesh_for_nodes(scene: Scene, target_nodes: int, *, rel_tol: float = 0.05,
                    max_iter: int = 16) -> Mesh:
-    """Mesh an outline scene with about ``target_nodes`` nodes.
+    """Mesh an outline scene with about ``target_nodes`` nodes (see
+    :func:`area_for_nodes`)."""
+    return area_for_nodes(scene, target_nodes, rel_tol=rel_tol, max_iter=max_iter)[1]
 
-    Adjusts ``max_area`` (secant steps on log(area) vs log(n_nodes), kept
-    inside a bracket) until the node count is within ``rel_tol`` of the
-    target, and returns the closest mesh found. Deterministic.
+
+def area_for_nodes(scene: Scene, target_nodes: int, *, graded: bool = False, rel_tol: float = 0.05,
+                   max_iter: int = 16) -> tuple[float, Mesh]:
+    """The ``max_area`` that meshes an outline scene with about
+    ``target_nodes`` nodes, and that mesh.
+
+    Adjusts ``max_area`` (steps assuming nodes ~ 1 / area, kept inside a
+    bracket) until the node count is within ``rel_tol`` of the target, and
+    returns the closest mesh found. Deterministic.
 
     Raises
     ------
@@ -416,10 +451,10 @@ def mesh_for_nodes(scene: Scene, target_nodes: int, *, rel_tol: float = 0.05,
     area = body / (2.0 * target_nodes)  # a triangulation has about twice as many elements
     best = None
     for _ in range(max_iter):
-        mesh = build_mesh(scene, max_area=area)
+        mesh = build_mesh(scene, max_area=area, graded=graded)
         n = mesh.n_nodes
-        if best is None or abs(n - target_nodes) < abs(best.n_nodes - target_nodes):
-            best = mesh
+        if best is None or abs(n - target_nodes) < abs(best[1].n_nodes - target_nodes):
+            best = (area, mesh)
         if abs(n - target_nodes) <= rel_tol * target_nodes:
             break
         if n > target_nodes:

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from plush_opt.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
-from plush_opt.mesh import Mesh, build_mesh, mesh_for_nodes
+from plush_opt.mesh import Mesh, area_for_nodes, build_mesh, mesh_for_nodes, refine_uniformly
 
 
 def problem(**mesh):
@@ -232,6 +232,49 @@ def test_mesh_for_nodes(target):
     assert abs(mesh.n_nodes - target) <= 0.05 * target
     with pytest.raises(SceneError, match="target_nodes must be an integer >= 3"):
         mesh_for_nodes(scene(), 2)
+
+
+def test_area_for_nodes_on_a_graded_mesh():
+    area, mesh = area_for_nodes(scene(), 600, graded=True, rel_tol=0.1)
+    assert abs(mesh.n_nodes - 600) <= 0.1 * 600
+    assert mesh == build_mesh(scene(), max_area=area, graded=True)
+
+
+def test_uniform_refinement_is_nested(bar):
+    s, coarse = bar
+    fine = build_mesh(s, refinements=1)
+    # every coarse node keeps its number and place; 4x the triangles, same area, same orientation
+    assert np.array_equal(fine.X[:coarse.n_nodes], coarse.X)
+    assert fine.n_elems == 4 * coarse.n_elems
+    def areas(m):
+        p = m.X[m.triangles]
+        d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+        return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    assert (areas(fine) > 0).all() and areas(fine).sum() == pytest.approx(areas(coarse).sum())
+    assert areas(fine).max() <= areas(coarse).max() / 4 * (1 + 1e-12)
+    # same angles: each child is similar to its parent
+    assert angles(fine).min() == pytest.approx(angles(coarse).min())
+    # forced points are the same nodes; targets still located exactly
+    assert np.array_equal(fine.point_nodes, coarse.point_nodes)
+    assert all(np.array_equal(a, b) for a, b in zip(fine.tendon_nodes, coarse.tendon_nodes))
+    at = np.array([t.at for t in s.targets])
+    w = np.einsum("kj,kjd->kd", fine.target_beta, fine.X[fine.triangles[fine.target_triangles]])
+    assert np.abs(w - at).max() < 1e-9
+    # the pin box catches the new boundary nodes on its edge too
+    assert len(fine.pin_nodes) == 2 * len(coarse.pin_nodes) - 1
+    # X, triangles of the refinement itself: the midside nodes follow the corners
+    X, tris = refine_uniformly(coarse.X, coarse.triangles)
+    assert np.array_equal(X, fine.X) and len(tris) == fine.n_elems
+
+
+def test_refined_p2_mesh_and_bad_refinements():
+    import dataclasses
+    s = dataclasses.replace(scene(), element="P2")
+    p2 = build_mesh(s, refinements=1)
+    assert p2.elements.shape == (p2.n_elems, 6) and p2.n_elems == 4 * build_mesh(s).n_elems
+    for bad in (-1, 1.5, 9, True):
+        with pytest.raises(SceneError, match=r"^bar\.yaml: mesh: refinements must be an integer 0..8"):
+            build_mesh(s, refinements=bad)
 
 
 def test_shipped_problems_mesh(problems_dir):
