@@ -7,23 +7,26 @@ equilibrium at a few contractions on a sequence of meshes, coarse to fine,
 for each element type (P2 first, then P1 as long as it can still be
 cheaper), and estimates the error of each level's predicted positions of a
 few body points (the targets, or else the tendon stoppers and the scene's
-extra points) from three consecutive levels:
+extra points). The levels are two families of nested meshes (a graded
+mesh refined uniformly, 4x the nodes per step), interleaved so that each
+level has about twice the nodes of the one before; within a family
 
-    d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, d_{k+1} / d_k, r_theory),
-    error_k <= SAFETY d_k / (1 - r_k),  confirmed by error_{k+1} <= error_k
+    d_k = max |y_k - y_{k+1}|,  r_k = max(d_k / d_{k-1}, r_theory),
+    error_k <= SAFETY d_k / (1 - r_k)
 
 (the remaining differences d_k + d_{k+1} + ... summed as a geometric series
 with the observed ratio: Richardson extrapolation with the observed order,
 bounded by the triangle inequality). ``r_theory`` is the ratio the element's
-best expected order gives for the level's refinement, so a coincidentally
-small difference never makes the estimate optimistic; a ratio near 1 (no
-convergence, e.g. under a point load) gives no estimate at all. The picked
-level is the one with the least measured solve time whose estimate is below
-the tolerance and whose next level confirms it, or whose distance to such
-a level plus that level's estimate is below it (:func:`bound_errors`: a
-coarse level whose own differences were too uneven to estimate can still be
-shown close enough); docs/accuracy.md has the reasoning and the
-measurements.
+best expected order gives for the refinement, so a coincidentally small
+difference never makes the estimate optimistic; a ratio near 1 (no
+convergence, e.g. under a point load) gives no estimate at all. Explicit
+levels (independent meshes, whose differences scatter) take the larger
+ratio of both sides and need the next level's estimate to confirm theirs.
+The picked level is the one with the least measured solve time whose
+estimate is below the tolerance, or whose distance to such a level plus
+that level's estimate is below it (:func:`bound_errors`: a coarse level
+without an estimate of its own can still be shown close enough);
+docs/accuracy.md has the reasoning and the measurements.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
 (interpolation of the displacement); the finer level's solve starts from
@@ -36,6 +39,7 @@ import dataclasses
 import logging
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 
@@ -43,25 +47,36 @@ from .elements import interpolation_weights
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .errors import SceneError
 from .geometry import body_area
-from .mesh import Mesh, build_mesh
+from .mesh import Mesh, area_for_nodes, build_mesh
 from .model import Model, build_model
 from .objective import Targets
 from .scene import Scene
 
 log = logging.getLogger(__name__)
 
-#: Default resolution sweep: max_area as multiples of the scene's own. Each
-#: level halves the area (about twice the nodes), so a level picked because
-#: the one before it missed the tolerance is at most about 2x too fine.
-#: The finest is an eighth of the file's area (P2 there has ~30x the file's P1
-#: nodes): the budget of a tolerance that cannot be met.
-DEFAULT_FACTORS = (16.0, 8.0, 4.0, 2.0, 1.0, 0.5, 0.25, 0.125)
+#: The default sweep: per element, two families of nested meshes. Family A
+#: starts from the graded mesh at COARSEST x the file's max_area, family B
+#: from the graded mesh with about twice its nodes; each is refined
+#: uniformly (every triangle split in four) up to REFINEMENTS times. Within
+#: a family each level has 4x the nodes of the one before and, the meshes
+#: being nested, the differences shrink at the element's rate without the
+#: scatter of meshes made independently (docs/accuracy.md); interleaved by
+#: size, each level has about twice the nodes of the one before, so a level
+#: picked because the one before it missed the tolerance is at most about
+#: 2x too fine. The finest (A refined 3 times, 64x the coarsest's nodes)
+#: is the budget of a tolerance that cannot be met.
+COARSEST = 16.0
+REFINEMENTS = 3
+#: Family B's first mesh has about this many times family A's nodes (the
+#: geometric middle of A's 4x steps).
+INTERLEAVE = 2.0
 #: The levels' meshes are graded towards reentrant corners, the ends of
 #: pinned boundary and the tendons' attachment discs (plush_opt.grading):
 #: uniform levels converge there like h^1.1 whatever the element (and
 #: resolve a disc only below its radius), agreeing long before they are right.
 GRADED = True
-#: A level counts as finer than the previous one only with this many times its nodes.
+#: A level counts as finer than the previous one only with this many times
+#: its nodes (explicit levels; family B is dropped below this).
 MIN_REFINEMENT = 1.3
 #: Element types tried, in this order (P2 first: its solve time bounds how
 #: far the P1 sweep has to go).
@@ -132,10 +147,35 @@ def base_area(scene: Scene) -> float:
     return body / 400.0
 
 
-def default_levels(scene: Scene) -> tuple[float, ...]:
-    """max_area values of the default sweep, coarse to fine."""
-    base = base_area(scene)
-    return tuple(base * f for f in DEFAULT_FACTORS)
+class Resolution(NamedTuple):
+    """One level of a sweep: the graded mesh at ``max_area``, refined
+    uniformly ``refinements`` times. ``family`` is the coarse mesh's
+    max_area for a nested family (the estimate compares a level only with
+    its own family), None for an explicit sequence of independent meshes."""
+
+    max_area: float
+    refinements: int = 0
+    family: float | None = None
+
+
+def default_levels(scene: Scene, element: str = "P2",
+                   refinements: int = REFINEMENTS) -> tuple[Resolution, ...]:
+    """The default sweep of one element, coarse to fine: families A and B
+    (see :data:`COARSEST`) interleaved, A refined up to ``refinements``
+    times, B one time less. Family B is left out if no mesh has clearly
+    more nodes than A's first (a scene the angle bound and its forced
+    points already mesh finely)."""
+    s = dataclasses.replace(scene, element=element)
+    a = base_area(scene) * COARSEST
+    n_a = build_mesh(s, max_area=a, graded=GRADED).n_nodes
+    b, mesh_b = area_for_nodes(s, int(INTERLEAVE * n_a), graded=GRADED, rel_tol=0.1)
+    with_b = b < a and mesh_b.n_nodes >= MIN_REFINEMENT * n_a
+    levels = []
+    for r in range(refinements + 1):
+        levels.append(Resolution(a, r, a))
+        if with_b and r < refinements:
+            levels.append(Resolution(b, r, b))
+    return tuple(levels)
 
 
 def probe_points(scene: Scene) -> tuple[np.ndarray, str]:
@@ -176,7 +216,7 @@ class Level:
     """One mesh level of one element type: its mesh, cost and predictions."""
 
     element: str
-    max_area: float
+    resolution: Resolution
     mesh: Mesh
     t_mesh: float
     t_solve: float
@@ -186,15 +226,21 @@ class Level:
     difference_to_next: float | None = None
     ratio: float | None = None
     estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
-    confirmed: bool = False          # the next level's estimate agrees (see estimate_errors)
+    confirmed: bool = False          # usable as an anchor of bounds (see estimate_errors)
     bound: float | None = None       # error bound the pick uses (see bound_errors)
     bound_via: int | None = None     # the level (index among those bounded together) it comes from
+
+    @property
+    def max_area(self) -> float:
+        return self.resolution.max_area
 
     def meets(self, tol: float) -> bool:
         return self.bound is not None and self.bound <= tol
 
     def row(self) -> dict:
-        return {"element": self.element, "max_area": self.max_area, "n_nodes": self.mesh.n_nodes,
+        return {"element": self.element, "max_area": self.max_area,
+                "refinements": self.resolution.refinements, "nested": self.resolution.family is not None,
+                "n_nodes": self.mesh.n_nodes,
                 "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
                 "newton_iterations": self.newton_iterations,
                 "difference_to_next": self.difference_to_next, "ratio": self.ratio,
@@ -206,7 +252,7 @@ def _json_number(v):
     return None if v is None or not math.isfinite(v) else float(v)
 
 
-def estimate_errors(ys, nodes, element: str) -> list[dict]:
+def estimate_errors(ys, nodes, element: str, nested: bool = False) -> list[dict]:
     """Error estimates of a sequence of levels of one element, coarse to fine.
 
     Parameters
@@ -214,14 +260,20 @@ def estimate_errors(ys, nodes, element: str) -> list[dict]:
     ys : per level, the predicted point positions (any shape ending in 2).
     nodes : per level, its number of nodes.
     element : "P1" or "P2" (sets the expected order).
+    nested : the levels are one family of nested meshes (each the one
+        before refined uniformly). Their differences shrink smoothly, so
+        the ratio is the one observed on the coarse side (levels k - 1,
+        k, k + 1) and the estimate stands on its own. Independent meshes
+        scatter: the ratio is the larger of both sides (level k + 2 too)
+        and the estimate must be confirmed by the next level's.
 
     Returns
     -------
     per level a dict: ``difference`` (max distance to the next level, None
     for the last), ``ratio`` (the ratio used, None without a previous
-    difference) and ``estimate`` (d / (1 - ratio); None where it needs a
-    level that is missing, inf where the differences do not shrink by
-    MAX_RATIO per level).
+    difference), ``estimate`` (d / (1 - ratio) x SAFETY; None where it needs
+    a level that is missing, inf where the differences do not shrink by
+    MAX_RATIO per level) and ``confirmed``.
     """
     n = len(ys)
     d = [float(np.max(np.linalg.norm(np.asarray(ys[k]) - np.asarray(ys[k + 1]), axis=-1), initial=0.0))
@@ -231,17 +283,16 @@ def estimate_errors(ys, nodes, element: str) -> list[dict]:
         ratio = estimate = None
         if 0 < k < n - 1:
             theory = (nodes[k] / nodes[k + 1]) ** (EXPECTED_ORDER[element] / 2)
-            # the ratios on both sides, where known: level k + 2 is solved
-            # anyway to confirm level k, and one ratio alone scatters
-            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0
-                        for j in (k - 1, k) if j + 1 < n - 1]
+            sides = (k - 1,) if nested else (k - 1, k)
+            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0 for j in sides if j + 1 < n - 1]
             ratio = max(observed + [theory])
             estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
         out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
     for k in range(n - 1):
         here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
-        out[k]["confirmed"] = (here is not None and nxt is not None and math.isfinite(here)
-                               and math.isfinite(nxt) and nxt <= here)
+        usable = here is not None and math.isfinite(here)
+        out[k]["confirmed"] = usable and (nested or (nxt is not None and math.isfinite(nxt)
+                                                     and nxt <= here))
     return out
 
 
@@ -268,11 +319,19 @@ def bound_errors(levels: list[Level]) -> None:
                 lv.bound, lv.bound_via = b, j
 
 
-def _solve_level(scene: Scene, area: float, mesh: Mesh, t_mesh: float, cs, points,
-                 prev: Level | None, options: EquilibriumOptions) -> Level:
-    """Time one cold solve on the level's mesh (``scene`` meshed at
-    ``area``), and solve at every contraction of ``cs`` from the previous
-    level's poses."""
+def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
+                 options: EquilibriumOptions) -> Level | None:
+    """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
+    every contraction of ``cs`` from the previous level's poses. None if
+    an explicit level is not really finer than ``prev``."""
+    t0 = time.perf_counter()
+    mesh = build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements)
+    t_mesh = time.perf_counter() - t0
+    if res.family is None and prev is not None and mesh.n_nodes < MIN_REFINEMENT * prev.mesh.n_nodes:
+        # not really finer (forced points and the angle bound dominate)
+        log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
+                 scene.element, res.max_area)
+        return None
     model = build_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
     solve_equilibrium(model, cs[-1], None, options)      # CHOLMOD's symbolic analysis: setup
@@ -286,46 +345,51 @@ def _solve_level(scene: Scene, area: float, mesh: Mesh, t_mesh: float, cs, point
             equilibrium_at(model, c, x0, options)
         if not eq.converged:
             raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction "
-                             f"{c.tolist()} on the {scene.element} mesh with max_area {area:g}: "
-                             f"{eq.status}")
+                             f"{c.tolist()} on the {scene.element} mesh with max_area "
+                             f"{res.max_area:g} refined {res.refinements} times: {eq.status}")
         poses.append(eq.x)
         ys.append(probe.y(eq.x))
-    log.info("accuracy: %s max_area %.4g, %d nodes, one solve %.3f s", scene.element, area,
-             mesh.n_nodes, t_solve)
-    return Level(scene.element, area, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys))
+    log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
+             res.max_area, res.refinements, mesh.n_nodes, t_solve)
+    return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys))
+
+
+def estimate_levels(levels: list[Level]) -> None:
+    """Set the estimates of levels of one element (coarse to fine): each
+    nested family on its own, an explicit sequence as one; then the
+    bounds (:func:`bound_errors`)."""
+    for family in dict.fromkeys(lv.resolution.family for lv in levels):
+        group = [lv for lv in levels if lv.resolution.family == family]
+        est = estimate_errors([lv.y for lv in group], [lv.mesh.n_nodes for lv in group],
+                              group[0].element, nested=family is not None)
+        for lv, e in zip(group, est):
+            lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
+            lv.confirmed = e["confirmed"]
+    bound_errors(levels)
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
            time_limit: float = math.inf, solved: dict | None = None) -> list[Level]:
-    """Levels of one element, coarse to fine, until one meets ``tol`` (its
-    confirmed estimate needs the next two levels), the levels run out, or a level's solve
-    is slower than ``time_limit`` (the best other candidate's: no finer
-    level of this element can beat it). ``solved`` maps (element, max_area)
-    to levels solved before at the same contractions and points: they are
-    reused, and the levels solved here are added."""
+    """Levels of one element, coarse to fine, until one meets ``tol``, the
+    levels run out, or a level's solve is slower than ``time_limit`` (the
+    best other candidate's: no finer level of this element can beat it).
+    ``levels`` are :class:`Resolution` (or plain max_area values: an
+    explicit sequence of independent meshes). ``solved`` maps (element,
+    resolution) to levels solved before at the same contractions and
+    points: they are reused, and the levels solved here are added."""
     scene = dataclasses.replace(scene, element=element)
     solved = {} if solved is None else solved
     done: list[Level] = []
-    for area in levels:
-        level = solved.get((element, area))
+    for res in levels:
+        res = res if isinstance(res, Resolution) else Resolution(float(res))
+        level = solved.get((element, res))
         if level is None:
-            t0 = time.perf_counter()
-            mesh = build_mesh(scene, max_area=area, graded=GRADED)
-            t_mesh = time.perf_counter() - t0
-            if done and mesh.n_nodes < MIN_REFINEMENT * done[-1].mesh.n_nodes:
-                # not really finer (forced points and the angle bound dominate)
-                log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
-                         element, area)
+            level = _solve_level(scene, res, cs, points, done[-1] if done else None, options)
+            if level is None:
                 continue
-            level = _solve_level(scene, area, mesh, t_mesh, cs, points, done[-1] if done else None,
-                                 options)
-            solved[(element, area)] = level
+            solved[(element, res)] = level
         done.append(level)
-        est = estimate_errors([lv.y for lv in done], [lv.mesh.n_nodes for lv in done], element)
-        for lv, e in zip(done, est):
-            lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
-            lv.confirmed = e["confirmed"]
-        bound_errors(done)
+        estimate_levels(done)
         if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
             break
     return done
@@ -335,7 +399,9 @@ def _check_arguments(tol, levels, scene: Scene):
     if isinstance(tol, bool) or not (isinstance(tol, (int, float)) and math.isfinite(tol) and tol > 0):
         raise SceneError(f"{scene.source}: accuracy: the tolerance must be a finite number > 0, "
                          f"got {tol!r}")
-    levels = default_levels(scene) if levels is None else tuple(float(a) for a in levels)
+    if levels is None:
+        return float(tol), None
+    levels = tuple(float(a) for a in levels)
     if len(levels) < 3 or any(not (a > 0 and math.isfinite(a)) for a in levels) \
             or any(b >= a for a, b in zip(levels, levels[1:])):
         raise SceneError(f"{scene.source}: accuracy: levels must be >= 3 max_area values > 0, "
@@ -354,8 +420,9 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     scene : an outline scene (an explicit mesh is returned unchanged).
     tol : largest acceptable estimated error (length units) of the
         predicted positions of the compared points.
-    levels : max_area values (length^2), coarse to fine (strictly
-        decreasing, at least 3); default :func:`default_levels`.
+    levels : max_area values (length^2) of independent graded meshes,
+        coarse to fine (strictly decreasing, at least 3); default: the
+        nested families of :func:`default_levels`.
     contractions : (m, n_winches) contractions to compare at; default
         :func:`probe_contractions`.
     points : (k, 2) rest coordinates of the compared body points; default
@@ -363,7 +430,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     options : equilibrium options.
     elements : element types to try ("P2", "P1").
     solved : levels solved before at the same contractions and points,
-        keyed (element, max_area); reused, and added to (see :func:`sweep`).
+        keyed (element, resolution); reused, and added to (see :func:`sweep`).
 
     Returns
     -------
@@ -399,8 +466,9 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     computed: list[Level] = []
     best: Level | None = None
     for element in elements:
-        done = sweep(scene, element, levels, cs, points, tol, options,
-                      math.inf if best is None else best.t_solve, solved)
+        done = sweep(scene, element, default_levels(scene, element) if levels is None else levels,
+                     cs, points, tol, options,
+                     math.inf if best is None else best.t_solve, solved)
         computed += done
         bound_errors(computed)
         for lv in computed:
@@ -413,7 +481,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         "tolerance": tol, "estimated_error": _json_number(best.bound if reached else _bound(computed, best)),
         "element": best.element, "nodes": best.mesh.n_nodes, "reached": reached,
         "status": "met" if reached else "tolerance_not_met", "max_area": best.max_area,
-        "graded": GRADED,
+        "graded": GRADED, "refinements": best.resolution.refinements,
         "n_elems": best.mesh.n_elems, "t_solve_s": best.t_solve,
         "picked": computed.index(best), "bound_via": best.bound_via if reached else None,
         "points": kind, "n_points": int(len(points)),
@@ -429,7 +497,7 @@ def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
     mesh = build_mesh(scene)
     report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element,
               "nodes": mesh.n_nodes, "reached": False, "status": "explicit_mesh",
-              "max_area": None, "graded": False, "levels": [],
+              "max_area": None, "graded": False, "refinements": None, "levels": [],
               "summary": "explicit mesh: its resolution is fixed and its error not estimated"}
     return mesh, report
 
@@ -441,9 +509,10 @@ def _fallback(computed: list[Level], elements) -> Level:
 
 
 def _bound(computed: list[Level], level: Level):
-    """The estimate of the level before ``level`` (same element): a bound of
-    its error while the levels converge; None if there is none."""
-    same = [lv for lv in computed if lv.element == level.element]
+    """The estimate of the level before ``level`` (same element and family):
+    a bound of its error while the levels converge; None if there is none."""
+    same = [lv for lv in computed if lv.element == level.element
+            and lv.resolution.family == level.resolution.family]
     i = same.index(level)
     return same[i - 1].estimate if i > 0 else None
 
@@ -453,8 +522,9 @@ def summary(report: dict) -> str:
     if not report.get("levels"):
         return report.get("summary", "")
     row = report["levels"][report["picked"]]
-    where = (f"{report['element']} elements, {report['nodes']} nodes (max_area {report['max_area']:.4g}, "
-             f"one solve {row['t_solve_s']:.3f} s)")
+    refined = f" refined {report['refinements']}x" if report.get("refinements") else ""
+    where = (f"{report['element']} elements, {report['nodes']} nodes (max_area {report['max_area']:.4g}"
+             f"{refined}, one solve {row['t_solve_s']:.3f} s)")
     est = report["estimated_error"]
     if report["reached"]:
         via = report.get("bound_via")

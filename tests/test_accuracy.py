@@ -10,8 +10,9 @@ import sys
 import numpy as np
 import pytest
 
-from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, bound_errors, choose_mesh,
-                                default_levels, estimate_errors, probe_contractions, sweep, transfer_pose)
+from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution, bound_errors,
+                                choose_mesh, default_levels, estimate_errors, probe_contractions, sweep,
+                                transfer_pose)
 from plush_opt.apps.cantilever import beam_deflection
 from plush_opt.equilibrium import EquilibriumOptions
 from plush_opt.errors import SceneError
@@ -68,6 +69,28 @@ def test_a_coincidental_agreement_is_not_confirmed():
     assert not est[1]["confirmed"] and est[1]["estimate"] == est[2]["estimate"] == math.inf
 
 
+def test_nested_levels_estimate_from_the_coarse_side_alone():
+    # y_k = y* + C r^k, nodes 4x per level (a nested family): the estimate
+    # needs levels k - 1 and k + 1 only, and stands without confirmation
+    r = 0.2
+    ys = [np.array([[1.0 + 0.5 * r**k, 2.0]]) for k in range(4)]
+    nodes = [100 * 4**k for k in range(4)]
+    est = estimate_errors(ys, nodes, "P2", nested=True)
+    theory = 0.25 ** (EXPECTED_ORDER["P2"] / 2)          # 1/8: r = 0.2 is slower, observed wins
+    for k in (1, 2):
+        assert est[k]["ratio"] == pytest.approx(max(r, theory)) and est[k]["confirmed"]
+        assert est[k]["estimate"] == pytest.approx(SAFETY * 0.5 * r**k * (1 - r) / (1 - r))
+        # the true error, and within 2x of the error against the next level (4x the nodes)
+        true, four = 0.5 * r**k, 0.5 * r**k * (1 - r)
+        assert true <= est[k]["estimate"] <= 2 * four
+    early = estimate_errors(ys[:3], nodes[:3], "P2", nested=True)
+    assert early[1]["estimate"] == pytest.approx(est[1]["estimate"]) and early[1]["confirmed"]
+    # a coincidentally small difference is never taken below the theory's ratio
+    flat = [np.array([[0.0, v]]) for v in (0.0, 1.0, 1.0 + 1e-9, 1.1)]
+    low = estimate_errors(flat, nodes, "P2", nested=True)
+    assert low[1]["ratio"] == pytest.approx(theory)
+
+
 def test_differences_that_do_not_shrink_give_no_estimate():
     # a point load in 2D: the displacement grows like log(1/h), differences stay put
     ys = [np.array([[0.0, math.log(2.0) * k]]) for k in range(4)]
@@ -76,7 +99,7 @@ def test_differences_that_do_not_shrink_give_no_estimate():
 
 
 def _level(y, estimate=None, confirmed=False):
-    return Level("P2", 1.0, None, 0.0, 0.0, 0, [], np.array([[y]], dtype=np.float64),
+    return Level("P2", Resolution(1.0), None, 0.0, 0.0, 0, [], np.array([[y]], dtype=np.float64),
                  estimate=estimate, confirmed=confirmed)
 
 
@@ -126,6 +149,26 @@ def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
     assert true <= p1.estimate                         # P1 locks in bending: large, but bounded
 
 
+def test_cantilever_nested_estimates_hold_and_are_within_2x_of_the_error_against_4x_finer():
+    scene = load_scene(CANTILEVER)
+    cs = probe_contractions(scene)
+    opts = EquilibriumOptions(eigenvalue=False)
+    levels = sweep(scene, "P2", default_levels(scene, "P2", refinements=2), cs, TIP, 0.0, opts)
+    ref = sweep(scene, "P2", [Resolution(levels[0].max_area, 3, levels[0].max_area)], cs, TIP, 0.0,
+                opts)[-1]
+    checked = 0
+    for k, lv in enumerate(levels):
+        if lv.estimate is None:
+            continue
+        assert math.isfinite(lv.estimate)
+        four = next(m for m in levels[k + 1:] if m.resolution.family == lv.resolution.family)
+        true = float(np.linalg.norm(lv.y - ref.y, axis=-1).max())
+        error_4x = float(np.linalg.norm(lv.y - four.y, axis=-1).max())
+        assert true <= lv.estimate <= 2 * error_4x, (lv.mesh.n_nodes, true, error_4x, lv.estimate)
+        checked += 1
+    assert checked >= 1
+
+
 def test_tighter_tolerances_pick_finer_levels_and_a_met_one_is_within_it():
     scene = load_scene(CANTILEVER)
     tip = 0.214                                  # mm, the tip deflection
@@ -165,7 +208,8 @@ def test_levels_solved_before_are_reused_not_solved_again(tmp_path, monkeypatch)
     _, first = choose_mesh(scene, 1e-9, levels=levels, solved=solved)
     n_first = len(calls)
     assert n_first == len(solved) > 0
-    assert set(solved) == {(row["element"], row["max_area"]) for row in first["levels"]}
+    assert {(e, res.max_area) for e, res in solved} == {(row["element"], row["max_area"])
+                                                        for row in first["levels"]}
     _, again = choose_mesh(scene, 1e-9, levels=levels, solved=solved)
     assert len(calls) == n_first                       # nothing solved twice
     assert again["levels"] == first["levels"] and again["nodes"] == first["nodes"]
@@ -198,7 +242,22 @@ def test_control_problems_are_also_compared_mid_range():
     scene = _leg()
     cs = probe_contractions(scene)
     assert cs.shape == (2, 1) and cs[1, 0] == pytest.approx(7.5)
-    assert len(default_levels(scene)) >= 5
+
+
+def test_default_levels_are_two_nested_families_at_twice_the_nodes_per_level():
+    scene = _leg()
+    levels = default_levels(scene, "P2")
+    assert [res.refinements for res in levels] == [0, 0, 1, 1, 2, 2, 3]
+    families = [res.family for res in levels]
+    assert families[0::2] == [levels[0].max_area] * 4 and families[1::2] == [levels[1].max_area] * 3
+    assert all(res.max_area == res.family for res in levels)
+    s = dataclasses.replace(scene, element="P2")
+    nodes = [build_mesh(s, max_area=res.max_area, graded=True, refinements=res.refinements).n_nodes
+             for res in levels[:4]]
+    growth = [b / a for a, b in zip(nodes, nodes[1:])]
+    assert all(1.6 <= g <= 2.5 for g in growth), (nodes, growth)
+    # within a family each level has about 4x the nodes of the one before
+    assert nodes[2] / nodes[0] == pytest.approx(4.0, rel=0.1)
 
 
 @pytest.mark.parametrize("tol", [-1.0, 0.0, float("nan"), float("inf"), True, "1"])
@@ -240,6 +299,11 @@ def test_result_json_records_the_accuracy(tmp_path):
     assert acc["estimated_error"] <= 0.002
     assert acc["nodes"] == len(doc["model"]["rest_nodes"])
     assert acc["graded"] is True            # the levels are graded towards the clamped end
+    # max_area, graded and refinements rebuild the mesh the pose was solved on
+    scene = dataclasses.replace(load_scene(CANTILEVER), element=acc["element"])
+    again = build_mesh(scene, max_area=acc["max_area"], graded=True, refinements=acc["refinements"])
+    assert again.n_nodes == acc["nodes"]
+    assert np.allclose(again.X, np.array(doc["model"]["rest_nodes"]))
     assert acc["summary"] in p.stderr and "warning" not in p.stderr
 
 

@@ -225,9 +225,10 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
 def accuracy_record(report: dict) -> dict:
     """The result JSON's keys for a mesh chosen by ``--accuracy``: ``accuracy``
     (tolerance, estimated_error, element, nodes, whether the tolerance was
-    met, whether the mesh is graded, the summary) and ``mesh_accuracy``."""
+    met, whether the mesh is graded, how often it was refined uniformly,
+    the summary) and ``mesh_accuracy``."""
     keys = ("tolerance", "estimated_error", "element", "nodes", "reached", "status", "max_area",
-            "graded", "summary")
+            "graded", "refinements", "summary")
     return {"accuracy": {k: report.get(k) for k in keys}, "mesh_accuracy": report}
 
 
