@@ -30,12 +30,13 @@ A graded mesh (Babuska's remedy) makes its local element size h g(d) with
 for elements of degree p (lambda = 1/2, on the safe side: gamma = 3/4 for
 P2, 1/2 for P1), R a quarter of the body's size (at most half the
 distance to the next singular point) and d the distance to the nearest
-singular point. The grading function is fixed, so the levels of a
-sweep (max_area halving) are the same mesh made uniformly finer, which is
-what the rate-based estimate assumes; the floor G_MIN keeps the elements at
-a singular point a fixed fraction of h rather than letting them shrink
-without bound. Within one local element of each attachment disc's rim the
-size is h / 4 (DISC_FACTOR), fixed the same way.
+singular point. The accuracy sweep grades the first mesh of each nested
+family and refines it uniformly, which keeps the grading relative to h.
+The floor G_MIN keeps the elements at a singular point a fixed fraction of
+h rather than letting them shrink without bound; with the bound taken at
+the centroid, a mesh whose h exceeds R stops well above it
+(docs/accuracy.md, "What is open"). Within one local element of each
+attachment disc's rim the size is h / 4 (DISC_FACTOR), fixed the same way.
 
 The mesh is made by Triangle as usual and then refined ('r') with a
 per-triangle area bound max_area * g^2 at the triangle's centroid, a few
