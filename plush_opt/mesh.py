@@ -338,11 +338,14 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
         if graded and max_area is None:
             raise SceneError(f"{src}: mesh: a graded mesh needs max_area")
         X, tris, node_of, keys = _mesh_outline(scene, max_area, tol, graded)
+        n_tris = len(tris) * 4 ** refinements      # known before refining: refuse before allocating
+        if n_tris > MAX_ELEMS:
+            refined = f" refined {refinements} times" if refinements else ""
+            area = "the mesher's default" if max_area is None else f"{max_area:g}"
+            raise SceneError(f"{src}: mesh.max_area: {area}{refined} gives {n_tris} triangles "
+                             f"(limit {MAX_ELEMS}); use a larger max_area")
         for _ in range(refinements):
             X, tris = refine_uniformly(X, tris)
-        if len(tris) > MAX_ELEMS:
-            raise SceneError(f"{src}: mesh.max_area: {max_area:g} gives {len(tris)} triangles "
-                             f"(limit {MAX_ELEMS}); use a larger max_area")
     else:
         X, tris = scene.nodes, scene.triangles
         keys, forced = _forced_points(scene)

@@ -272,6 +272,13 @@ def test_refined_p2_mesh_and_bad_refinements():
     s = dataclasses.replace(scene(), element="P2")
     p2 = build_mesh(s, refinements=1)
     assert p2.elements.shape == (p2.n_elems, 6) and p2.n_elems == 4 * build_mesh(s).n_elems
+    # refused from the count alone, before the triangles are made
+    with pytest.raises(SceneError, match=r"^bar\.yaml: mesh\.max_area: .* triangles \(limit"):
+        build_mesh(s, refinements=8)
+    no_area = dataclasses.replace(scene(max_area=None), element="P2")      # the angle bound only
+    with pytest.raises(SceneError, match=r"^bar\.yaml: mesh\.max_area: the mesher's default refined 8 "
+                                         r"times gives \d+ triangles \(limit"):
+        build_mesh(no_area, refinements=8)
     for bad in (-1, 1.5, 9, True):
         with pytest.raises(SceneError, match=r"^bar\.yaml: mesh: refinements must be an integer 0..8"):
             build_mesh(s, refinements=bad)
