@@ -12,8 +12,7 @@ Two backends on the same energy:
 
 Both return an :class:`Equilibrium` that is *certified* by the same test:
 ``converged`` only if the residual |grad_x E| is within tolerance relative
-to the force scale (or at the round-off floor, :func:`residual_converged`)
-and the Hessian is positive definite (Cholesky succeeds).
+to the force scale and the Hessian is positive definite (Cholesky succeeds).
 """
 
 from __future__ import annotations
@@ -27,7 +26,7 @@ import casadi as ca
 import numpy as np
 
 from .errors import SolverError
-from .linalg import Factor, NotPositiveDefinite, abs_product, smallest_eigenpair
+from .linalg import Factor, NotPositiveDefinite, smallest_eigenpair
 from .model import Evaluation, Model
 
 log = logging.getLogger(__name__)
@@ -46,8 +45,7 @@ class EquilibriumOptions:
     ----------
     backend : 'newton' (default) or 'ipopt'.
     gtol : relative residual tolerance: converged when
-        |grad_x E| <= gtol * force_scale, or at the round-off floor where
-        that is below what float64 resolves (:func:`residual_converged`).
+        |grad_x E| <= gtol * force_scale.
     max_iterations : Newton iterations (IPOPT: its max_iter). Generous: with
         tendons 1e6 times stiffer than the body Newton needs ~300 (its full
         steps zig-zag between the tendons' smoothing zones).
@@ -207,41 +205,6 @@ def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
     return 1e-13 * size
 
 
-#: The round-off floor of the residual, as a multiple of eps |H| |x|.
-ROUNDOFF_FLOOR = 1.0
-
-
-def residual_converged(ev: Evaluation, x: np.ndarray, gtol: float) -> str | None:
-    """Whether the residual at ``x`` is small enough, and by which test:
-    'tolerance' (|g| <= gtol * force_scale), 'round-off' or None.
-
-    No pose in float64 can bring the residual below about eps |H| |x|: each
-    coordinate is known to eps |x_i| (the body sits 100 mm from the origin,
-    its stiffness acts on absolute positions), and H maps that to forces.
-    The floor grows with the mesh while the force scale (a 2-norm of nodal
-    forces, which shrinks as a load spreads over more nodes) falls, so on
-    fine meshes gtol * force_scale drops below it (the gripper's graded P2
-    mesh refined twice: 2.6e-11 against 2.7e-11; converged residuals sit at
-    0.2-0.25 of eps |H| |x|). A residual within ROUNDOFF_FLOOR of it is
-    as converged as the arithmetic allows: it is the size of the residual
-    that rounding x alone leaves."""
-    r = float(np.linalg.norm(ev.gradient))
-    if r <= gtol * ev.force_scale:
-        return "tolerance"
-    if ev.hessian_form is None or r > 1e-6 * ev.force_scale:
-        return None          # far from any floor: spare the product
-    floor = np.finfo(np.float64).eps * np.linalg.norm(abs_product(ev.hessian_form, np.abs(x)))
-    return "round-off" if r <= ROUNDOFF_FLOOR * floor else None
-
-
-def _converged_status(test: str, ev: Evaluation, gtol: float, escapes: int) -> str:
-    status = "converged"
-    if test == "round-off":
-        status += (f" at the round-off floor (residual {np.linalg.norm(ev.gradient) / ev.force_scale:.1e}"
-                   f" of the force scale, gtol {gtol:g} is below what float64 resolves on this mesh)")
-    return status + (f" (escaped {escapes} saddle(s))" if escapes else "")
-
-
 def _regularised_factor(model: Model, H, previous: float | None = None) -> Factor:
     """Cholesky of H + shift I with the smallest shift (by factors of 10)
     that makes it positive definite, starting a decade below the
@@ -338,11 +301,10 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = _try_factor(model, H)
-        test = residual_converged(ev, x, options.gtol)
-        small = test is not None
+        small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
             converged = True
-            status = _converged_status(test, ev, options.gtol, escapes)
+            status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
             break
         if small:
             # (not when staying on a branch: a converged point with an
@@ -486,8 +448,7 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
                                np.inf, np.inf, np.nan, False, None, iterations,
                                time.perf_counter() - t0, "ipopt")
         factor = _try_factor(model, ev.hessian_form)
-        test = residual_converged(ev, xs, options.gtol)
-        small = test is not None
+        small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
         if factor is not None and not small and not polished:
             # the residual alone misses the certificate: once more, unscaled
             tol = 0.5 * options.gtol * ev.force_scale / np.sqrt(model.n_dofs)
@@ -507,8 +468,9 @@ def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
     # the certificate decides, not IPOPT's own flag: IPOPT may end with
     # "search direction too small" on a pose that passes it
     ok = small and factor is not None
+    note = f" (escaped {escapes} saddle(s))" if escapes else ""
     if ok:
-        status = _converged_status(test, ev, options.gtol, escapes)
+        status = "converged" + note
         if not stats["success"]:
             status += f" (ipopt ended with {stats['return_status']}; the pose passes the certificate)"
     elif factor is None:

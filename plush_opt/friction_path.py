@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .equilibrium import Equilibrium, EquilibriumOptions, residual_converged, solve_equilibrium
+from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .friction import FrictionModel
 from .linalg import NotPositiveDefinite
 
@@ -467,7 +467,7 @@ def _joint_newton(fm, x, r_pred, c, mode, delta, options, loose=False, last=None
             log.debug("joint newton %d: Hessian not positive definite", it)
             return None
         gnorm = float(np.linalg.norm(ev.gradient))
-        if residual_converged(ev, x, gtol) and np.max(np.abs(h), initial=0.0) <= options.tol * scale:
+        if gnorm <= gtol * ev.force_scale and np.max(np.abs(h), initial=0.0) <= options.tol * scale:
             eq = Equilibrium(x, np.asarray(c, dtype=np.float64).copy(), True, "converged", ev.energy, gnorm,
                              ev.force_scale, True, None, it, time.perf_counter() - t0, "newton",
                              factor=factor)

@@ -304,15 +304,6 @@ class LowRankHessian:
         return ((H + H.T) * 0.5).tocsc()
 
 
-def abs_product(H, v: np.ndarray) -> np.ndarray:
-    """|H| v (entrywise absolute values) for a CSC matrix, or an upper bound
-    of it, |body| v + |Q|^T |M| |Q| v, for a :class:`LowRankHessian` (which
-    stays unassembled)."""
-    if isinstance(H, LowRankHessian):
-        return abs(H.body) @ v + abs(H.QT) @ (np.abs(H.M) @ (abs(H.Q) @ v))
-    return abs(H) @ v
-
-
 def assembled(H) -> sp.csc_matrix:
     """H as one sparse matrix (a :class:`LowRankHessian` assembled)."""
     return H.assemble() if isinstance(H, LowRankHessian) else H

@@ -249,12 +249,3 @@ def test_low_rank_with_an_indefinite_body_is_decided_on_the_whole(backend, mode)
     assert np.allclose(f.solve(b), b / np.r_[4.0, np.ones(n - 1)], rtol=1e-14)
     with pytest.raises(NotPositiveDefinite):
         Factorizer(backend, mode).factor(H, shift=0.5)
-
-
-def test_abs_product_is_exact_for_a_matrix_and_a_bound_for_the_low_rank_form():
-    H = _low_rank(negative=0.05)
-    v = np.abs(np.random.default_rng(3).standard_normal(H.shape[0]))
-    exact = abs(H.assemble()) @ v
-    bound = linalg.abs_product(H, v)
-    assert np.all(bound >= exact * (1 - 1e-12))
-    assert np.allclose(linalg.abs_product(H.assemble(), v), exact, rtol=1e-14)
