@@ -263,11 +263,12 @@ class TendonPoints:
         n2 = 2 * self.n_nodes
         return gz[:n2] + self.extra_dofs.T @ gz[n2:]
 
-    def expand(self, a: np.ndarray, b: np.ndarray):
+    def expand(self, a: np.ndarray, b: np.ndarray, A: sp.csr_matrix | None = None):
         """The node-dof entries of z-space Hessian entries (a_k, b_k):
-        entry k contributes A[a_k, i] A[b_k, j] to (i, j). Returns
+        entry k contributes A[a_k, i] A[b_k, j] to (i, j) (``A``: the map
+        z = A x, or a stand-in for it of the same shape). Returns
         (k, i, j, factor) arrays."""
-        A = self.A
+        A = self.A if A is None else A
         ia, ib = A.indptr[a], A.indptr[b]
         na, nb = A.indptr[a + 1] - ia, A.indptr[b + 1] - ib
         count = na * nb

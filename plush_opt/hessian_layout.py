@@ -19,6 +19,12 @@ Three forms (Model's ``hessian`` argument):
   part (one disc at a time), minus [I; I] K [I, I], which joins the low-rank
   term. The sparse part then holds no block coupling two discs, and is at
   least as positive definite as with the whole segment term in it.
+  A disc with more than :data:`STANDIN_MIN_DISC_NODES` nodes (a graded
+  mesh fills one beside a pinned end with hundreds) would put the square
+  of its node count into the factor: its 2 diag(K) sits in the sparse part
+  on the disc's heaviest node alone (a stand-in, as positive definite as a
+  point load's), and the difference, W^T 2K W - e^T 2K e (rank 4: the
+  disc's rows W and the node's rows e), joins the low-rank term.
 """
 
 from __future__ import annotations
@@ -30,6 +36,10 @@ from .linalg import LowRankHessian
 
 #: the forms (Model's ``hessian`` argument; "auto" is decided by the model)
 FORMS = ("assembled", "rank_one", "split")
+# In the split form a disc with more nodes than this has a stand-in in the
+# sparse part (above): its dense block would cost (2 n)^2 entries there and
+# more in the factor, the stand-in 4 solves per factorisation.
+STANDIN_MIN_DISC_NODES = 200
 
 
 def segment_pairs(seg_dofs: np.ndarray, A: sp.csr_matrix) -> sp.csr_matrix:
@@ -44,7 +54,7 @@ def segment_pairs(seg_dofs: np.ndarray, A: sp.csr_matrix) -> sp.csr_matrix:
 
 def pair_blocks(K: np.ndarray) -> np.ndarray:
     """M's block of split segments: minus each segment's K (m, 2, 2) on the
-    diagonal, (2m, 2m)."""
+    diagonal, (2m, 2m) (and of stand-ins, with either sign)."""
     m = len(K)
     M = np.zeros((m, 2, m, 2))
     M[np.arange(m), :, np.arange(m), :] = -K
@@ -67,6 +77,8 @@ class HessianLayout:
         self.low_rank = form != "assembled" and len(seg_dofs) > 0
         self.split = self.low_rank and form == "split"
         self._points, self._seg_dofs, self._tendon_dofs = points, seg_dofs, tendon_dofs
+        no_standin = (points.A, np.zeros(0, np.int64))
+        self._A_sparse, self._standin_dofs = self._standin() if self.split else no_standin
         k = elem_dofs.shape[1]
         rows = [np.repeat(elem_dofs, k, axis=1).ravel(), pin_dofs]
         cols = [np.tile(elem_dofs, (1, k)).ravel(), pin_dofs]
@@ -77,7 +89,8 @@ class HessianLayout:
             self._direct[name] = None if direct.all() else direct
             rows.append(zr[direct])
             cols.append(zc[direct])
-            spread.append((len(zr) - int(direct.sum()),) + points.expand(zr[~direct], zc[~direct]))
+            spread.append((len(zr) - int(direct.sum()),)
+                          + points.expand(zr[~direct], zc[~direct], self._A_sparse))
         rows += [x[2] for x in spread]
         cols += [x[3] for x in spread]
         sizes = [len(x) for x in rows]
@@ -102,6 +115,26 @@ class HessianLayout:
                 shape=(self.nnz, offsets[-1]))
         if self.low_rank:
             self._build_low_rank()
+
+    def _standin(self) -> tuple[sp.csr_matrix, np.ndarray]:
+        """A with the rows of each large disc's point moved to its heaviest
+        node (the sparse part's map), and the z-dofs of those points."""
+        pts, n = self._points, self.n
+        W = pts.extra_dofs                        # row 2k + d: point k, coordinate d
+        counts = np.diff(W.indptr)[::2]
+        large = np.flatnonzero(counts > STANDIN_MIN_DISC_NODES)
+        if not len(large):
+            return pts.A, np.zeros(0, np.int64)
+        heaviest = np.array([W.indices[a + np.argmax(W.data[a:W.indptr[2 * k + 1]])]
+                             for k, a in zip(large, W.indptr[2 * large])])     # dof 2i of node i
+        zdofs = (n + 2 * large[:, None] + np.arange(2)).ravel()
+        keep = np.ones(pts.A.shape[0])
+        keep[zdofs] = 0.0
+        moved = sp.csr_matrix((np.ones(len(zdofs)), (zdofs, (heaviest[:, None] + np.arange(2)).ravel())),
+                              shape=pts.A.shape)
+        A = (sp.diags(keep) @ pts.A + moved).tocsr()
+        A.eliminate_zeros()
+        return A, zdofs
 
     def _tendon_kinds(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The z-space (row, col) entries of each kind of tendon term."""
@@ -128,6 +161,15 @@ class HessianLayout:
         self._valid = self._tendon_dofs.ravel() >= 0
         self._l_rows = np.repeat(np.arange(n_tendons), self._tendon_dofs.shape[1])[self._valid]
         self._l_cols = self._tendon_dofs.ravel()[self._valid]
+        # large discs: their rows of A and of the stand-in, and which
+        # segment ends (seg_dofs' first half, then its second) sit on each
+        large = self._standin_dofs
+        self._standin_rows = sp.vstack([self._points.A[large], self._A_sparse[large]], format="csr")
+        ends = np.r_[self._seg_dofs[:m, 0], self._seg_dofs[:m, 2]]
+        pos = np.searchsorted(large, ends)
+        hit = pos < len(large)
+        hit[hit] = large[pos[hit]] == ends[hit]
+        self._end_on = np.where(hit, pos, -1)
 
     def assemble(self, elem_hess: np.ndarray, pin_stiffness: float, seg_hess=None, length_grad=None,
                  dtension=None):
@@ -164,8 +206,18 @@ class HessianLayout:
         A, m2 = self._points.A, self._pairs.shape[0]
         lz = sp.csr_matrix((length_grad.ravel()[self._valid], (self._l_rows, self._l_cols)),
                            shape=(len(dtension), A.shape[0]))
-        Q = sp.vstack([self._pairs, lz @ A], format="csr")
-        M = np.diag(np.r_[np.zeros(m2), dtension])
+        Q = sp.vstack([self._pairs, lz @ A, self._standin_rows], format="csr")
+        n_s = len(self._standin_dofs)
+        M = np.diag(np.r_[np.zeros(m2), dtension, np.zeros(2 * n_s)])
         if self.split:
             M[:m2, :m2] = pair_blocks(K)
+        if n_s:
+            # each large disc's 2K (summed over the segment ends on it):
+            # + on the disc's rows, - on its stand-in's
+            S = np.zeros((n_s // 2, 2, 2))
+            on = self._end_on >= 0
+            np.add.at(S, self._end_on[on] // 2, 2 * np.concatenate([K, K])[on])
+            j = m2 + len(dtension)
+            M[j:j + n_s, j:j + n_s] = -pair_blocks(S)
+            M[j + n_s:, j + n_s:] = pair_blocks(S)
         return Q, M

@@ -271,7 +271,16 @@ def large_discs():
     from shipped import ROOT
     scene = load(ROOT / "problems" / "gripper.yaml").scene.replace(element="P2")
     mesh = mesh_for_nodes(scene, 700)
-    return {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
+    models = {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
+    # every disc large enough for a stand-in on its heaviest node
+    from plush_opt import hessian_layout
+    saved = hessian_layout.STANDIN_MIN_DISC_NODES
+    hessian_layout.STANDIN_MIN_DISC_NODES = 4
+    try:
+        models["standin"] = Model(scene, mesh, hessian="split")
+    finally:
+        hessian_layout.STANDIN_MIN_DISC_NODES = saved
+    return models
 
 
 def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
@@ -300,7 +309,7 @@ def test_hessian_forms_agree_and_match_differences(large_discs):
     H = ref.evaluate(x, c).hessian
     scale = abs(H).max()
     v = rng.standard_normal(ref.n_dofs)
-    for form in ("rank_one", "split"):
+    for form in ("rank_one", "split", "standin"):
         model = large_discs[form]
         ev = model.evaluate(x, c)
         assert type(ev.hessian_form).__name__ == "LowRankHessian"
@@ -312,13 +321,36 @@ def test_hessian_forms_agree_and_match_differences(large_discs):
     assert_close(model.evaluate(x, c).hessian_form @ v, fd, 1e-6, "split: H v against differences")
 
 
+def test_a_large_disc_has_a_stand_in_in_the_sparse_part(large_discs):
+    """With stand-ins the sparse part holds no disc's dense block: the
+    element pattern alone (a stand-in's 2 x 2 block sits on one node); each
+    large disc adds rank 4 to the low-rank term."""
+    split, standin = large_discs["split"], large_discs["standin"]
+    n_large = len(standin._layout._standin_dofs) // 2
+    assert n_large == standin._points.n_extra > 0
+    assert standin._layout.nnz < split._layout.nnz
+    assert standin._layout.nnz == element_and_pin_nnz(standin)
+    rng = np.random.default_rng(5)
+    x, c = random_state(split, rng)
+    a, b = split.evaluate(x, c).hessian_form, standin.evaluate(x, c).hessian_form
+    assert b.Q.shape[0] == a.Q.shape[0] + 4 * n_large
+    assert b.body.nnz == standin._layout.nnz
+
+
+def element_and_pin_nnz(model) -> int:
+    """Entries of the element and pin pattern alone."""
+    from plush_opt.hessian_layout import HessianLayout
+    return HessianLayout(model.n_dofs, model._elem_dofs, model._pin_dofs, model._points,
+                         np.zeros((0, 4), np.int64), np.zeros((0, 1), np.int64), "assembled").nnz
+
+
 def test_equilibria_agree_across_hessian_forms(large_discs):
     from plush_opt.equilibrium import solve_equilibrium
     model = large_discs["assembled"]
     c = model.lower + 0.6 * (model.upper - model.lower)
     ref = solve_equilibrium(model, c)
     assert ref.converged
-    for form in ("rank_one", "split"):
+    for form in ("rank_one", "split", "standin"):
         eq = solve_equilibrium(large_discs[form], c)
         assert eq.converged and eq.positive_definite, form
         assert np.abs(eq.x - ref.x).max() <= 1e-9 * np.abs(ref.x).max(), form
