@@ -38,16 +38,15 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.accuracy import (MAX_RATIO, REFINEMENTS, SAFETY, choose_mesh, default_levels,
-                                equilibrium_at, probe_contractions, probe_points, sweep)
-from plush_opt.equilibrium import EquilibriumOptions
+from plush_opt.accuracy import (LEVEL_OPTIONS, MAX_RATIO, REFINEMENTS, SAFETY, choose_mesh,
+                                default_levels, equilibrium_at, probe_contractions, probe_points, sweep)
 from plush_opt.io import load_scene
 from plush_opt.mesh import build_mesh
 from plush_opt.model import build_model
 from plush_opt.objective import Targets
 from plush_opt.results import atomic_path
 
-OPTIONS = EquilibriumOptions(eigenvalue=False)
+OPTIONS = LEVEL_OPTIONS
 #: Changes below this fraction of the largest error of any point are round-off, not divergence.
 NOISE = 1e-3
 
