@@ -33,16 +33,32 @@ distance to the next singular point) and d the distance to the nearest
 singular point. The accuracy sweep grades the first mesh of each nested
 family and refines it uniformly, which keeps the grading relative to h.
 The floor G_MIN keeps the elements at a singular point a fixed fraction of
-h rather than letting them shrink without bound; with the bound taken at
-the centroid, a mesh whose h exceeds R stops well above it
-(docs/accuracy.md, "What is open"). Within one local element of each
-attachment disc's rim the size is h / 4 (DISC_FACTOR), fixed the same way.
+h rather than letting them shrink without bound. Within one local element
+of each attachment disc's rim the size is h / 4 (DISC_FACTOR), fixed the
+same way.
 
 The mesh is made by Triangle as usual and then refined ('r') with a
 per-triangle area bound max_area * g^2 at the triangle's centroid, a few
 times (the bound of a split triangle is its parent's, so each pass moves
-the sizes nearer to g). Only meshes the accuracy sweep chooses are graded;
-a problem file's own mesh is what its max_area says.
+the sizes nearer to g). At the centroid, the triangle at a singular point
+stops shrinking once its own size sets the distance, at s ~ h^4 / (2R)^3:
+far above the floor when h exceeds R, as on the coarse first mesh of a
+nested family. A pinned end is therefore graded at the vertex: a triangle
+touching it is bounded by g there, G_MIN (the triangles around it keep the
+centroid: at their nearest vertex a wide zone would be graded finer than
+g). A pinned end carries the reaction of the whole load (gravity and the
+tendons pull against the root), and on a cantilevered body its singular
+term sets the rate of every point (beam_tendon, graded at the centroid:
+0.37 per level of 4x the nodes, the h^(2 lambda) of a loaded clamped
+corner; at the vertex 0.18; docs/accuracy.md). An attachment disc beside
+a pinned end then fills with the small elements (finger_hole's stoppers,
+1 mm from the root's corner: 74 nodes instead of 8 on the first mesh);
+its Hessian term has a stand-in there (plush_opt.hessian_layout), not a
+dense block. Reentrant corners keep the centroid, which reaches the floor
+once h < R: at the vertex they would cost 3 x the first mesh's nodes on
+the hexapod (889 to 2,872) and finger_hole (557 to 1,665), whose estimates
+hold without it. Only meshes the accuracy sweep chooses are graded; a
+problem file's own mesh is what its max_area says.
 """
 
 from __future__ import annotations
@@ -162,11 +178,16 @@ def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, qualit
     if len(singular) == 0 and not discs:
         return X, tris
     radii = grading_radii(singular, np.sqrt(body_area(scene.outline, scene.holes)))
+    ends = np.array(_pinned_ends(scene) if scene.pin_box is not None else np.zeros((0, 2))).reshape(-1, 2)
     h_disc = DISC_FACTOR * np.sqrt(max_area)
     for _ in range(PASSES):
         p = X[tris]
         centroid = p.mean(axis=1)
         g = size_factor(centroid, singular, radii, scene.element)
+        for end in ends:
+            # a triangle touching a pinned end takes the size there
+            touching = np.any(np.linalg.norm(p - end, axis=2) <= scene.tolerance, axis=1)
+            g[touching] = G_MIN
         for centre, r in discs:
             near = np.linalg.norm(centroid - centre, axis=1) < r + h_disc
             g[near] = np.minimum(g[near], DISC_FACTOR)

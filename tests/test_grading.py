@@ -174,3 +174,18 @@ def test_grading_beats_uniform_refinement_at_a_reentrant_corner():
     # uniform: halving the area (h / sqrt 2) cuts the error by far less than
     # P2's h^3 (2.8x) would
     assert e_uniform[0] / e_uniform[1] < 2.0
+
+
+def test_a_pinned_end_is_graded_to_the_floor_even_on_a_mesh_coarser_than_its_radius():
+    # h (20 mm) above the grading radius (10 mm): the centroid's bound alone
+    # stops far above the floor at the clamped root; a triangle touching a
+    # pinned end takes the floor
+    strip = [[0, 15], [80, 15], [80, 35], [0, 35]]
+    scene = _scene(outline=strip, box=(0, 15, 0, 35), max_area=200.0)
+    mesh = build_mesh(scene, max_area=200.0, graded=True)
+    p = mesh.X[mesh.triangles]
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    tri_area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    for end in ([0.0, 15.0], [0.0, 35.0]):
+        touching = np.any(np.linalg.norm(p - end, axis=2) < 1e-9, axis=1)
+        assert touching.any() and tri_area[touching].max() <= 200.0 * G_MIN ** 2 * (1 + 1e-9)
