@@ -77,8 +77,7 @@ class HessianLayout:
         self.low_rank = form != "assembled" and len(seg_dofs) > 0
         self.split = self.low_rank and form == "split"
         self._points, self._seg_dofs, self._tendon_dofs = points, seg_dofs, tendon_dofs
-        no_standin = (points.A, np.zeros(0, np.int64))
-        self._A_sparse, self._standin_dofs = self._standin() if self.split else no_standin
+        self._A_sparse, self._standin_dofs = self._standin()
         k = elem_dofs.shape[1]
         rows = [np.repeat(elem_dofs, k, axis=1).ravel(), pin_dofs]
         cols = [np.tile(elem_dofs, (1, k)).ravel(), pin_dofs]
@@ -118,12 +117,13 @@ class HessianLayout:
 
     def _standin(self) -> tuple[sp.csr_matrix, np.ndarray]:
         """A with the rows of each large disc's point moved to its heaviest
-        node (the sparse part's map), and the z-dofs of those points."""
+        node (the sparse part's map), and the z-dofs of those points (none
+        outside the split form)."""
         pts, n = self._points, self.n
         W = pts.extra_dofs                        # row 2k + d: point k, coordinate d
         counts = np.diff(W.indptr)[::2]
         large = np.flatnonzero(counts > STANDIN_MIN_DISC_NODES)
-        if not len(large):
+        if not self.split or not len(large):
             return pts.A, np.zeros(0, np.int64)
         heaviest = np.array([W.indices[a + np.argmax(W.data[a:W.indptr[2 * k + 1]])]
                              for k, a in zip(large, W.indptr[2 * large])])     # dof 2i of node i

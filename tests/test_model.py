@@ -274,12 +274,9 @@ def large_discs():
     models = {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
     # every disc large enough for a stand-in on its heaviest node
     from plush_opt import hessian_layout
-    saved = hessian_layout.STANDIN_MIN_DISC_NODES
-    hessian_layout.STANDIN_MIN_DISC_NODES = 4
-    try:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(hessian_layout, "STANDIN_MIN_DISC_NODES", 4)
         models["standin"] = Model(scene, mesh, hessian="split")
-    finally:
-        hessian_layout.STANDIN_MIN_DISC_NODES = saved
     return models
 
 
