@@ -1,7 +1,7 @@
 """The one thing pyproject.toml cannot say: the shipped problems, run
 scripts, board files and board emulator source travel in the wheel as
 package data, under plush_opt/data/ with the source tree's layout
-(plush_opt/data_files.py finds them there, or in the source tree)."""
+(plush_opt/base/data_files.py finds them there, or in the source tree)."""
 
 from setuptools import find_packages, setup
 

@@ -19,8 +19,9 @@ __version__ = "0.1.0"
 _API = {
     "BilevelOptions": "control", "ControlIterate": "control", "ControlOptions": "control",
     "ControlResult": "control", "ControlStats": "control",
-    "Equilibrium": "equilibrium", "EquilibriumOptions": "equilibrium",
-    "HardwareError": "errors", "PlushError": "errors", "SceneError": "errors", "SolverError": "errors",
+    "Equilibrium": "solve.equilibrium", "EquilibriumOptions": "solve.equilibrium",
+    "HardwareError": "base.errors", "PlushError": "base.errors", "SceneError": "base.errors",
+    "SolverError": "base.errors",
     "Problem": "problem", "from_scene": "problem", "load": "problem",
 }
 

@@ -13,13 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from .errors import SceneError
+from .solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from .base.errors import SceneError
 from .io import load_scene
-from .mesh import Mesh, build_mesh
-from .model import Model, build_model
-from .objective import Targets
-from .scene import Scene
+from .fem.mesh import Mesh, build_mesh
+from .fem.model import Model, build_model
+from .fem.objective import Targets
+from .io.scene import Scene
 
 
 class Problem:
@@ -27,9 +27,9 @@ class Problem:
 
     Attributes
     ----------
-    scene : the validated :class:`~plush_opt.scene.Scene`.
-    mesh : its :class:`~plush_opt.mesh.Mesh`.
-    model : the energy :class:`~plush_opt.model.Model` on that mesh.
+    scene : the validated :class:`~plush_opt.io.scene.Scene`.
+    mesh : its :class:`~plush_opt.fem.mesh.Mesh`.
+    model : the energy :class:`~plush_opt.fem.model.Model` on that mesh.
     targets : the file's targets on that mesh (possibly none).
     mesh_report : how the mesh was chosen for an accuracy, or None.
     """
@@ -101,23 +101,23 @@ class Problem:
         With friction at via points the state depends on the path: the
         winches are driven from the scene's start state along a straight
         line in ``steps`` steps (default ``DEFAULT_PATH_STEPS``) and the
-        result is a :class:`~plush_opt.friction_solve.FrictionEquilibrium`
+        result is a :class:`~plush_opt.solve.friction_solve.FrictionEquilibrium`
         recording that path; ``x0`` is not used there (a pose alone is not
         a friction state).
         """
         c = self.contraction_vector(contraction)
         if self.friction is None:
             return solve_equilibrium(self.model, c, x0, options)
-        from .friction_solve import DEFAULT_PATH_STEPS, solve_forward
+        from .solve.friction_solve import DEFAULT_PATH_STEPS, solve_forward
         return solve_forward(self.friction, c, DEFAULT_PATH_STEPS if steps is None else steps,
                              equilibrium=options)
 
     @property
     def friction(self):
-        """The :class:`~plush_opt.friction.FrictionModel` of a scene with
+        """The :class:`~plush_opt.fem.friction.FrictionModel` of a scene with
         friction at via points (built on first use), or None."""
         if self._friction is None:
-            from .friction import FrictionModel, friction_tendons
+            from .fem.friction import FrictionModel, friction_tendons
             self._friction = FrictionModel(self.model) if friction_tendons(self.scene) else False
         return self._friction or None
 
@@ -173,7 +173,7 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
     report = None
     if mesh is None:
         if accuracy is not None:
-            from .accuracy import choose_mesh
+            from .solve.accuracy import choose_mesh
             mesh, report = choose_mesh(scene, accuracy)
             if mesh.element != scene.element:
                 scene = dataclasses.replace(scene, element=mesh.element)

@@ -10,14 +10,14 @@ import sys
 import numpy as np
 import pytest
 
-from plush_opt.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution, bound_errors,
+from plush_opt.solve.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution, bound_errors,
                                 choose_mesh, default_levels, estimate_errors, probe_contractions, sweep,
                                 transfer_pose)
 from plush_opt.apps.cantilever import beam_deflection
-from plush_opt.equilibrium import EquilibriumOptions
-from plush_opt.errors import SceneError
+from plush_opt.solve.equilibrium import EquilibriumOptions
+from plush_opt.base.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
-from plush_opt.mesh import build_mesh
+from plush_opt.fem.mesh import build_mesh
 from plush_opt.problem import load
 from shipped import ROOT, with_max_area
 
@@ -200,7 +200,7 @@ def test_unreachable_tolerance_says_so(tmp_path):
 
 
 def test_levels_solved_before_are_reused_not_solved_again(tmp_path, monkeypatch):
-    import plush_opt.accuracy as accuracy
+    import plush_opt.solve.accuracy as accuracy
     scene = load_scene(_coarse_leg(tmp_path))
     levels = [scene.max_area * f for f in (4, 2, 1)]
     calls = []

@@ -19,13 +19,13 @@ MAX_FUNCTION_LINES = 80
 EXCEPTIONS = {
     # the index maps and both evaluation paths (CasADi expression, compiled
     # kernels) of one energy; split, each half would reach into the other
-    "plush_opt/model.py:Model",
+    "plush_opt/fem/model.py:Model",
     # one Newton iteration with its line search, regularisation and saddle
     # escape reads best as one loop
-    "plush_opt/equilibrium.py:_solve_newton",
+    "plush_opt/solve/equilibrium.py:_solve_newton",
     # Triangle's switches, forced points and holes, then the checks of what
     # it returned, in the order they happen
-    "plush_opt/mesh.py:build_mesh",
+    "plush_opt/fem/mesh.py:build_mesh",
     # the report's sections, one after the other, as they appear in report.md
     "plush_opt/apps/compare/report.py:report_text",
 }

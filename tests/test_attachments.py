@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import plush_opt
-from plush_opt.attachments import AttachmentWeights
-from plush_opt.errors import SceneError
+from plush_opt.fem.attachments import AttachmentWeights
+from plush_opt.base.errors import SceneError
 from plush_opt.io import scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.results import result_dict
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.solve.result_file import result_dict
 from spec_checker import check_result
 from test_model import assert_close, random_state
 

@@ -11,11 +11,11 @@ import pytest
 from plush_opt.control.bilevel import BilevelOptions, BilevelSolver, solve_bilevel
 from plush_opt.control.bilevel_nlp import _objective_expression, force_reference
 from plush_opt.control.gradient import solve_control
-from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.io import load_scene, scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
 from shipped import PROBLEMS, ROOT, body_size, built
 
 
@@ -257,7 +257,7 @@ def test_options_are_validated(field, value, match):
 
 
 def test_bad_inputs_raise_solver_errors():
-    from plush_opt.errors import SolverError
+    from plush_opt.base.errors import SolverError
     _, _, model, targets = built("gripper")
     with pytest.raises(SolverError, match="outside the winch bounds"):
         solve_bilevel(model, targets, [30.0, 0.0, 0.0])
@@ -269,7 +269,7 @@ def _slack_start_run():
     """A reduced-space run on the slack-start finger, from its flat start."""
     import time as _time
     from plush_opt.control.bilevel_search import ReducedRun
-    from plush_opt.equilibrium import EquilibriumOptions
+    from plush_opt.solve.equilibrium import EquilibriumOptions
     scene = load_scene(ROOT / "problems" / "compare" / "finger_slack_start.yaml")
     mesh = build_mesh(scene, max_area=40.0)
     model = build_model(scene, mesh)
@@ -323,7 +323,7 @@ def test_secant_correction_meets_the_secant_condition_and_resets_at_a_kink():
     (L^T L = S on winches that are not slack); a pair across the tendon
     law's kink (a winch going slack or taut) drops it (Gauss-Newton)."""
     from plush_opt.control.bilevel_reduced import Evaluator
-    from plush_opt.equilibrium import EquilibriumOptions
+    from plush_opt.solve.equilibrium import EquilibriumOptions
     _, _, model, targets = built("hexapod")
     quick = EquilibriumOptions(eigenvalue=False)
     free = np.arange(model.n_winches)
@@ -413,7 +413,7 @@ def test_the_slack_winches_damping_adapts_as_the_loops():
     the step flipped its gradient or IPOPT's step kept O (never above
     hessian_damping), and a new round starts it afresh."""
     from plush_opt.control import bilevel_reduced as br
-    from plush_opt.equilibrium import EquilibriumOptions
+    from plush_opt.solve.equilibrium import EquilibriumOptions
     _, _, model, targets = built("hexapod")
     quick = EquilibriumOptions(eigenvalue=False)
     free = np.arange(model.n_winches)

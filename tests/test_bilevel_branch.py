@@ -1,5 +1,5 @@
 """The reduced-space bilevel method's evaluations stay on the stable branch
-(plush_opt/branch.py), as the gradient loop's line-search trials do: a
+(plush_opt/solve/branch.py), as the gradient loop's line-search trials do: a
 point IPOPT asks for past a limit point fails in a few Newton iterations
 (NaN residuals: IPOPT cuts its step back) instead of running a regularised
 Newton to its iteration limit; where nothing crosses a fold, the runs are
@@ -12,10 +12,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from plush_opt.branch import follow_branch
+from plush_opt.solve.branch import follow_branch
 from plush_opt.control import bilevel_reduced
 from plush_opt.control.bilevel_reduced import Evaluator, ResidualCallback
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.io import load_scene
 from plush_opt.problem import from_scene
 from shipped import PROBLEMS, ROOT, body_size, problem

@@ -18,7 +18,7 @@ from plush_opt.fit.job import calibrate, fitted_text
 from plush_opt.fit.synthetic import synthesize, true_values
 from plush_opt.io import load_scene
 from plush_opt.io.measurement import load_measurements
-from plush_opt.mesh import build_mesh
+from plush_opt.fem.mesh import build_mesh
 from shipped import ROOT
 
 TENTACLE = ROOT / "problems" / "calib" / "tentacle.yaml"

@@ -11,14 +11,14 @@ import numpy as np
 import pytest
 import yaml
 
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from plush_opt.fit.parameters import Values, mixed_columns, parse_fit, scene_with, to_theta
 from plush_opt.fit.predict import Predictor
 from plush_opt.io import load_scene
 from plush_opt.io.measurement import load_measurements
 from plush_opt.io.problem_file import scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
 from shipped import ROOT
 
 TENTACLE = ROOT / "problems" / "calib" / "tentacle.yaml"
@@ -81,7 +81,8 @@ def test_assembly_offset_is_read_validated_and_written_to_the_result():
 
 def test_a_result_with_offsets_passes_the_spec_checker(tmp_path):
     from plush_opt.problem import from_scene
-    from plush_opt.results import result_dict, write_json_atomic
+    from plush_opt.solve.result_file import result_dict
+    from plush_opt.base.files import write_json_atomic
     from spec_checker import check_result
     scene, _ = offset_scene([-0.3, 0.2, 0.1])
     p = from_scene(scene, max_area=COARSE)

@@ -9,7 +9,7 @@ import pytest
 
 from plush_opt.apps.compare import (CompareSettings, add_compare_parser, cmd_compare, pareto_front,
                                run_compare)
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from shipped import ROOT
 
 

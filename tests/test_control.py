@@ -7,12 +7,12 @@ import pytest
 
 from plush_opt.control.bounds import Reparametrisation
 from plush_opt.control.gradient import ControlOptions, Controller, solve_control
-from plush_opt.equilibrium import solve_equilibrium
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
-from plush_opt.scene import Winch
-from plush_opt.sensitivity import objective_gradient, state_sensitivity
+from plush_opt.solve.equilibrium import solve_equilibrium
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
+from plush_opt.io.scene import Winch
+from plush_opt.solve.sensitivity import objective_gradient, state_sensitivity
 from shipped import PROBLEMS, built
 
 # contractions at which some tendons are slack (negative contraction lets

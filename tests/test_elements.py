@@ -8,14 +8,14 @@ import json
 import numpy as np
 import pytest
 
-from plush_opt import elements
+from plush_opt.fem import elements
 from plush_opt.control import bilevel_nlp
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from plush_opt.io import scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
-from plush_opt.results import model_dict
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
+from plush_opt.solve.result_file import model_dict
 
 SIDE = 10.0
 THICKNESS = 3.0
@@ -334,7 +334,7 @@ def test_p2_control_result_passes_the_spec_checker(tmp_path, method):
 
 
 def test_transfer_pose_carries_a_quadratic_field_between_p2_meshes():
-    from plush_opt.accuracy import transfer_pose
+    from plush_opt.solve.accuracy import transfer_pose
     coarse, fine = build_mesh(_square("P2", 2)), build_mesh(_square("P2", 5))
     x = _quadratic_field(coarse.X).reshape(-1)
     assert np.allclose(transfer_pose(coarse, x, fine), _quadratic_field(fine.X).reshape(-1), atol=1e-12)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.errors import SolverError
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.base.errors import SolverError
 from shipped import PROBLEMS, body_size, built
 
 LEVELS = (0.1, 0.4, 0.8)   # fractions of each winch's range

@@ -1,4 +1,4 @@
-"""Equilibria on the stable branch (plush_opt/branch.py): a move past a limit
+"""Equilibria on the stable branch (plush_opt/solve/branch.py): a move past a limit
 point fails in a few iterations and says where the branch ends; a move
 along the branch gives the certified equilibrium plain Newton finds."""
 
@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plush_opt.branch import solve_on_branch
-from plush_opt.equilibrium import LEFT_BRANCH, EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.branch import solve_on_branch
+from plush_opt.solve.equilibrium import LEFT_BRANCH, EquilibriumOptions, solve_equilibrium
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
 from shipped import body_size
 
 ROOT = Path(__file__).resolve().parents[1]

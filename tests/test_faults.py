@@ -54,10 +54,10 @@ def one_error_line(p, code=2) -> str:
 def test_mesh_cap_is_checked_on_the_real_mesh(monkeypatch):
     """area / max_area under the cap, the real mesh over it: refused (here by
     the real count, the trial prediction switched off)."""
-    from plush_opt import mesh as mesh_mod
-    from plush_opt.errors import SceneError
+    from plush_opt.fem import mesh as mesh_mod
+    from plush_opt.base.errors import SceneError
     from plush_opt.io.problem_file import load_scene
-    from plush_opt.scene import Scene  # noqa: F401  (the scene type build_mesh takes)
+    from plush_opt.io.scene import Scene  # noqa: F401  (the scene type build_mesh takes)
     scene = load_scene(ROOT / "problems" / "gripper.yaml")
     body = 40 * 120 + 160 * 30
     cap = int(1.2 * body / scene.max_area)      # over area / max_area, under the real count
@@ -159,7 +159,7 @@ def test_trace_of_a_forward_solve_is_refused_before_it(tmp_path):
 
 
 def test_plot_creates_its_folder_and_files_respect_the_umask(tmp_path):
-    from plush_opt.results import write_json_atomic
+    from plush_opt.base.files import write_json_atomic
     p = cli("solve", finger(tmp_path), "--method", "forward", "--plot", tmp_path / "a" / "b" / "pose.png")
     assert p.returncode == 0, p.stderr
     assert (tmp_path / "a" / "b" / "pose.png").stat().st_size > 0
@@ -217,7 +217,7 @@ def test_run_log_on_a_full_disk_keeps_only_complete_lines(tmp_path, monkeypatch)
 
 
 def test_result_on_a_full_disk_names_the_file_and_leaves_nothing(tmp_path, monkeypatch):
-    from plush_opt import results
+    from plush_opt.base import files as results
     out = tmp_path / "out.json"
 
     def fsync(fd):
@@ -297,7 +297,7 @@ def _kernel():
 
 @pytest.mark.parametrize("damage", ["empty", "garbage", "no_checksum"])
 def test_a_broken_cache_entry_is_rebuilt(tmp_path, monkeypatch, damage):
-    from plush_opt import kernels
+    from plush_opt.base import kernels
     monkeypatch.setenv("PLUSH_OPT_CACHE", str(tmp_path))
     monkeypatch.setenv("PLUSH_OPT_COMPILE", "1")
     if kernels._compiler() is None:
@@ -320,7 +320,7 @@ def test_a_broken_cache_entry_is_rebuilt(tmp_path, monkeypatch, damage):
 _COMPILE_ONE = """
 import logging, sys, casadi as ca
 logging.basicConfig(level=logging.INFO, format="%(message)s")
-from plush_opt import kernels
+from plush_opt.base import kernels
 x = ca.SX.sym("x", 3)
 kernels.compiled(ca.Function("fault_test_parallel", [x], [ca.cos(x) * ca.sumsqr(x)], ["x"], ["y"]))
 """
@@ -359,7 +359,7 @@ def test_control_characters_and_long_names_stay_on_one_short_line(tmp_path):
 
 
 def test_one_line_escapes_and_caps():
-    from plush_opt.errors import one_line
+    from plush_opt.base.errors import one_line
     assert one_line("a\nb\x00c\u2028") == "a\\nb\\x00c\\u2028"
     long = one_line("y" * 400_000)
     assert len(long) < 2100 and long.startswith("yyy") and long.endswith("yyy")
@@ -368,7 +368,7 @@ def test_one_line_escapes_and_caps():
 # 14. smaller ones -------------------------------------------------------------
 
 def test_a_temp_file_left_by_a_killed_writer_is_cleaned_up(tmp_path):
-    from plush_opt.results import write_json_atomic
+    from plush_opt.base.files import write_json_atomic
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
                           text=True).stdout.strip()
     stale = tmp_path / f".out.json.{dead}.abc123.tmp.json"
@@ -381,7 +381,7 @@ def test_a_temp_file_left_by_a_killed_writer_is_cleaned_up(tmp_path):
 def test_the_driver_refuses_contractions_that_are_not_numbers(value):
     from plush_opt.board import load_calibration
     from plush_opt.board.limits import check_contractions
-    from plush_opt.errors import HardwareError
+    from plush_opt.base.errors import HardwareError
     cal = load_calibration(ROOT / "hw" / "boards" / "gripper.yaml")
     allowed = {n: (0.0, 10.0) for n in cal.winch_names}
     with pytest.raises(HardwareError):

@@ -7,9 +7,9 @@ import copy
 import numpy as np
 import pytest
 
-from plush_opt.errors import SceneError
-from plush_opt.friction import FrictionModel
-from plush_opt.friction_path import (SLIP_WINCH, FrictionOptions, check_state, follow,
+from plush_opt.base.errors import SceneError
+from plush_opt.fem.friction import FrictionModel
+from plush_opt.solve.friction_path import (SLIP_WINCH, FrictionOptions, check_state, follow,
                                      start_state)
 from plush_opt.io import scene_from_dict
 from plush_opt.problem import from_scene
@@ -208,14 +208,14 @@ def test_sweep_command_writes_csv_and_plot(tmp_path):
 # -- forward solves and result files -----------------------------------------
 
 def _forward_doc(p, eq):
-    from plush_opt.results import result_dict
+    from plush_opt.solve.result_file import result_dict
     return result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
                        status=eq.status, total_s=0.0, solve_s=0.0, iterations=eq.iterations)
 
 
 def test_forward_solve_with_friction_follows_the_path_from_the_start_state():
     from spec_checker import check_result
-    from plush_opt.friction_solve import FrictionEquilibrium
+    from plush_opt.solve.friction_solve import FrictionEquilibrium
     p = problem(arc(0.3, stiff=False))
     eq = p.equilibrium({"w": 3.0}, steps=4)
     assert isinstance(eq, FrictionEquilibrium) and eq.converged, eq.status
@@ -255,7 +255,7 @@ def test_a_frictionless_result_records_proportional_segments_and_equal_tensions(
 
 
 def test_forward_solve_that_cannot_start_reports_it(monkeypatch):
-    import plush_opt.friction_solve as fs
+    import plush_opt.solve.friction_solve as fs
     p = problem(arc(0.3, stiff=False))
     bad = fs.start_state(p.friction)
     monkeypatch.setattr(fs, "start_state", lambda fm, options=None: copy.copy(bad).__class__(
@@ -275,8 +275,8 @@ def _settled(fm, path):
 
 @pytest.mark.parametrize("path, direction", [([1.0, 2.0], 1.0), ([1.0, 2.0, 1.5, 1.0], -1.0)])
 def test_path_sensitivity_against_a_small_step_in_the_same_modes(path, direction):
-    from plush_opt.friction_path import step
-    from plush_opt.friction_solve import path_sensitivity
+    from plush_opt.solve.friction_path import step
+    from plush_opt.solve.friction_solve import path_sensitivity
     fm = problem(arc(0.3, stiff=False)).friction
     s = _settled(fm, path)[-1]
     S = path_sensitivity(fm, s, s.equilibrium.factor)[:, 0]
@@ -296,7 +296,7 @@ def arc_with_target(friction=0.3):
 
 def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
     from plush_opt.control import ControlOptions
-    from plush_opt.friction_solve import FrictionEquilibrium, drive
+    from plush_opt.solve.friction_solve import FrictionEquilibrium, drive
     p = problem(arc_with_target())
     res = p.control("reparam", options=ControlOptions(max_iterations=6))
     assert isinstance(res.equilibrium, FrictionEquilibrium)
@@ -313,7 +313,7 @@ def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
     assert res.history[-1].objective < res.history[0].objective
     assert np.allclose(res.equilibrium.path, [it.contraction for it in res.history])
     from spec_checker import check_result
-    from plush_opt.results import control_result_dict
+    from plush_opt.solve.result_file import control_result_dict
     doc = check_result(control_result_dict(res))
     assert doc["friction_path"]["steps"] == len(res.history)
     assert doc["friction_path"]["from"].startswith("the control run's starting state")
@@ -321,7 +321,7 @@ def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
 
 def test_control_starts_from_the_robots_state():
     from plush_opt.control import ControlOptions
-    from plush_opt.friction_solve import drive
+    from plush_opt.solve.friction_solve import drive
     p = problem(arc_with_target())
     fm = p.friction
     # the same contraction reached two ways: straight there, or past it and back
@@ -342,7 +342,7 @@ def test_bilevel_refuses_a_friction_scene_with_the_reason():
 def test_a_run_carries_the_friction_state_from_step_to_step(tmp_path):
     import yaml
     from plush_opt.apps.planner import ControlPlanner
-    from plush_opt.friction_solve import drive
+    from plush_opt.solve.friction_solve import drive
     path = tmp_path / "arc.yaml"
     path.write_text(yaml.safe_dump(arc_with_target()))
     straight, round_trip = ControlPlanner(path), ControlPlanner(path)
@@ -362,7 +362,7 @@ def test_a_run_carries_the_friction_state_from_step_to_step(tmp_path):
 
 def test_gui_session_drives_the_robot_and_shows_segment_tensions():
     from plush_opt.apps.gui.session import PosingSession, status_line
-    from plush_opt.friction_solve import drive, solve_forward
+    from plush_opt.solve.friction_solve import drive, solve_forward
     p = problem(arc(0.3, stiff=False))
     session = PosingSession(p)
     for c in (3.0, 1.0):
@@ -418,9 +418,9 @@ def test_friction_hessian_forms_agree():
     assembled one, and the equilibrium at fixed rest lengths is the same."""
     from pathlib import Path
 
-    from plush_opt.equilibrium import solve_equilibrium
-    from plush_opt.mesh import mesh_for_nodes
-    from plush_opt.model import Model
+    from plush_opt.solve.equilibrium import solve_equilibrium
+    from plush_opt.fem.mesh import mesh_for_nodes
+    from plush_opt.fem.model import Model
     from plush_opt.problem import load
     scene = load(Path(__file__).resolve().parent.parent / "problems" / "gripper_friction.yaml").scene
     scene = scene.replace(element="P2")

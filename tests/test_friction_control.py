@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from plush_opt import load
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from shipped import ROOT, with_max_area
 
 FRICTION = ROOT / "problems" / "gripper_friction.yaml"
@@ -44,8 +44,8 @@ def run(*args):
 def round_trip(p):
     """The robot driven left 0 -> 15 -> 8 mm: a state a fresh path to
     left = 8 does not reach."""
-    from plush_opt.friction_path import start_state
-    from plush_opt.friction_solve import drive
+    from plush_opt.solve.friction_path import start_state
+    from plush_opt.solve.friction_solve import drive
     fm = p.friction
     up = drive(fm, start_state(fm), p.contraction_vector({"left": 15.0}))
     return drive(fm, up.friction, p.contraction_vector({"left": 8.0}))
@@ -70,8 +70,8 @@ def test_controller_refuses_a_friction_scene_and_gradient_controller_chooses(fri
 def test_gui_drag_loop_follows_the_friction_state_on_screen(friction_problem):
     from plush_opt.apps.gui.session import PosingSession
     from plush_opt.control import FrictionController
-    from plush_opt.friction_path import check_state
-    from plush_opt.friction_solve import drive
+    from plush_opt.solve.friction_path import check_state
+    from plush_opt.solve.friction_solve import drive
     p = friction_problem
     fm = p.friction
     session = PosingSession(p)
@@ -110,7 +110,7 @@ def test_gui_drag_loop_follows_the_friction_state_on_screen(friction_problem):
 # -- export ----------------------------------------------------------------------
 
 def _result_file(p, eq, path):
-    from plush_opt.results import result_dict
+    from plush_opt.solve.result_file import result_dict
     doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged, status=eq.status,
                       total_s=0.0, solve_s=0.0, iterations=eq.iterations)
     path.write_text(json.dumps(doc))

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
-from plush_opt.geometry import (barycentric, diameter, find_crossing, locate_in_triangles,
+from plush_opt.base.geometry import (barycentric, diameter, find_crossing, locate_in_triangles,
                                 ring_area, segments_touch)
 
 

@@ -1,5 +1,5 @@
 """Meshes graded towards reentrant corners and the ends of pinned boundary
-(plush_opt.grading): which points are singular, the sizes the mesh gets,
+(plush_opt.fem.grading): which points are singular, the sizes the mesh gets,
 and that grading buys accuracy where a uniform mesh converges slowly."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from plush_opt.accuracy import equilibrium_at
-from plush_opt.equilibrium import EquilibriumOptions
-from plush_opt.errors import SceneError
-from plush_opt.grading import G_MIN, GAMMA, grading_radii, singular_points, size_factor
+from plush_opt.solve.accuracy import equilibrium_at
+from plush_opt.solve.equilibrium import EquilibriumOptions
+from plush_opt.base.errors import SceneError
+from plush_opt.fem.grading import G_MIN, GAMMA, grading_radii, singular_points, size_factor
 from plush_opt.io import load_scene, scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
 from shipped import ROOT
 
 L_OUTLINE = [[0, 0], [40, 0], [40, 10], [10, 10], [10, 40], [0, 40]]

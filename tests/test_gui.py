@@ -29,9 +29,9 @@ from matplotlib.backend_bases import CloseEvent, KeyEvent, MouseEvent  # noqa: E
 from plush_opt.apps.gui import GuiOptions, add_gui_parser, cmd_gui, run_gui  # noqa: E402
 from plush_opt.apps.gui.session import PosingSession  # noqa: E402
 from plush_opt.apps.gui.view import PosingWindow  # noqa: E402
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium  # noqa: E402
-from plush_opt.errors import HardwareError, SceneError  # noqa: E402
-from plush_opt.objective import Targets  # noqa: E402
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium  # noqa: E402
+from plush_opt.base.errors import HardwareError, SceneError  # noqa: E402
+from plush_opt.fem.objective import Targets  # noqa: E402
 from plush_opt.problem import Problem  # noqa: E402
 
 from shipped import ROOT, body_size, built  # noqa: E402

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import yaml
 
-from plush_opt.board.calibration import load_calibration
-from plush_opt.errors import SceneError
+from plush_opt.board.board_file import load_calibration
+from plush_opt.base.errors import SceneError
 from plush_opt.io import Checker, load_run_script, load_scene, read_yaml
 from plush_opt.io.run_script import FORMAT
 

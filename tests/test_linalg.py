@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from plush_opt import linalg
+from plush_opt.base import linalg
 from plush_opt.control.gradient import solve_control
-from plush_opt.errors import SolverError
-from plush_opt.linalg import PIVOT_MARGIN, Factorizer, NotPositiveDefinite
+from plush_opt.base.errors import SolverError
+from plush_opt.base.linalg import PIVOT_MARGIN, Factorizer, NotPositiveDefinite
 from plush_opt.problem import load
 
 GRIPPER = Path(__file__).resolve().parent.parent / "problems" / "gripper.yaml"

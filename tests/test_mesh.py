@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
-from plush_opt.mesh import Mesh, area_for_nodes, build_mesh, mesh_for_nodes, refine_uniformly
+from plush_opt.fem.mesh import Mesh, area_for_nodes, build_mesh, mesh_for_nodes, refine_uniformly
 
 
 def problem(**mesh):

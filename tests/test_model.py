@@ -6,11 +6,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from plush_opt import elements
-from plush_opt import tendon_law
+from plush_opt.fem import elements
+from plush_opt.fem import tendon_law
 from plush_opt.io import scene_from_dict
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
 from shipped import PROBLEMS, built
 
 SQRT_EPS = np.sqrt(np.finfo(float).eps)
@@ -24,7 +24,7 @@ def random_state(model, rng, amplitude=0.03, margin=2e-3):
     derivative of U jumps and central differences of the gradient would
     straddle the joint (the joints themselves are tested on the kernel).
     """
-    from plush_opt.equilibrium import solve_equilibrium
+    from plush_opt.solve.equilibrium import solve_equilibrium
     h = np.sqrt(np.mean(model.rest_area))
     eps = model.tendon_smoothing
     for _ in range(50):
@@ -216,7 +216,7 @@ def test_patch_uniform_stretch_gives_analytic_piola_stress(F):
 
 
 def test_no_actuation_leaves_the_body_at_rest():
-    from plush_opt.equilibrium import solve_equilibrium
+    from plush_opt.solve.equilibrium import solve_equilibrium
     _, _, model, _ = built("gripper")
     c = np.full(model.n_winches, -2 * model.tendon_smoothing)   # every tendon slack
     ev = model.evaluate(model.X, c)
@@ -265,15 +265,15 @@ def test_gravity_term_only_when_the_scene_has_gravity():
 def large_discs():
     """The gripper (attachment radius 2) on a P2 mesh fine enough that its
     discs hold more than SPLIT_MIN_DISC_NODES nodes: one model per form."""
-    from plush_opt.mesh import mesh_for_nodes
-    from plush_opt.model import Model
+    from plush_opt.fem.mesh import mesh_for_nodes
+    from plush_opt.fem.model import Model
     from plush_opt.problem import load
     from shipped import ROOT
     scene = load(ROOT / "problems" / "gripper.yaml").scene.replace(element="P2")
     mesh = mesh_for_nodes(scene, 700)
     models = {form: Model(scene, mesh, hessian=form) for form in ("auto", "assembled", "rank_one", "split")}
     # every disc large enough for a stand-in on its heaviest node
-    from plush_opt import hessian_layout
+    from plush_opt.fem import hessian_layout
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(hessian_layout, "STANDIN_MIN_DISC_NODES", 4)
         models["standin"] = Model(scene, mesh, hessian="split")
@@ -281,8 +281,8 @@ def large_discs():
 
 
 def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
-    from plush_opt import model as model_module
-    from plush_opt.model import SPLIT_MIN_DISC_NODES, Model
+    from plush_opt.fem import model as model_module
+    from plush_opt.fem.model import SPLIT_MIN_DISC_NODES, Model
     auto = large_discs["auto"]
     assert auto._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES
     assert auto.low_rank and auto.split_segments
@@ -336,13 +336,13 @@ def test_a_large_disc_has_a_stand_in_in_the_sparse_part(large_discs):
 
 def element_and_pin_nnz(model) -> int:
     """Entries of the element and pin pattern alone."""
-    from plush_opt.hessian_layout import HessianLayout
+    from plush_opt.fem.hessian_layout import HessianLayout
     return HessianLayout(model.n_dofs, model._elem_dofs, model._pin_dofs, model._points,
                          np.zeros((0, 4), np.int64), np.zeros((0, 1), np.int64), "assembled").nnz
 
 
 def test_equilibria_agree_across_hessian_forms(large_discs):
-    from plush_opt.equilibrium import solve_equilibrium
+    from plush_opt.solve.equilibrium import solve_equilibrium
     model = large_discs["assembled"]
     c = model.lower + 0.6 * (model.upper - model.lower)
     ref = solve_equilibrium(model, c)

@@ -47,7 +47,7 @@ def installed(tmp_path_factory):
 
 def test_the_wheel_installs_without_cholmod_and_carries_its_files(installed):
     bin_, env = installed
-    p = _sh([bin_ / "python", "-c", "import importlib.util as u, plush_opt.linalg as l; "
+    p = _sh([bin_ / "python", "-c", "import importlib.util as u, plush_opt.base.linalg as l; "
              "print(u.find_spec('sksparse') is None, l.__file__)"], bin_, env)
     assert p.stdout.split()[0] == "True"                 # the sparse backend came from a wheel
     assert "site-packages" in p.stdout

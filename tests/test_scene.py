@@ -12,11 +12,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from plush_opt.errors import SceneError
+from plush_opt.base.errors import SceneError
 from plush_opt.io import load_scene, scene_from_dict
 from plush_opt.io.yaml_reader import MAX_FILE_BYTES
-from plush_opt.mesh import build_mesh
-from plush_opt.scene import Scene
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.io.scene import Scene
 
 
 def valid():

@@ -8,11 +8,11 @@ For each problem file it writes two tables (markdown) to ``--out``:
 1. P2 mesh convergence: the P2 levels of the default sweep (two families
    of nested meshes, A refined up to ``--refinements`` times, B one time
    less, interleaved by size), for each level its family, the nodes, the
-   estimated error of the compared points (plush_opt.accuracy), their
+   estimated error of the compared points (plush_opt.solve.accuracy), their
    error against the next level of its family (4x the nodes) and against
    the finest level (the reference), the ratio estimate / error against 4x
    finer (the acceptance asks for 0.5-2, and >= 1 for a conservative
-   estimate), the bound the pick uses (plush_opt.accuracy.bound_errors:
+   estimate), the bound the pick uses (plush_opt.solve.accuracy.bound_errors:
    through a finer level where the level has no estimate of its own), and
    per point the level from which its distance to the reference shrinks at
    every further level (monotone convergence), over all levels in order of
@@ -38,13 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.accuracy import (LEVEL_OPTIONS, MAX_RATIO, REFINEMENTS, SAFETY, choose_mesh,
+from plush_opt.solve.accuracy import (LEVEL_OPTIONS, MAX_RATIO, REFINEMENTS, SAFETY, choose_mesh,
                                 default_levels, equilibrium_at, probe_contractions, probe_points, sweep)
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
-from plush_opt.results import atomic_path
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
+from plush_opt.base.files import atomic_path
 
 OPTIONS = LEVEL_OPTIONS
 #: Changes below this fraction of the largest error of any point are round-off, not divergence.

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.elements import interpolation_weights
-from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.fem.elements import interpolation_weights
+from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
 
 ROOT = Path(__file__).resolve().parents[1]
 # scene -> contractions (by winch) held fixed: well into the taut range

@@ -28,7 +28,7 @@ from plush_opt.fit.job import calibrate
 from plush_opt.fit.synthetic import synthesize, true_values
 from plush_opt.io import load_scene
 from plush_opt.io.measurement import load_measurements
-from plush_opt.mesh import mesh_for_nodes
+from plush_opt.fem.mesh import mesh_for_nodes
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = ROOT / "problems" / "calib" / "tentacle.yaml"

@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt import load
-from plush_opt.friction import FrictionModel
-from plush_opt.equilibrium import solve_equilibrium
-from plush_opt.friction_path import FrictionOptions, follow, start_state
+from plush_opt.fem.friction import FrictionModel
+from plush_opt.solve.equilibrium import solve_equilibrium
+from plush_opt.solve.friction_path import FrictionOptions, follow, start_state
 
 ROOT = Path(__file__).resolve().parent.parent
 PROBLEM = ROOT / "problems" / "gripper_friction.yaml"

@@ -15,7 +15,7 @@ behind ``model.SPLIT_MIN_DISC_NODES``):
 
 For each problem and node count: the Hessian at the equilibrium of a
 mid-range contraction, then the time of ``factor(H)`` +
-``solve(b)`` through :class:`plush_opt.linalg.Factorizer` for each
+``solve(b)`` through :class:`plush_opt.base.linalg.Factorizer` for each
 installed backend (the pivot test included), and of SciPy's SuperLU
 (``splu``, no reuse of the analysis possible) as a baseline, and of
 cholespy if installed (another wheel, no refactorisation API): the fastest
@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from plush_opt import linalg
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.mesh import mesh_for_nodes
-from plush_opt.model import Model, build_model
+from plush_opt.base import linalg
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.fem.mesh import mesh_for_nodes
+from plush_opt.fem.model import Model, build_model
 from plush_opt.io import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -22,13 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.accuracy import base_area
+from plush_opt.solve.accuracy import base_area
 from plush_opt.apps.compare.settings import LARGE_SHORTFALL
 from plush_opt.control import BilevelOptions, run_control
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.friction_solve import has_friction
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.friction_solve import has_friction
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
+from plush_opt.fem.mesh import build_mesh
 from plush_opt.problem import from_scene
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -20,12 +20,12 @@ PACKAGE = Path(__file__).resolve().parents[1] / "plush_opt"
 # Layers, lowest first. A module may import its own layer and the ones
 # below, never one above. Longest prefix wins.
 LAYERS = [
-    ("base", ("errors", "geometry", "kernels", "linalg", "data_files")),
-    ("scene", ("scene", "io")),
-    ("mesh", ("mesh", "grading")),
-    ("model", ("model", "hessian_layout", "attachments", "pins", "elements", "tendon_law", "objective")),
-    ("solvers", ("equilibrium", "branch", "sensitivity", "accuracy", "friction", "friction_path", "friction_solve")),
-    ("control", ("control", "results", "problem", "fit")),
+    ("base", ("base",)),
+    ("io", ("io",)),
+    ("fem", ("fem",)),
+    ("solve", ("solve",)),
+    ("control", ("control", "fit")),
+    ("api", ("problem",)),
     ("board", ("board",)),
     ("apps", ("apps", "__init__", "__main__")),
 ]

@@ -22,10 +22,10 @@ import numpy as np
 import yaml
 
 import plush_opt
-from plush_opt.equilibrium import solve_equilibrium
+from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.fit.parameters import scene_with
 from plush_opt.fit.synthetic import synthesize, true_values
-from plush_opt.model import build_model
+from plush_opt.fem.model import build_model
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEM = ROOT / "problems" / "hexapod_leg.yaml"

@@ -29,12 +29,12 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt.control.gradient import ControlOptions, solve_control
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.errors import PlushError, SceneError
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.base.errors import PlushError, SceneError
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
 
 try:
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel

@@ -23,14 +23,14 @@ from pathlib import Path
 import numpy as np
 
 from ..control import BilevelOptions, BilevelSolver, run_control
-from ..equilibrium import EquilibriumOptions, solve_equilibrium
-from ..friction_solve import has_friction
-from ..linalg import Factorizer
-from ..mesh import build_mesh, mesh_for_nodes
+from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from ..solve.friction_solve import has_friction
+from ..base.linalg import Factorizer
+from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
-from ..results import write_json_atomic, write_text_atomic
+from ..base.files import write_json_atomic, write_text_atomic
 from ..io import load_scene
-from ..sensitivity import state_sensitivity
+from ..solve.sensitivity import state_sensitivity
 
 NO_EIG = EquilibriumOptions(eigenvalue=False)
 
@@ -62,7 +62,7 @@ def machine() -> dict:
         sksparse = version("scikit-sparse")
     except Exception:  # noqa: BLE001 - version is informative only
         sksparse = "?"
-    from ..linalg import BACKEND
+    from ..base.linalg import BACKEND
     return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version(),
             "numpy": np.__version__, "scipy": scipy.__version__, "casadi": casadi.__version__,
             "scikit-sparse": sksparse, "linear_solver": BACKEND, "plush_opt": __version__,
@@ -72,8 +72,8 @@ def machine() -> dict:
 _BUILD_SNIPPET = """
 import sys, time, json
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh, mesh_for_nodes
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh, mesh_for_nodes
+from plush_opt.fem.model import build_model
 scene = load_scene(sys.argv[1]).replace(element=sys.argv[3])
 mesh = build_mesh(scene) if sys.argv[2] == "0" else mesh_for_nodes(scene, int(sys.argv[2]))
 t = time.perf_counter(); build_model(scene, mesh); print(json.dumps(time.perf_counter() - t))
@@ -404,8 +404,8 @@ def _parse_size(token: str):
 
 
 def cmd_bench(args) -> int:
-    from ..errors import SceneError
-    from ..scene import ELEMENTS
+    from ..base.errors import SceneError
+    from ..io.scene import ELEMENTS
     try:
         sizes = [_parse_size(s) for s in args.sizes.split(",") if s.strip()]
     except ValueError:
@@ -423,7 +423,7 @@ def cmd_bench(args) -> int:
     if args.problems:
         problems = args.problems
     else:
-        from ..data_files import data_file
+        from ..base.data_files import data_file
         problems = sorted(data_file("problems").glob("*.yaml"))
     missing = [p for p in problems if not Path(p).is_file()]
     if missing or not problems:

@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ..errors import SceneError
+from ..base.errors import SceneError
 
 EXIT_NOT_FITTED = 3               # the command line's "solver did not converge" status
 
@@ -55,7 +55,7 @@ def cmd_calibrate(args) -> int:
     from ..fit.job import calibrate, fitted_text
     from ..fit.report import report_dict, summary_text
     from ..io.measurement import load_measurements
-    from ..results import write_json_atomic, write_text_atomic
+    from ..base.files import write_json_atomic, write_text_atomic
 
     if args.max_area is not None and not args.max_area > 0:
         raise SceneError(f"--max-area: expected an area > 0, got {args.max_area:g}")

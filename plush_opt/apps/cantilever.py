@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..equilibrium import EquilibriumOptions, solve_equilibrium
+from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from ..io import load_scene
-from ..mesh import build_mesh
-from ..model import build_model
+from ..fem.mesh import build_mesh
+from ..fem.model import build_model
 
 DEFAULT_PROBLEM = Path(__file__).resolve().parents[2] / "problems" / "cantilever.yaml"
 DEFAULT_AREAS = (64.0, 16.0, 8.0, 4.0, 2.0, 1.0, 0.5)

@@ -22,7 +22,7 @@ import sys
 import time
 from pathlib import Path
 
-from ..errors import HardwareError, PlushError, SceneError, SolverError, interrupt_status, one_line
+from ..base.errors import HardwareError, PlushError, SceneError, SolverError, interrupt_status, one_line
 from .signals import handle_signals
 
 log = logging.getLogger("plush_opt")
@@ -139,7 +139,7 @@ def _pairs(pairs, what: str = "--contraction") -> dict[str, float]:
 
 def write_trace(path, model, targets, history) -> None:
     """Iterate history as CSV, written atomically."""
-    from ..results import write_text_atomic
+    from ..base.files import write_text_atomic
     buf = io.StringIO()
     w = csv.writer(buf)
     names = list(model.winch_names)
@@ -162,9 +162,9 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     The shared path of ``solve`` and ``demo``.
     """
     from ..control import BilevelOptions, ControlOptions
-    from ..equilibrium import EquilibriumOptions
+    from ..solve.equilibrium import EquilibriumOptions
     from ..problem import load
-    from ..results import control_result_dict, result_dict
+    from ..solve.result_file import control_result_dict, result_dict
 
     t0 = time.perf_counter()
     if max_iterations is not None and max_iterations < 0:
@@ -240,8 +240,8 @@ def _check_tension_max(value) -> None:
 def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
     """The result of a control run that could not start: the starting
     equilibrium, ``converged: false``, the reason as its status."""
-    from ..equilibrium import EquilibriumOptions
-    from ..results import result_dict
+    from ..solve.equilibrium import EquilibriumOptions
+    from ..solve.result_file import result_dict
     t_solve = time.perf_counter()
     eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
     t_end = time.perf_counter()
@@ -255,7 +255,7 @@ def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
 
 def _check_solve_outputs(args) -> None:
     """Every output path of ``solve`` refused before the solve, not after it."""
-    from ..results import check_output_path
+    from ..base.files import check_output_path
     for option, path in (("--out", args.out), ("--plot", args.plot), ("--trace", args.trace)):
         if path is not None:
             check_output_path(path, option)
@@ -269,7 +269,7 @@ def _number(value, spec: str) -> str:
 
 
 def cmd_solve(args) -> int:
-    from ..results import write_json_atomic
+    from ..base.files import write_json_atomic
     _check_tension_max(args.tension_max)
     _check_solve_outputs(args)
     p, eq, doc, history = solve_problem(
@@ -287,7 +287,7 @@ def cmd_solve(args) -> int:
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
-        from ..results import atomic_path, check_output_path
+        from ..base.files import atomic_path, check_output_path
         from .plot import plot_pose
         _use_agg()
         check_output_path(args.plot, "--plot")     # still writable after the solve
@@ -359,7 +359,7 @@ def _add_examples(sub):
 
 
 def cmd_examples(args) -> int:
-    from ..data_files import copy_examples
+    from ..base.data_files import copy_examples
     for folder in copy_examples(args.dir):
         say(f"examples: wrote {folder}")
     say(f"examples: try `plush-opt solve {args.dir / 'problems' / 'gripper.yaml'}` or "
@@ -368,14 +368,14 @@ def cmd_examples(args) -> int:
 
 
 def default_problem() -> Path:
-    from ..data_files import data_file
+    from ..base.data_files import data_file
     return data_file("problems", "gripper.yaml")
 
 
 def cmd_demo(args) -> int:
     from .plot import plot_pose, plot_trace
-    from ..data_files import data_file
-    from ..results import check_output_folder, write_json_atomic
+    from ..base.data_files import data_file
+    from ..base.files import check_output_folder, write_json_atomic
     _check_tension_max(args.tension_max)
     _use_agg()
     problem = args.problem or default_problem()
@@ -575,7 +575,7 @@ OUTPUT_FOLDERS = {"bench": "out", "compare": "out"}
 
 
 def _check_output_folders(args) -> None:
-    from ..results import check_output_folder
+    from ..base.files import check_output_folder
     attr = OUTPUT_FOLDERS.get(args.command)
     if attr is not None and getattr(args, attr, None) is not None:
         check_output_folder(getattr(args, attr), f"--{attr}")

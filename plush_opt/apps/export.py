@@ -36,9 +36,9 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from ..errors import SceneError, SolverError
-from ..friction_path import STICK, FrictionState, check_state, state_at
-from ..friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table
+from ..base.errors import SceneError, SolverError
+from ..solve.friction_path import STICK, FrictionState, check_state, state_at
+from ..solve.friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table
 
 NO_VALUE = np.nan   # a field that does not apply to a cell (J of a tendon segment)
 # The recorded rest nodes must be the problem's mesh: JSON keeps doubles
@@ -201,7 +201,7 @@ def _recorded_rest(doc: dict, fm, where: str) -> np.ndarray | None:
 def _read_result(result_path, scene) -> dict:
     """The document of a result file, checked to be a plush-opt result of
     ``scene`` (its format and problem name)."""
-    from ..results import FORMAT
+    from ..solve.result_file import FORMAT
     where = str(result_path)
     try:
         doc = json.loads(Path(result_path).read_text())
@@ -230,7 +230,7 @@ def recorded_pose(problem, result_path, options=None, doc=None):
     what was done and how far the solve moved the recorded pose; a friction
     result without rest lengths gets a fresh path from the start state, and
     the note says so."""
-    from ..equilibrium import EquilibriumOptions, solve_equilibrium
+    from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
     where = str(result_path)
     model = problem.model
     doc = _read_result(result_path, model.scene) if doc is None else doc
@@ -280,7 +280,7 @@ def result_problem(problem_path, result_path):
     its ``model`` (``element``, ``rest_nodes``, ``triangles``). Returns
     (problem, the result file's document)."""
     from ..io import load_scene
-    from ..mesh import build_mesh
+    from ..fem.mesh import build_mesh
     from ..problem import from_scene
     scene = load_scene(Path(problem_path))
     doc = _read_result(result_path, scene)

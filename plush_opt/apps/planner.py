@@ -14,8 +14,8 @@ import numpy as np
 from plush_opt import problem as problems
 from plush_opt.control.friction_control import gradient_controller
 from plush_opt.control.gradient import ControlOptions
-from plush_opt.errors import SolverError
-from plush_opt.objective import Targets
+from plush_opt.base.errors import SolverError
+from plush_opt.fem.objective import Targets
 
 # A pose step that ends farther than this fraction of the body's size from
 # its targets (RMS) is reported as poor: a few percent is already visible.
@@ -29,7 +29,7 @@ class ControlPlanner:
     control run starts from where the previous one ended (warm starts).
     With friction at via points it keeps the robot's friction state too,
     and drives it from step to step: what the robot does depends on the
-    steps before (plush_opt/friction_solve.py, control/friction_control.py).
+    steps before (plush_opt/solve/friction_solve.py, control/friction_control.py).
     """
 
     def __init__(self, problem: Path | str, options: ControlOptions | None = None):
@@ -51,12 +51,12 @@ class ControlPlanner:
 
     def forward(self, contraction: dict[str, float]) -> dict:
         """Equilibrium at these contractions (the others keep theirs); raises
-        :class:`~plush_opt.errors.SceneError` for an unknown winch or a value outside its bounds."""
+        :class:`~plush_opt.base.errors.SceneError` for an unknown winch or a value outside its bounds."""
         if self.state is None:
             eq = self.problem.equilibrium({**self._named(self.contraction), **contraction}, self.x,
                                           self.options.equilibrium)
         else:
-            from plush_opt.friction_solve import drive
+            from plush_opt.solve.friction_solve import drive
             c = self.problem.contraction_vector({**self._named(self.contraction), **contraction})
             eq = drive(self.problem.friction, self.state, c, equilibrium=self.options.equilibrium,
                        origin="the run's previous step")
@@ -68,7 +68,7 @@ class ControlPlanner:
                 "status": eq.status}
 
     def check_targets(self, targets: list[dict]) -> None:
-        """Raise :class:`~plush_opt.errors.SceneError` (``targets[k].at: ...``)
+        """Raise :class:`~plush_opt.base.errors.SceneError` (``targets[k].at: ...``)
         for a target off the body: a run checks every pose step before it starts."""
         Targets.at_points(self.problem.mesh, [t["at"] for t in targets], [t["to"] for t in targets],
                           [t.get("weight", 1.0) for t in targets])

@@ -34,7 +34,7 @@ import numpy as np
 from plush_opt.apps.run_log import ProgressLine, RunLog
 from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
 from plush_opt.board.limits import allowed_ranges, check_contractions
-from plush_opt.errors import HardwareError, SceneError, SolverError, interrupt_status, one_line
+from plush_opt.base.errors import HardwareError, SceneError, SolverError, interrupt_status, one_line
 from plush_opt.io.run_script import RunScript, Step, load_run_script
 
 log = logging.getLogger(__name__)
@@ -561,9 +561,9 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
 
     Returns the exit status: 0 when the run completed, 130 when interrupted
     (the board has been stopped). Other errors propagate as
-    :class:`~plush_opt.errors.PlushError`.
+    :class:`~plush_opt.base.errors.PlushError`.
     """
-    from plush_opt.results import check_output_path
+    from plush_opt.base.files import check_output_path
     script = load_run_script(args.script)
     log_path = args.log if args.log is not None else _default_log_path(script)
     check_output_path(log_path, "--log", stream_ok=True)      # before the planner's first (slow) solve

@@ -17,11 +17,11 @@ CLEANUP_GRACE = 10.0    # s after a first signal during which a repeated one doe
 
 
 def handle_signals() -> dict:
-    """SIGTERM and SIGHUP raise :class:`~plush_opt.errors.Interrupted` in the
+    """SIGTERM and SIGHUP raise :class:`~plush_opt.base.errors.Interrupted` in the
     main thread, once: a second signal during the cleanup is ignored, so the
     cleanup (stop the board, end the log) is not cut short. Returns the
     previous handlers."""
-    from ..errors import Interrupted
+    from ..base.errors import Interrupted
     if threading.current_thread() is not threading.main_thread():
         return {}
     fired = []

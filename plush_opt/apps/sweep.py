@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError, SolverError
-from ..friction import FrictionModel
-from ..friction_path import follow, start_state
+from ..base.errors import SceneError, SolverError
+from ..fem.friction import FrictionModel
+from ..solve.friction_path import follow, start_state
 from ..problem import load
-from ..results import atomic_path
+from ..base.files import atomic_path
 
 
 def add_sweep_parser(sub, contraction_arg):

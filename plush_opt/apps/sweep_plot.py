@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..results import atomic_path
+from ..base.files import atomic_path
 
 
 def loop_area(c: np.ndarray, d: np.ndarray) -> float:

@@ -8,13 +8,13 @@ or a dry run), never through a :class:`Driver` or a simulator of their own.
 See hw/PROTOCOL.md and docs/hardware.md.
 """
 
-from plush_opt.board.calibration import (BoardCalibration, PortSettings, WinchCalibration,
+from plush_opt.board.board_file import (BoardCalibration, PortSettings, WinchCalibration,
                                          calibration_from_dict, load_calibration)
 from plush_opt.board.driver import Driver
 from plush_opt.board.emulator import Emulator, emulator_binary
 from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.board.link import BoardLink
-from plush_opt.board.links import DryRunLink, SerialLink, SimulatorLink, open_board
+from plush_opt.board.transports import DryRunLink, SerialLink, SimulatorLink, open_board
 from plush_opt.board.protocol import BoardInfo, BoardState
 
 __all__ = [

@@ -27,9 +27,9 @@ from collections.abc import Mapping
 import serial
 
 from plush_opt.board import protocol as P
-from plush_opt.board.calibration import BoardCalibration
+from plush_opt.board.board_file import BoardCalibration
 from plush_opt.board.limits import allowed_ranges, check_contractions
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 log = logging.getLogger(__name__)
 

@@ -26,8 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from plush_opt.data_files import EMULATOR_SOURCES, data_root
-from plush_opt.errors import HardwareError
+from plush_opt.base.data_files import EMULATOR_SOURCES, data_root
+from plush_opt.base.errors import HardwareError
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +39,7 @@ _REPO_BINARY = Path(__file__).resolve().parents[2] / "hw" / "emulator" / "build"
 CACHE_ENV = "PLUSH_OPT_CACHE"
 """Environment variable that overrides where built emulators are kept
 (default ``$XDG_CACHE_HOME/plush_opt``, else ``~/.cache/plush_opt``): the
-same cache as the compiled CasADi kernels (plush_opt/kernels.py)."""
+same cache as the compiled CasADi kernels (plush_opt/base/kernels.py)."""
 
 COMPILERS = ("c++", "g++", "clang++")   # tried in this order after $CXX
 # hw/Makefile's flags: what the emulator has been tested with

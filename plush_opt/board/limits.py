@@ -14,8 +14,8 @@ import math
 import numbers
 from collections.abc import Mapping
 
-from plush_opt.board.calibration import BoardCalibration
-from plush_opt.errors import HardwareError
+from plush_opt.board.board_file import BoardCalibration
+from plush_opt.base.errors import HardwareError
 
 BOUND_TOLERANCE = 1e-9
 """Relative slack at a limit: a solver at an active bound may overshoot it

@@ -6,7 +6,7 @@ ticks (:mod:`plush_opt.board.limits`). Every app (scripted runs, the
 posing window) holds a :class:`BoardLink` made by
 :func:`plush_opt.board.open_board`, and never a
 :class:`~plush_opt.board.driver.Driver` or a simulator process of its own.
-The implementations are in :mod:`plush_opt.board.links`.
+The implementations are in :mod:`plush_opt.board.transports`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ class BoardLink(Protocol):
 
     Implementations: a serial board, a simulated board (the host emulator
     or simavr) behind a pseudo-terminal, and a dry run that checks and
-    records but moves nothing (:mod:`plush_opt.board.links`).
+    records but moves nothing (:mod:`plush_opt.board.transports`).
     """
 
     @property
@@ -30,7 +30,7 @@ class BoardLink(Protocol):
     def send(self, contraction: Mapping[str, float]) -> None:
         """Command these contractions (a subset of the winches is allowed).
 
-        Raises :class:`~plush_opt.errors.HardwareError` for a name the board
+        Raises :class:`~plush_opt.base.errors.HardwareError` for a name the board
         does not drive or a value outside the allowed range, before anything
         is sent."""
 

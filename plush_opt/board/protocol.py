@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 PROTOCOL_VERSION = 1
 DEFAULT_BAUDRATE = 115200

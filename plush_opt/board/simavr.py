@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 
 from plush_opt.board import emulator as _emulator
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 log = logging.getLogger(__name__)
 

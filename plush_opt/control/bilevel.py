@@ -39,10 +39,10 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..equilibrium import EquilibriumOptions, certify, solve_equilibrium
-from ..errors import SolverError
-from ..model import Model
-from ..objective import Targets
+from ..solve.equilibrium import EquilibriumOptions, certify, solve_equilibrium
+from ..base.errors import SolverError
+from ..fem.model import Model
+from ..fem.objective import Targets
 from .bilevel_nlp import (NlpEntry, build_nlp, describe_pose as _describe_pose, force_reference,
                           jsonable as _jsonable, kkt as _kkt, parameters as _parameters, pose_check as _pose_check)
 from .bilevel_search import ReducedRun
@@ -344,7 +344,7 @@ class BilevelSolver:
         SceneError
             A scene with friction at via points (the method has no history).
         """
-        from ..friction_solve import has_friction
+        from ..solve.friction_solve import has_friction
         if has_friction(self.model):      # its pose depends on the path: refuse, never solve without it
             from .friction_control import refuse_bilevel
             refuse_bilevel(self.model)

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..linalg import NotPositiveDefinite, smallest_eigenpair
-from ..model import Model
+from ..base.linalg import NotPositiveDefinite, smallest_eigenpair
+from ..fem.model import Model
 from .result import ControlIterate
 
 # A pose whose relative residual is this small is an equilibrium in all but

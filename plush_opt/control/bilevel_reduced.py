@@ -39,11 +39,11 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from ..branch import follow_branch
-from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from ..model import Model
-from ..objective import Targets
-from ..sensitivity import state_sensitivity
+from ..solve.branch import follow_branch
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..fem.model import Model
+from ..fem.objective import Targets
+from ..solve.sensitivity import state_sensitivity
 from .bilevel_nlp import IterationCallback
 from .result import ControlIterate
 
@@ -108,7 +108,7 @@ class Evaluator:
     A contraction at which Newton does not certify a stable equilibrium
     gives NaN residuals: IPOPT treats that as an evaluation error and cuts
     its step back. The equilibrium is the one on the stable branch through
-    the nearest point already certified (plush_opt/branch.py, as the
+    the nearest point already certified (plush_opt/solve/branch.py, as the
     gradient loop's line-search trials): past a limit point of that branch
     the evaluation fails in a few Newton iterations instead of following a
     snap-through (or running to the iteration limit on the way there)."""

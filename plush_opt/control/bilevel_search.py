@@ -21,8 +21,8 @@ import time
 
 import numpy as np
 
-from ..model import Model
-from ..objective import Targets
+from ..fem.model import Model
+from ..fem.objective import Targets
 from .bilevel_reduced import Evaluator, Point, build_solver, history_point
 from .slack import slack_winches, take_up
 

@@ -3,7 +3,7 @@ knows the robot's history (docs/control.md, docs/model.md).
 
 With friction the pose at contractions c depends on how the robot got
 there, so the loop keeps the robot's friction state (pose and segment rest
-lengths, plush_opt/friction_path.py) besides its contractions:
+lengths, plush_opt/solve/friction_path.py) besides its contractions:
 
 * it starts from a given state (where a run left the robot) or from the
   scene's start state driven to the starting contractions;
@@ -27,11 +27,11 @@ import dataclasses
 
 import numpy as np
 
-from ..equilibrium import EquilibriumOptions
-from ..errors import SceneError
-from ..friction import FrictionModel
-from ..friction_path import FrictionState
-from ..friction_solve import (DEFAULT_PATH_STEPS, FrictionEquilibrium, drive, finish, has_friction,
+from ..solve.equilibrium import EquilibriumOptions
+from ..base.errors import SceneError
+from ..fem.friction import FrictionModel
+from ..solve.friction_path import FrictionState
+from ..solve.friction_solve import (DEFAULT_PATH_STEPS, FrictionEquilibrium, drive, finish, has_friction,
                               path_sensitivity, solve_forward)
 from .gradient import ControlOptions, Controller
 

@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..branch import solve_on_branch
-from ..equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
-from ..errors import SceneError, SolverError
-from ..friction_solve import has_friction
-from ..model import Model
-from ..objective import Targets
-from ..sensitivity import objective_gradient, state_sensitivity
+from ..solve.branch import solve_on_branch
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
+from ..base.errors import SceneError, SolverError
+from ..solve.friction_solve import has_friction
+from ..fem.model import Model
+from ..fem.objective import Targets
+from ..solve.sensitivity import objective_gradient, state_sensitivity
 from .bounds import bounds_strategy
 from .result import ControlIterate, ControlResult, ControlStats
 from .restart import restart_move
@@ -95,7 +95,7 @@ class ControlOptions:
     trial_newton : Newton iterations a line-search trial's equilibrium
         may take, its sub-steps along the branch included (the starting
         pose and restarts: ``equilibrium``'s own limit). A trial stays on
-        the current iterate's stable branch (plush_opt/branch.py): past a
+        the current iterate's stable branch (plush_opt/solve/branch.py): past a
         limit point it fails (0-35 iterations on the P2 hexapod), and the
         step is cut instead of followed across a snap-through.
     equilibrium : options of every equilibrium solve.
@@ -163,7 +163,7 @@ class Controller:
     x0 : a starting pose near the equilibrium at ``contraction`` (optional).
     options : :class:`ControlOptions`.
 
-    Raises :class:`~plush_opt.errors.SceneError` for a scene with friction at
+    Raises :class:`~plush_opt.base.errors.SceneError` for a scene with friction at
     via points: its poses depend on the robot's history, which this loop
     does not follow (:class:`~plush_opt.control.friction_control.FrictionController` does).
     """
@@ -491,7 +491,7 @@ def _trial(ctl: "Controller", c_t) -> Equilibrium:
     """A line-search trial's equilibrium at ``c_t``, warm-started from the predictor.
 
     Without friction it stays on the current iterate's stable branch
-    (plush_opt/branch.py): a trial past a limit point fails in a few
+    (plush_opt/solve/branch.py): a trial past a limit point fails in a few
     iterations instead of wandering after a snap-through."""
     x0 = ctl._predict(c_t)
     if ctl.follows_friction:

@@ -14,11 +14,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..equilibrium import Equilibrium
+from ..solve.equilibrium import Equilibrium
 
 if TYPE_CHECKING:
-    from ..model import Model
-    from ..objective import Targets
+    from ..fem.model import Model
+    from ..fem.objective import Targets
 
 METHODS = ("reparam", "clip", "bilevel")
 
@@ -156,10 +156,11 @@ class ControlResult:
 
     def to_dict(self) -> dict:
         """The result file's document (``plush-opt-result/1``)."""
-        from ..results import control_result_dict
+        from ..solve.result_file import control_result_dict
         return control_result_dict(self)
 
     def save(self, path) -> None:
         """Write the result file to ``path`` atomically."""
-        from ..results import control_result_dict, write_json_atomic
+        from ..solve.result_file import control_result_dict
+        from ..base.files import write_json_atomic
         write_json_atomic(path, control_result_dict(self))

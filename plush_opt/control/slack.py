@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..model import Model
+from ..fem.model import Model
 
 # Where the take-up leaves the tightest tendon: this fraction of eps inside
 # the smoothing zone (G = -(1 - SLACK_MARGIN) eps), so E (and the pose) is

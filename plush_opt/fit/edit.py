@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import yaml
 
-from ..errors import SceneError
+from ..base.errors import SceneError
 
 #: significant digits written: far below any standard error, and still readable
 DIGITS = 10

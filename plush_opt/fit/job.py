@@ -6,12 +6,12 @@ import math
 
 import numpy as np
 
-from ..equilibrium import EquilibriumOptions
-from ..errors import PlushError, SceneError
+from ..solve.equilibrium import EquilibriumOptions
+from ..base.errors import PlushError, SceneError
 from ..io.measurement import Measurements
 from ..io.problem_file import scene_from_dict
 from ..io.yaml_reader import read_yaml
-from ..mesh import build_mesh
+from ..fem.mesh import build_mesh
 from .edit import edit_problem_text, fitted_changes
 from .parameters import Values, effective_offsets, parse_fit
 from .predict import Predictor

@@ -4,8 +4,8 @@ Each parameter is fitted in an internal coordinate ``theta``: log for
 positive ones (Young's modulus, tendon stiffness), a logit for Poisson's
 ratio (0 < nu < 1/2), the value itself for lengths (offsets). For each,
 :func:`mixed_columns` gives d2E/dx dtheta exactly from the model's
-kernels (:meth:`~plush_opt.model.Model.parameter_mixed`,
-:meth:`~plush_opt.model.Model.mixed`): no finite differences.
+kernels (:meth:`~plush_opt.fem.model.Model.parameter_mixed`,
+:meth:`~plush_opt.fem.model.Model.mixed`): no finite differences.
 
 A winch's zero offset z shifts its contraction: the robot is at c + z
 when it reports c. It is exactly a common shift of that winch's tendons'
@@ -20,9 +20,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import SceneError
-from ..model import Model
-from ..scene import Material, Scene
+from ..base.errors import SceneError
+from ..fem.model import Model
+from ..io.scene import Material, Scene
 
 KINDS = ("youngs_modulus", "poisson_ratio", "tendon_stiffness", "assembly_offset", "winch_offset")
 DEFAULT_FIT = ("youngs_modulus", "assembly_offset")

@@ -18,12 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from ..errors import SolverError
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..base.errors import SolverError
 from ..io.measurement import Measurements
-from ..mesh import Mesh
-from ..model import Model, build_model
-from ..objective import Targets
+from ..fem.mesh import Mesh
+from ..fem.model import Model, build_model
+from ..fem.objective import Targets
 from .parameters import Values, mixed_columns, scene_with, values_from_theta
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import SolverError
+from ..base.errors import SolverError
 from .parameters import Parameter, dvalue_dtheta, to_theta
 from .predict import Prediction, Predictor
 

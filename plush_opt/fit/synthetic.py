@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..equilibrium import EquilibriumOptions, solve_equilibrium
-from ..errors import SolverError
+from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from ..base.errors import SolverError
 from ..io.measurement import FORMAT
-from ..mesh import Mesh
-from ..model import build_model
-from ..objective import Targets
-from ..scene import Scene
+from ..fem.mesh import Mesh
+from ..fem.model import build_model
+from ..fem.objective import Targets
+from ..io.scene import Scene
 from .parameters import Values, scene_with
 
 

@@ -1,5 +1,5 @@
 """Reading the files of plush_opt: problem files, run scripts and (through
-:mod:`plush_opt.board.calibration`) board calibrations.
+:mod:`plush_opt.board.board_file`) board calibrations.
 
 One guarded YAML reader (:func:`read_yaml`) and one :class:`Checker`
 serve every file kind, so every bad file gets the same kind of one-line

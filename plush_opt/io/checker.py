@@ -2,7 +2,7 @@
 
 Every file kind (problem files, board calibrations, run scripts) checks
 its document with one :class:`Checker`; a failure is one
-:class:`~plush_opt.errors.SceneError` line naming the file, the key path
+:class:`~plush_opt.base.errors.SceneError` line naming the file, the key path
 and the list index::
 
     gripper.yaml: tendons.list[2].path[4]: expected a number, got string 'x'
@@ -19,7 +19,7 @@ import numbers
 
 import numpy as np
 
-from ..errors import SceneError, format_number
+from ..base.errors import SceneError, format_number
 
 MAX_COORD = 1e12                  # keeps squared lengths and areas far from overflow
 #: strings longer than this are cut in messages, so a message stays one short line

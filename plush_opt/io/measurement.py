@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import format_point
-from ..geometry import classify_points, locate_in_triangles
-from ..scene import Scene
+from ..base.errors import format_point
+from ..base.geometry import classify_points, locate_in_triangles
+from .scene import Scene
 from .checker import Checker, at_index, at_key
 from .problem_file import load_scene
 from .yaml_reader import read_yaml

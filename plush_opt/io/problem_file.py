@@ -1,11 +1,11 @@
 """Problem file (format ``plush-opt/1``, docs/problem-format.md) ->
-validated :class:`~plush_opt.scene.Scene`.
+validated :class:`~plush_opt.io.scene.Scene`.
 
 The document is read by :func:`~plush_opt.io.yaml_reader.read_yaml` and
 checked section by section with a :class:`~plush_opt.io.checker.Checker`;
 the geometry checks (simple polygons, holes inside the outline, points
 inside the body or on nodes of an explicit mesh) use
-:mod:`plush_opt.geometry`.
+:mod:`plush_opt.base.geometry`.
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import re
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import format_number, format_point
-from ..geometry import classify_points, diameter, find_crossing, locate_in_triangles, ring_area
-from ..scene import ELEMENTS, FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
+from ..base.errors import format_number, format_point
+from ..base.geometry import classify_points, diameter, find_crossing, locate_in_triangles, ring_area
+from .scene import ELEMENTS, FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, Checker, at_index, at_key, describe
 from .yaml_reader import read_yaml
 

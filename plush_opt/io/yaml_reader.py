@@ -7,7 +7,7 @@ size cap and anything that is not a regular file (a FIFO or a device
 would block), bytes that are not UTF-8 text, anchors and aliases (so no
 "billion laughs"), merge keys, duplicate keys, and tags that build Python
 objects. Numbers written with an exponent (``1e-9``, ``2.0e11``) are
-numbers. Every failure is one :class:`~plush_opt.errors.SceneError` line
+numbers. Every failure is one :class:`~plush_opt.base.errors.SceneError` line
 that starts with the file name.
 """
 
@@ -19,7 +19,7 @@ import stat
 
 import yaml
 
-from ..errors import SceneError
+from ..base.errors import SceneError
 
 MAX_FILE_BYTES = 1 << 20          # 1 MiB: the files are small; refuse before parsing
 

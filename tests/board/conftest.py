@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 
 from board_helpers import FakeBoard, RawPort, fast_calibration_dict
-from plush_opt.board.calibration import calibration_from_dict
+from plush_opt.board.board_file import calibration_from_dict
 from plush_opt.board.emulator import Emulator, emulator_binary
 from plush_opt.board.simavr import SimavrBoard, firmware_elf, simavr_binary
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 BOARDS = ["emulator", "simavr"]
 BOARD_AXES = 4        # both boards of the shared tests report 4 axes, as the firmware always does

@@ -9,8 +9,8 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from board_helpers import fast_calibration_dict
-from plush_opt.board.calibration import WinchCalibration, calibration_from_dict, load_calibration
-from plush_opt.errors import SceneError
+from plush_opt.board.board_file import WinchCalibration, calibration_from_dict, load_calibration
+from plush_opt.base.errors import SceneError
 
 BOARDS = Path(__file__).resolve().parents[2] / "hw" / "boards"
 

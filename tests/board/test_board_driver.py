@@ -7,7 +7,7 @@ import pytest
 
 from board_helpers import fast_calibration_dict, wait_until
 from plush_opt.board import Driver, calibration_from_dict
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 
 def test_handshake_configures_limits_speeds_and_watchdog(emulator, calibration):

@@ -13,7 +13,7 @@ import pytest
 from board_helpers import wait_until
 from plush_opt.board import protocol as P
 from plush_opt.board.emulator import Emulator
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 def _get(port, seq):
     """The board's GET, decoded (4 axes)."""

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from plush_opt.board.limits import allowed_ranges, check_contractions
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 
 def test_allowed_ranges_intersect_calibration_limits_with_scene_bounds(calibration):

@@ -13,7 +13,7 @@ import yaml
 
 from board_helpers import fast_calibration_dict, wait_until
 from plush_opt.board import DryRunLink, SerialLink, SimulatorLink, calibration_from_dict, open_board
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 
 def children() -> set[int]:

@@ -8,7 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from plush_opt.board import protocol as P
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 HW = Path(__file__).resolve().parents[2] / "hw"
 

@@ -18,7 +18,7 @@ from plush_opt.io.run_script import FORMAT, RunScript, load_run_script
 from plush_opt.apps.runs import (add_run_arguments, check_run_script, cli_run,
                                  run_script)
 from plush_opt.board import SerialLink, calibration_from_dict, load_calibration
-from plush_opt.errors import HardwareError, SceneError, SolverError
+from plush_opt.base.errors import HardwareError, SceneError, SolverError
 
 ROOT = Path(__file__).resolve().parents[2]
 LOG_KEYS = {"t", "step", "kind", "event", "commanded", "ticks", "acknowledged", "measured", "objective", "status"}

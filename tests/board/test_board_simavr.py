@@ -15,7 +15,7 @@ import pytest
 from board_helpers import wait_until
 from plush_opt.board import protocol as P
 from plush_opt.board.simavr import DEADBAND, SimavrBoard
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 ROOT = Path(__file__).resolve().parents[2]
 HW = ROOT / "hw"

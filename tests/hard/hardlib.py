@@ -21,11 +21,11 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.equilibrium import EquilibriumOptions
+from plush_opt.solve.equilibrium import EquilibriumOptions
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
-from plush_opt.objective import Targets
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
+from plush_opt.fem.objective import Targets
 
 ROOT = Path(__file__).resolve().parents[2]
 HARD = ROOT / "problems" / "hard"

@@ -29,11 +29,11 @@ from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from hardlib import HARD, SHIPPED
-from plush_opt.errors import SceneError
-from plush_opt.geometry import ring_area
+from plush_opt.base.errors import SceneError
+from plush_opt.base.geometry import ring_area
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import build_model
 
 OUTLINE_SOURCES = ("gripper", "hexapod", "hexapod_leg", "near_inversion", "stiff_tendons",
                    "slack_taut", "contradictory_targets", "unreachable_target")

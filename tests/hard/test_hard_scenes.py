@@ -18,12 +18,12 @@ from hardlib import (BACKENDS, GTOL, HARD, UNDERPINNED, assert_certified, assert
                      assert_within_bounds, build, built, eq_options, header, positive_definite,
                      recheck)
 from plush_opt.control.gradient import ControlOptions, Controller, solve_control
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.errors import SceneError
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.base.errors import SceneError
 from plush_opt.io import load_scene
-from plush_opt.mesh import build_mesh
-from plush_opt import model as model_module
-from plush_opt.model import build_model
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem import model as model_module
+from plush_opt.fem.model import build_model
 
 try:                                     # method 2, when it has landed
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel

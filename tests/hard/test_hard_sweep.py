@@ -18,9 +18,9 @@ import pytest
 from hardlib import (BACKENDS, SHIPPED, assert_honest, assert_within_bounds, built, eq_options,
                      hard_names, recheck)
 from plush_opt.control.gradient import ControlOptions, solve_control
-from plush_opt.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.errors import SceneError, SolverError
-from plush_opt.friction_solve import has_friction
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.base.errors import SceneError, SolverError
+from plush_opt.solve.friction_solve import has_friction
 
 try:
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel

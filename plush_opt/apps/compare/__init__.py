@@ -13,7 +13,7 @@ Runs: each method at its default tolerances on the problem's mesh (the
 main table and the anytime curves), a sweep over solver tolerances on that
 mesh, and a sweep over mesh resolutions and element types (P1, P2) at the
 default tolerances. Errors are measured against a P2 reference mesh graded
-towards reentrant corners and attachment discs (plush_opt.grading;
+towards reentrant corners and attachment discs (plush_opt.fem.grading;
 ``CompareSettings.reference_factor``), whose own
 convergence is checked against a coarser P2 level (``check_factor``) and
 reported:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...results import write_text_atomic
+from ...base.files import write_text_atomic
 from .settings import METHODS, TOLERANCES, CompareSettings
 
 CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "element", "mesh_factor", "max_area", "n_nodes",

@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ...accuracy import base_area, equilibrium_at, transfer_pose
+from ...solve.accuracy import base_area, equilibrium_at, transfer_pose
 from ...control import BilevelOptions, ControlOptions, run_control
-from ...equilibrium import EquilibriumOptions, solve_equilibrium
-from ...errors import PlushError, SceneError
+from ...solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from ...base.errors import PlushError, SceneError
 from ...problem import from_scene
 from ...io import load_scene
-from ...mesh import build_mesh
+from ...fem.mesh import build_mesh
 from .report import write_outputs
 from .settings import BILEVEL_TOL, GRADIENT_TOL, LARGE_SHORTFALL, METHODS, CompareSettings, Run
 

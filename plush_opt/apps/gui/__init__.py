@@ -80,7 +80,7 @@ def cmd_gui(args: argparse.Namespace) -> int:
 
 
 def _default_board_file(scene_name: str) -> Path:
-    from ...data_files import data_file
+    from ...base.data_files import data_file
     return data_file("hw", "boards", f"{scene_name}.yaml")
 
 
@@ -89,7 +89,7 @@ def _open_board(problem, port, emulator: bool, board_file):
     if port is None and not emulator:
         return None
     from ...board import open_board
-    from ...errors import SceneError
+    from ...base.errors import SceneError
     path = Path(board_file) if board_file is not None else _default_board_file(problem.scene.name)
     if not path.is_file():
         raise SceneError(f"--board: no calibration file {path}; give one with --board FILE")
@@ -109,9 +109,9 @@ def run_gui(problem, *, port=None, emulator=False, board_file=None, options: Gui
     """Load ``problem``, attach the board (``port`` or the emulator), run the
     window (or, headless, a scripted session for ``screenshot``/``timing``).
     The board is stopped and closed however this ends. Returns 0; errors
-    are raised (:class:`~plush_opt.errors.SceneError` for bad options or
+    are raised (:class:`~plush_opt.base.errors.SceneError` for bad options or
     no way to open a window)."""
-    from ...errors import SceneError
+    from ...base.errors import SceneError
     headless = screenshot is not None or timing
     if headless and port is not None:
         raise SceneError("--screenshot/--timing drive a scripted session: not on a real board "

@@ -15,7 +15,7 @@ from matplotlib.patches import Rectangle
 from matplotlib.transforms import Bbox
 from matplotlib.widgets import CheckButtons, Slider
 
-from ...equilibrium import solve_equilibrium
+from ...solve.equilibrium import solve_equilibrium
 from ..plot import REST_COLOR, TARGET_COLOR, draw_pose
 
 KEY_HELP = (

@@ -29,7 +29,7 @@ class GuiOptions:
         it, same name, ``.png``); default ``out/gui-<timestamp>.json``.
     control : :class:`~plush_opt.control.gradient.ControlOptions` of the
         loop; default: the loop's defaults with no iteration or time limit.
-    equilibrium : :class:`~plush_opt.equilibrium.EquilibriumOptions` of the
+    equilibrium : :class:`~plush_opt.solve.equilibrium.EquilibriumOptions` of the
         forward solves (sliders, reset); default: without the eigenvalue
         (the one a saved result needs is computed when saving).
     max_history : iterates a controller keeps before the session starts a
@@ -83,5 +83,5 @@ class GuiOptions:
         without the eigenvalue."""
         if self.equilibrium is not None:
             return self.equilibrium
-        from ...equilibrium import EquilibriumOptions
+        from ...solve.equilibrium import EquilibriumOptions
         return EquilibriumOptions(eigenvalue=False)

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backend_bases import KeyEvent, MouseEvent
 
-from ...equilibrium import EquilibriumOptions, solve_equilibrium
+from ...solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from .view import PosingWindow
 
 # the demo's drags end where body points are at these contractions (as

@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from ...board.link import BoardLink
-from ...equilibrium import Equilibrium, solve_equilibrium
-from ...errors import SolverError
-from ...friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table, solve_forward
-from ...objective import Targets
+from ...solve.equilibrium import Equilibrium, solve_equilibrium
+from ...base.errors import SolverError
+from ...solve.friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table, solve_forward
+from ...fem.objective import Targets
 from .options import GuiOptions
 from .pacing import BoardPacer
 
@@ -46,7 +46,7 @@ class AnytimeLoop:
     on to it (the loop continues from the current pose), or, once its
     history holds ``max_history`` iterates, the next step starts a fresh one.
     With friction at via points (``friction``, the scene's
-    :class:`~plush_opt.friction.FrictionModel`) it is a
+    :class:`~plush_opt.fem.friction.FrictionModel`) it is a
     :class:`~plush_opt.control.friction_control.FrictionController` started
     from the robot's friction state on screen: every iterate is a state the
     robot reaches when driven through the iterates in order.
@@ -143,7 +143,7 @@ class PosingSession:
     contraction : (n_winches,) contractions on screen (length units).
     equilibrium : the equilibrium on screen (a forward solve may not have
         converged: see its ``converged`` and ``status``).
-    targets : the current :class:`~plush_opt.objective.Targets`.
+    targets : the current :class:`~plush_opt.fem.objective.Targets`.
     frozen : (n_winches,) bool.
     paused : the user paused the loop.
     held : the loop waits for a target edit or :meth:`toggle_pause` (after
@@ -291,7 +291,7 @@ class PosingSession:
         and its barycentric weights, which are also the point's weights in
         the rest triangle. Returns (triangle, beta) or None off the body.
         Points within ``tol`` (length units) of the body snap onto its edge."""
-        from ...geometry import locate_in_triangles
+        from ...base.geometry import locate_in_triangles
         nodes = self.x.reshape(-1, 2)
         tri, beta = locate_in_triangles(nodes[self.model.mesh.triangles],
                                         np.asarray(point, dtype=np.float64).reshape(1, 2), tol=tol)
@@ -409,7 +409,7 @@ class PosingSession:
     def save(self, path=None) -> Path:
         """Write the result JSON atomically; returns its path. Default path:
         ``options.save_path``, else ``out/gui-<timestamp>.json``."""
-        from ...results import write_json_atomic
+        from ...base.files import write_json_atomic
         path = Path(path or self.options.save_path or timestamped(Path("out"), "gui"))
         write_json_atomic(path, self.result())
         self.message = f"saved {path}"
@@ -471,7 +471,7 @@ def result_document(session: PosingSession) -> dict:
     (converged only if the loop stopped converged and the pose is
     certified), ``forward`` without; a ``gui`` section holds the frozen
     winches, the targets' rest points and the board's state."""
-    from ...results import result_dict
+    from ...solve.result_file import result_dict
     eq = session.certified()
     ctl = session.controller
     if session.targets.n_targets:

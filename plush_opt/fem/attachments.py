@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from .elements import interpolation_weights
-from .geometry import triangle_areas
+from ..base.geometry import triangle_areas
 from .mesh import Mesh
 
 # Leaf pieces of a cut triangle are at most this fraction of r wide: the

@@ -13,7 +13,7 @@ triangle (the rows of Dm^-1) and F(l) = sum_i x_i (dN_i/dX)(l) is linear in
 l. The elastic energy uses the 3-point rule (points (2/3, 1/6, 1/6) and its
 permutations, weights 1/3): exact for the quadratic integrands of a linear
 displacement field and of the mass of a quadratic one. This module holds
-what differs between the two element types; the model (plush_opt/model.py)
+what differs between the two element types; the model (plush_opt/fem/model.py)
 assembles either the same way.
 """
 
@@ -24,7 +24,7 @@ import functools
 import casadi as ca
 import numpy as np
 
-from .kernels import compiled
+from ..base.kernels import compiled
 
 ELEMENTS = ("P1", "P2")
 NODES_PER_ELEMENT = {"P1": 3, "P2": 6}

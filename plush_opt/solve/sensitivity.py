@@ -18,8 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from .equilibrium import Equilibrium
-from .errors import SolverError
-from .model import Model
+from ..base.errors import SolverError
+from ..fem.model import Model
 
 
 def _factor(eq: Equilibrium):

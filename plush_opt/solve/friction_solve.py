@@ -5,7 +5,7 @@ A robot with friction is in the state its history put it in, so a forward
 solve to contractions c does not ask for "the" equilibrium at c: it drives
 the winches from the scene's start state (zero contraction, equal tensions)
 along the straight line to c in ``steps`` equal steps, each from the state
-the previous one reached (plush_opt/friction_path.py), and returns the
+the previous one reached (plush_opt/solve/friction_path.py), and returns the
 state at the end with the path it followed. A step that fails is split in
 halves by the path solver; a step that still fails ends the solve with an
 honest status at the last state reached.
@@ -23,7 +23,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from .friction import FrictionModel, friction_tendons, via_weights
+from ..fem.friction import FrictionModel, friction_tendons, via_weights
 from .friction_path import (SLIP_WINCH, STICK, FrictionOptions, FrictionState, capstan, capstan_residual,
                             follow, start_state)
 

@@ -8,9 +8,9 @@ phi_j = r_j / (a_t - c_w) and energy phi_j U(G_j / phi_j) with
 G_j = |P_{j+1} - P_j| - r_j; its tension is T_j = U'(G_j / phi_j). With the
 rest lengths held fixed this is an ordinary energy in the pose, minimised by
 the equilibrium Newton (:meth:`FrictionModel.fixed`); which rest lengths
-hold is decided by the path-following solver (plush_opt/friction_path.py).
+hold is decided by the path-following solver (plush_opt/solve/friction_path.py).
 
-Tendons without friction stay in the ordinary :class:`~plush_opt.model.Model`
+Tendons without friction stay in the ordinary :class:`~plush_opt.fem.model.Model`
 (exactly today's terms): the friction model is a model of the scene without
 its friction tendons, plus their segment energies. Via point positions are
 ``P_t = W_t x`` with ``W_t`` from :func:`via_weights` (the one place that
@@ -27,9 +27,9 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from .kernels import compiled
+from ..base.kernels import compiled
 from .hessian_layout import pair_blocks, segment_pairs
-from .linalg import Factorizer, LowRankHessian
+from ..base.linalg import Factorizer, LowRankHessian
 from .model import Evaluation, Model, Mapped
 from .tendon_law import U_DERIVS
 
@@ -315,7 +315,7 @@ def _sparse_part(H) -> sp.csc_matrix:
 
 class FixedRest:
     """A :class:`FrictionModel` at fixed segment rest lengths: the interface
-    :func:`~plush_opt.equilibrium.solve_equilibrium` expects of a model."""
+    :func:`~plush_opt.solve.equilibrium.solve_equilibrium` expects of a model."""
 
     def __init__(self, fm: FrictionModel, r: np.ndarray):
         self.fm, self.r = fm, r

@@ -30,9 +30,9 @@ from dataclasses import replace
 import numpy as np
 
 from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, solve_equilibrium
-from .errors import SolverError
-from .linalg import assembled
-from .model import Model
+from ..base.errors import SolverError
+from ..base.linalg import assembled
+from ..fem.model import Model
 
 log = logging.getLogger(__name__)
 

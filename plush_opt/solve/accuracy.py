@@ -43,14 +43,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .elements import interpolation_weights
+from ..fem.elements import interpolation_weights
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from .errors import SceneError
-from .geometry import body_area
-from .mesh import Mesh, area_for_nodes, build_mesh
-from .model import Model, build_model
-from .objective import Targets
-from .scene import Scene
+from ..base.errors import SceneError
+from ..base.geometry import body_area
+from ..fem.mesh import Mesh, area_for_nodes, build_mesh
+from ..fem.model import Model, build_model
+from ..fem.objective import Targets
+from ..io.scene import Scene
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,7 @@ REFINEMENTS = 3
 #: geometric middle of A's 4x steps).
 INTERLEAVE = 2.0
 #: The levels' meshes are graded towards reentrant corners, the ends of
-#: pinned boundary and the tendons' attachment discs (plush_opt.grading):
+#: pinned boundary and the tendons' attachment discs (plush_opt.fem.grading):
 #: uniform levels converge there like h^1.1 whatever the element (and
 #: resolve a disc only below its radius), agreeing long before they are right.
 GRADED = True

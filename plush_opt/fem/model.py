@@ -4,10 +4,10 @@ Each energy term is defined once, as a small CasADi kernel:
 
 * ``psi``  Neo-Hookean energy of one triangle from its 6 node coordinates
   (``psi2``: a 6-node P2 triangle, 12 coordinates; both in
-  plush_opt/elements.py);
+  plush_opt/fem/elements.py);
 * ``seg``  length of one tendon segment from its 4 end coordinates, and
 * ``U``    the C2 unilateral tendon energy of one tendon from its stretch
-  (both in plush_opt/tendon_law.py).
+  (both in plush_opt/fem/tendon_law.py).
 
 Two evaluators are built from those kernels, and tests check they agree:
 
@@ -36,12 +36,12 @@ import scipy.sparse as sp
 
 from . import elements
 from .attachments import TendonPoints
-from .kernels import compiled
+from ..base.kernels import compiled
 from .hessian_layout import FORMS, HessianLayout
-from .linalg import Factorizer, LowRankHessian, assembled
+from ..base.linalg import Factorizer, LowRankHessian, assembled
 from .mesh import Mesh
 from .pins import check_pins
-from .scene import Scene
+from ..io.scene import Scene
 from .tendon_law import SEG, SEG_DERIVS, U_DERIVS
 from .tendon_law import U as U_FN
 
@@ -91,7 +91,7 @@ class Evaluation:
     """E, grad_x E and the sparse Hessian at one pose.
 
     ``hessian_form`` is the Hessian as the model built it: a CSC matrix, or
-    a :class:`~plush_opt.linalg.LowRankHessian` (finite attachments); factor
+    a :class:`~plush_opt.base.linalg.LowRankHessian` (finite attachments); factor
     that. ``hessian`` is always the assembled CSC matrix (built on first
     use in the low-rank case).
     ``force_scale`` is the size of the forces in balance (norm of the
@@ -118,7 +118,7 @@ class Model:
     ----------
     scene, mesh : what it was built from.
     low_rank : True when each tendon's U'' l' l'^T is kept out of the
-        sparse Hessian as a low-rank term (:class:`~plush_opt.linalg.LowRankHessian`);
+        sparse Hessian as a low-rank term (:class:`~plush_opt.base.linalg.LowRankHessian`);
     split_segments : True when each segment's coupling of its two ends is too.
     n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
     X : (n_dofs,) rest positions, flat.
@@ -218,7 +218,7 @@ class Model:
     def _build_tendons(self):
         """Segments between consecutive via points. A via point with an
         attachment radius is a weighted average of nodes: the tendon terms
-        live on z = [x; those points] (plush_opt/attachments.py) and are
+        live on z = [x; those points] (plush_opt/fem/attachments.py) and are
         pulled back to the nodes; with every radius 0, z is x itself."""
         scene, mesh = self.scene, self.mesh
         self.has_tendons = self.n_tendons > 0

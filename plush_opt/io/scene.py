@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import diameter
+from ..base.geometry import diameter
 
 FORMAT = "plush-opt/1"
 ELEMENTS = ("P1", "P2")          # mesh.element: 3-node or 6-node (quadratic) triangles

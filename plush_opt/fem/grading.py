@@ -16,7 +16,7 @@ few degrees (a mild singularity): each is graded within half a chord,
 which costs little.
 
 The second thing a uniform mesh resolves late is a finite tendon attachment
-(a disc of radius r a few mm across, plush_opt.attachments): while the
+(a disc of radius r a few mm across, plush_opt.fem.attachments): while the
 elements are larger than r the disc's pull is spread over them like a
 point load's, and the levels converge slowly and unevenly. On the gripper
 (2 mm discs, sharp junction) the P2 levels' mirrored tips still differed by 0.03 mm at
@@ -53,7 +53,7 @@ term sets the rate of every point (beam_tendon, graded at the centroid:
 corner; at the vertex 0.18; docs/accuracy.md). An attachment disc beside
 a pinned end then fills with the small elements (finger_hole's stoppers,
 1 mm from the root's corner: 74 nodes instead of 8 on the first mesh);
-its Hessian term has a stand-in there (plush_opt.hessian_layout), not a
+its Hessian term has a stand-in there (plush_opt.fem.hessian_layout), not a
 dense block. Reentrant corners keep the centroid, which reaches the floor
 once h < R: at the vertex they would cost 3 x the first mesh's nodes on
 the hexapod (889 to 2,872) and finger_hole (557 to 1,665), whose estimates
@@ -66,8 +66,8 @@ from __future__ import annotations
 import numpy as np
 import triangle as _triangle
 
-from .geometry import body_area, ring_area, triangle_areas
-from .scene import Scene
+from ..base.geometry import body_area, ring_area, triangle_areas
+from ..io.scene import Scene
 
 #: Smallest local size, as a fraction of the level's h.
 G_MIN = 1.0 / 16

@@ -3,7 +3,7 @@
 A target is a body point given in rest coordinates: it lives in a rest
 triangle with barycentric weights beta, so y_k(x) = sum_i beta_k,i x_{e_k,i}
 does not depend on where the mesh happens to have nodes. On a P2 mesh the
-weights are the six quadratic shape functions at beta (plush_opt/elements.py).
+weights are the six quadratic shape functions at beta (plush_opt/fem/elements.py).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .elements import interpolation_weights
-from .errors import SceneError
+from ..base.errors import SceneError
 
 
 @dataclass(frozen=True)

@@ -21,13 +21,13 @@ import time
 from collections.abc import Mapping
 from pathlib import Path
 
-from plush_opt.board.calibration import BoardCalibration, load_calibration
+from plush_opt.board.board_file import BoardCalibration, load_calibration
 from plush_opt.board.driver import Driver
 from plush_opt.board.emulator import Emulator
 from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.board.link import BoardLink
 from plush_opt.board.protocol import BoardState
-from plush_opt.errors import HardwareError
+from plush_opt.base.errors import HardwareError
 
 log = logging.getLogger(__name__)
 

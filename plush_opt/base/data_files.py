@@ -14,9 +14,9 @@ import errno
 import shutil
 from pathlib import Path
 
-from plush_opt.errors import PlushError
+from plush_opt.base.errors import PlushError
 
-_PACKAGE = Path(__file__).resolve().parent
+_PACKAGE = Path(__file__).resolve().parents[1]     # plush_opt/
 
 EXAMPLE_FOLDERS = ("problems", "examples", "hw/boards")
 """What ``plush-opt examples`` copies out, relative to :func:`data_root`."""

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SceneError
+from ..base.errors import SceneError
 from .mesh import Mesh
-from .scene import Scene
+from ..io.scene import Scene
 
 
 def check_pins(scene: Scene, mesh: Mesh) -> None:

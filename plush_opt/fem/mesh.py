@@ -10,10 +10,10 @@ import numpy as np
 import triangle as _triangle
 from scipy.spatial import cKDTree
 
-from .errors import SceneError, format_point
-from .geometry import body_area, diameter, distance_to_segments, locate_in_triangles
+from ..base.errors import SceneError, format_point
+from ..base.geometry import body_area, diameter, distance_to_segments, locate_in_triangles
 from .grading import grade
-from .scene import POINT_TOL, Scene
+from ..io.scene import POINT_TOL, Scene
 
 # The three edges of a P2 triangle, in the order of its midside nodes.
 _P2_EDGES = ((0, 1), (1, 2), (2, 0))
@@ -202,7 +202,7 @@ def _merge_close(pts: np.ndarray, tol: float) -> np.ndarray:
 
 def _mesh_outline(scene: Scene, max_area, tol, graded: bool = False):
     """Triangulate the outline (graded towards its singular points if asked:
-    plush_opt.grading); returns X, triangles and the node of every forced point."""
+    plush_opt.fem.grading); returns X, triangles and the node of every forced point."""
     rings = [scene.outline, *scene.holes]
     ring_pts = np.concatenate(rings)
     n_ring = len(ring_pts)
@@ -301,7 +301,7 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
         ``scene.max_area`` (mesh-resolution sweeps). Ignored for explicit meshes.
     graded : bool
         Refine towards reentrant corners and the ends of pinned boundary
-        (plush_opt.grading), with ``max_area`` the bound far from them
+        (plush_opt.fem.grading), with ``max_area`` the bound far from them
         (the accuracy sweep's levels). Needs ``max_area``; ignored for
         explicit meshes.
     refinements : int

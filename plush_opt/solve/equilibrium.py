@@ -25,9 +25,9 @@ from dataclasses import dataclass, field, replace
 import casadi as ca
 import numpy as np
 
-from .errors import SolverError
-from .linalg import Factor, NotPositiveDefinite, smallest_eigenpair
-from .model import Evaluation, Model
+from ..base.errors import SolverError
+from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..fem.model import Evaluation, Model
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,7 @@ class EquilibriumOptions:
     regularise : take a regularised step where the Hessian is not positive
         definite (default). False: stop there instead, with a status that
         starts with ``LEFT_BRANCH`` (the solve cannot stay on the stable
-        branch it started on; plush_opt/branch.py then continues in c).
+        branch it started on; plush_opt/solve/branch.py then continues in c).
         With ``escape_saddles`` it first checks for a symmetric branch (a
         gradient blind to the negative curvature: a regularised factor and
         a Lanczos run) and escapes from it as usual; after such an escape (a

@@ -3,7 +3,7 @@ for each contribution, its slot in the data array (computed once per mesh;
 each evaluation is a few bincounts).
 
 Element and pin terms sit on node dofs. Tendon terms are z-space entries
-(z = [x; attachment points], plush_opt/attachments.py): those between node
+(z = [x; attachment points], plush_opt/fem/attachments.py): those between node
 dofs go to their slot directly; those touching an attachment point spread
 over its nodes (W^T H_z W) through one sparse matrix.
 
@@ -11,7 +11,7 @@ Three forms (Model's ``hessian`` argument):
 
 - ``assembled``: everything in one sparse matrix;
 - ``rank_one``: each tendon's U'' l' l'^T kept apart as a low-rank term
-  (:class:`~plush_opt.linalg.LowRankHessian`): with attachment discs it
+  (:class:`~plush_opt.base.linalg.LowRankHessian`): with attachment discs it
   couples every disc of the tendon with every other, densely;
 - ``split``: also each segment's coupling of its two ends. A segment's
   U' l'' is [[K, -K], [-K, K]] on its two ends (K 2 x 2, positive
@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .linalg import LowRankHessian
+from ..base.linalg import LowRankHessian
 
 #: the forms (Model's ``hessian`` argument; "auto" is decided by the model)
 FORMS = ("assembled", "rank_one", "split")

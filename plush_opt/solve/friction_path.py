@@ -1,7 +1,7 @@
 """Forward solves with friction at via points: follow a contraction path.
 
 Which equilibrium a robot with friction is in depends on how it got there,
-so a state is a pose *and* the segment rest lengths (plush_opt/friction.py),
+so a state is a pose *and* the segment rest lengths (plush_opt/fem/friction.py),
 advanced along a path of contractions in steps. One step (docs/model.md,
 "Friction at via points"):
 
@@ -31,8 +31,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from .friction import FrictionModel
-from .linalg import NotPositiveDefinite
+from ..fem.friction import FrictionModel
+from ..base.linalg import NotPositiveDefinite
 
 log = logging.getLogger(__name__)
 
