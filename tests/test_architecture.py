@@ -51,3 +51,10 @@ def test_modules_classes_and_functions_stay_small():
     big = [f"{name} ({kind}, {n} lines > {limit})" for name, kind, n, limit in _pieces()
            if n > limit and name not in EXCEPTIONS]
     assert big == [], "\n".join(big)
+
+
+def test_the_map_in_docs_architecture_is_the_code():
+    # the diagram, the folders' contents, their promises (each folder's own
+    # docstring) and who imports whom, as tools/import_graph.py draws them today
+    assert import_graph.doc_is_current(), (
+        "docs/architecture.md's map differs from the code: run tools/import_graph.py --write-doc")

@@ -1,4 +1,4 @@
-"""The winch board: protocol, calibration, limits, serial driver, simulators
+"""The winch board: protocol, board file (ticks per mm, limits), serial driver, simulators
 and the links the apps hold.
 
 Only this package talks to hardware (serial ports, simulator processes);
