@@ -45,6 +45,7 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.sensitivity import state_sensitivity
 from .bilevel_nlp import IterationCallback
+from .policy import LEVENBERG_MARQUARDT, predict
 from .result import ControlIterate
 
 # Equilibria kept for warm starts and for IPOPT's repeated calls at the
@@ -64,13 +65,9 @@ SAME_RAY = 1e-6
 # A secant pair (s, y) updates the second-order estimate only if its
 # curvature s.y is at least this fraction of |s| |y| (BFGS's safeguard).
 SECANT_CURVATURE = 1e-8
-# The damping of each (nearly) slack winch adapts with the gradient loop's
-# Levenberg-Marquardt factors and floor (its defaults): divided by the first
-# where a step fell short along the winch, multiplied by the second where
-# it overshot or IPOPT cut a trial back; never above ``hessian_damping``.
-DAMPING_DECREASE = 3.0
-DAMPING_INCREASE = 10.0
-MIN_DAMPING = 1e-9
+# The curvature scale of the slack winches' damping never falls below the
+# smallest normal float (a positive damping where every column vanishes).
+CURVATURE_FLOOR = float(np.finfo(float).tiny)
 
 
 @dataclass
@@ -118,6 +115,9 @@ class Evaluator:
                  secant: bool = False):
         self.model, self.targets = model, targets
         self.damping = damping
+        # the slack winches' damping follows the gradient loop's schedule,
+        # started at and capped by ``damping``
+        self.schedule = LEVENBERG_MARQUARDT.with_cap(float(damping), curvature_floor=CURVATURE_FLOOR)
         self.mu = np.full(len(free), float(damping))   # the current (adapted) damping, per winch
         self._solves_seen = 0                       # self.solves at the last accepted iterate
         self.secant = secant
@@ -220,11 +220,7 @@ class Evaluator:
 
     def _predict(self, near: Point, c) -> np.ndarray:
         """x + dx/dc (c - c_near) if admissible, else x (the loop's predictor)."""
-        if near.dxdc is not None:
-            xp = near.eq.x + near.dxdc @ (c - near.c)
-            if self.model.admissible(xp):
-                return xp
-        return near.eq.x
+        return predict(self.model, near.eq.x, near.dxdc, near.c, c)
 
     def rows(self, point: Point) -> np.ndarray:
         """The residuals IPOPT sees: r and n_free zeros (the damping rows)."""
@@ -250,7 +246,7 @@ class Evaluator:
         iterations instead of 11)."""
         J = self.derivatives(point).J
         curv = np.sum(J * J, axis=0)
-        lam = max(float(np.max(curv, initial=0.0)), np.finfo(float).tiny)
+        lam = self.schedule.scale(curv)
         d = np.where(self._near_slack(point), lam, 0.0)
         if not self.S.any():
             return np.vstack([J, np.diag(np.sqrt(self.mu * d))])
@@ -318,11 +314,11 @@ class Evaluator:
             g_old, g_new = prev.gradient(), point.gradient()
             short = (step * g_old < 0) & (g_old * g_new > 0)
             flipped = g_old * g_new < 0
-            lower = np.maximum(self.mu / DAMPING_DECREASE, min(MIN_DAMPING, self.damping))
-            higher = np.minimum(self.mu * DAMPING_INCREASE, self.damping)
+            lower = self.schedule.accepted(self.mu)
+            higher = self.schedule.rejected(self.mu)
             self.mu = np.where(short, lower, np.where(flipped, higher, self.mu))
         else:
-            self.mu = np.minimum(self.mu * DAMPING_INCREASE ** max(trials - 1, 1), self.damping)
+            self.mu = self.schedule.rejected(self.mu, max(trials - 1, 1))
 
     def _near_slack(self, point: Point) -> np.ndarray:
         """Free winches (positions in ``free``) whose every tendon has its
