@@ -22,6 +22,9 @@ import numpy as np
 EDGE_TOLERANCE = 1e-12
 # Keeps the first steepest-descent step finite where the gradient vanishes.
 TINY_GRADIENT = 1e-300
+# Steepest descent multiplies its step by this after each rejected trial
+# (its step length has no damping to raise).
+BACKTRACK = 0.5
 
 
 def search_direction(gradient, J, xi, frozen, bounds, span, options, mu: float,
@@ -116,7 +119,7 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     for attempt in range(options.max_backtracks):
         step = direction(mu)
         if not gn:
-            step = step * 0.5 ** attempt
+            step = step * BACKTRACK ** attempt
         xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen)
         if np.array_equal(c_t, contraction):
             return Outcome("stationary", mu)
