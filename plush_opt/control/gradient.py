@@ -35,11 +35,11 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.sensitivity import objective_gradient, state_sensitivity
 from .bounds import bounds_strategy
-from .step import line_search, search_direction
-from .policy import (LEVENBERG_MARQUARDT, LOOP_ORDER, Damping, ProbeRule, ProbeSite, StopRules,
-                     held_at_bounds, look_further, predict, projected_gradient)
+from .policy import (LEVENBERG_MARQUARDT, LOOP_ORDER, Damping, ProbeRule, ProbeSite, StallState,
+                     StopRules, held_at_bounds, look_further, predict, projected_gradient)
 from .result import ControlIterate, ControlResult, ControlStats
 from .slack import slack_winches
+from .step import line_search, search_direction
 
 log = logging.getLogger(__name__)
 
@@ -278,8 +278,9 @@ class Controller:
 
     def _active(self, c, grad_c) -> tuple[str, ...]:
         """Winches whose bound stops them from going where the gradient points."""
-        held = held_at_bounds(c, grad_c, self.model.lower, self.model.upper, self.bounds.margin(), self.frozen)
-        return tuple(self.model.winch_names[i] for i in held)
+        model = self.model
+        held = held_at_bounds(c, grad_c, model.lower, model.upper, self.bounds.margin(), self.frozen)
+        return tuple(model.winch_names[i] for i in held)
 
     def _gradient(self, eq: Equilibrium, need_jacobian: bool):
         """dO/dc (adjoint) and, for Gauss-Newton, the residual Jacobian."""
@@ -464,8 +465,8 @@ def solve_control(model: Model, targets: Targets, contraction=None, frozen=None,
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 
-def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall, steps: int, n_targets: int,
-          frozen: np.ndarray, model: Model):
+def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall: StallState, steps: int,
+          n_targets: int, frozen: np.ndarray, model: Model):
     """The loop's (converged, reason, status) when it should stop at
     ``last`` (after ``steps`` steps, with stall state ``stall``), else None."""
     if n_targets == 0:
