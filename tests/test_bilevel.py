@@ -413,6 +413,7 @@ def test_the_slack_winches_damping_adapts_as_the_loops():
     the step flipped its gradient or IPOPT's step kept O (never above
     hessian_damping), and a new round starts it afresh."""
     from plush_opt.control import bilevel_reduced as br
+    from plush_opt.control.policy import LEVENBERG_MARQUARDT
     from plush_opt.solve.equilibrium import EquilibriumOptions
     _, _, model, targets = built("hexapod")
     quick = EquilibriumOptions(eigenvalue=False)
@@ -426,7 +427,7 @@ def test_the_slack_winches_damping_adapts_as_the_loops():
     assert ga[0] * gb[0] < 0 and ga[1] > 0 and gb[1] > 0      # a overshot, b fell short
     ev.accept(a)
     ev.accept(b)
-    np.testing.assert_allclose(ev.mu, [1e-3, 1e-3 / br.DAMPING_DECREASE])
+    np.testing.assert_allclose(ev.mu, [1e-3, 1e-3 / LEVENBERG_MARQUARDT.decrease])
     rows = ev.jacobian_rows(b)[-len(free):]
     lam = float(np.max(np.sum(b.J * b.J, axis=0)))
     assert rows[1, 1] ** 2 == pytest.approx(ev.mu[1] * lam) and rows[0, 0] == 0.0

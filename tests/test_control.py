@@ -223,3 +223,53 @@ def test_options_are_validated():
         ControlOptions(bounds="box")
     with pytest.raises(ValueError, match="direction: expected one of"):
         ControlOptions(direction="newton")
+
+
+def test_the_step_is_a_function_of_explicit_state():
+    """search_direction and line_search take the damping and the
+    Barzilai-Borwein step in and give them back: a winch on its bound
+    pushed out and a frozen winch are held, the first steepest-descent step
+    is initial_gradient_step of the range per unit gradient, steepest
+    descent halves its step per rejected trial, Gauss-Newton raises mu per
+    rejected trial and lowers it after the accepted one."""
+    from types import SimpleNamespace
+
+    from plush_opt.control.bounds import ClipBounds
+    from plush_opt.control.step import line_search, search_direction
+    lower, upper = np.zeros(3), np.full(3, 10.0)
+    bounds, span = ClipBounds(lower, upper), upper - lower
+    g = np.array([1.0, -2.0, 0.5])
+    xi = np.array([0.0, 5.0, 5.0])
+    frozen = np.array([False, False, True])
+    sd = ControlOptions(direction="gradient")
+    step, bb = search_direction(g, None, xi, frozen, bounds, span, sd, 1e-3, None)
+    assert bb == pytest.approx(0.1 * 10.0 / np.sqrt(5.0))
+    assert step[0] == 0.0 and step[2] == 0.0 and step[1] == pytest.approx(2.0 * bb)
+    step, same = search_direction(g, None, xi, frozen, bounds, span, sd, 1e-3, 0.3)
+    assert same == 0.3 and step[1] == pytest.approx(0.6)
+
+    ok = SimpleNamespace(converged=True)
+    tried = []
+
+    def trial(c):
+        tried.append(c.copy())
+        return ok
+    values = iter([2.0, 2.0, 0.5])
+    found = line_search(xi, xi.copy(), frozen, bounds, 1.0, sd, 1e-3, lambda mu: np.array([0.0, 4.0, 1.0]),
+                        trial, lambda eq: next(values))
+    assert found.kind == "accepted" and found.equilibrium is ok and found.mu == 1e-3
+    assert [c[1] for c in tried] == [9.0, 7.0, 6.0] and all(c[2] == 5.0 for c in tried)
+    assert found.xi[1] == 6.0 and found.xi[2] == 5.0
+
+    mus = []
+    values = iter([2.0, 2.0, 0.5])
+    gn = ControlOptions()
+    found = line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3,
+                        lambda mu: mus.append(mu) or np.array([0.0, 1.0, 0.0]), trial, lambda eq: next(values))
+    assert mus == [1e-3, 1e-2, 1e-3 * 100.0] and found.mu == 1e-3 * 100.0 / 3.0
+    found = line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3, lambda mu: np.zeros(3), trial,
+                        lambda eq: 0.0)
+    assert found.kind == "stationary" and found.mu == 1e-3
+    found = line_search(xi, xi.copy(), frozen, bounds, 1.0, dataclasses.replace(gn, max_backtracks=2), 1e-3,
+                        lambda mu: np.array([0.0, 1.0, 0.0]), trial, lambda eq: 2.0)
+    assert found.kind == "no_decrease" and found.mu == 1e-3 * 10.0 * 10.0

@@ -45,6 +45,7 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.sensitivity import state_sensitivity
 from .bilevel_nlp import IterationCallback
+from .policy import LEVENBERG_MARQUARDT, predict
 from .result import ControlIterate
 
 # Equilibria kept for warm starts and for IPOPT's repeated calls at the
@@ -64,13 +65,9 @@ SAME_RAY = 1e-6
 # A secant pair (s, y) updates the second-order estimate only if its
 # curvature s.y is at least this fraction of |s| |y| (BFGS's safeguard).
 SECANT_CURVATURE = 1e-8
-# The damping of each (nearly) slack winch adapts with the gradient loop's
-# Levenberg-Marquardt factors and floor (its defaults): divided by the first
-# where a step fell short along the winch, multiplied by the second where
-# it overshot or IPOPT cut a trial back; never above ``hessian_damping``.
-DAMPING_DECREASE = 3.0
-DAMPING_INCREASE = 10.0
-MIN_DAMPING = 1e-9
+# The curvature scale of the slack winches' damping never falls below the
+# smallest normal float (a positive damping where every column vanishes).
+CURVATURE_FLOOR = float(np.finfo(float).tiny)
 
 
 @dataclass
@@ -118,6 +115,9 @@ class Evaluator:
                  secant: bool = False):
         self.model, self.targets = model, targets
         self.damping = damping
+        # the slack winches' damping follows the gradient loop's schedule,
+        # started at and capped by ``damping``
+        self.schedule = LEVENBERG_MARQUARDT.with_cap(float(damping), curvature_floor=CURVATURE_FLOOR)
         self.mu = np.full(len(free), float(damping))   # the current (adapted) damping, per winch
         self._solves_seen = 0                       # self.solves at the last accepted iterate
         self.secant = secant
@@ -214,17 +214,13 @@ class Evaluator:
         halves along the same ray; where the branch ends close to its
         iterate (creeping up to a fold), each halving that is still past
         the end would otherwise cost a branch-following solve that fails
-        (0.15-0.6 s on the 1,280-node P2 hexapod; 10-16 per iteration)."""
+        (docs/bilevel.md, "Staying on the branch")."""
         u, dist = _ray(near.c, c)
         return dist > 0.0 and any(dist >= end and np.max(np.abs(u - v)) <= SAME_RAY for v, end in near.ends)
 
     def _predict(self, near: Point, c) -> np.ndarray:
         """x + dx/dc (c - c_near) if admissible, else x (the loop's predictor)."""
-        if near.dxdc is not None:
-            xp = near.eq.x + near.dxdc @ (c - near.c)
-            if self.model.admissible(xp):
-                return xp
-        return near.eq.x
+        return predict(self.model, near.eq.x, near.dxdc, near.c, c)
 
     def rows(self, point: Point) -> np.ndarray:
         """The residuals IPOPT sees: r and n_free zeros (the damping rows)."""
@@ -238,19 +234,16 @@ class Evaluator:
         tendons are all (nearly) slack, whose column of J is (nearly) zero:
         their step is bounded instead of set by the barrier alone. Every
         other winch gets no damping: its Gauss-Newton curvature is real,
-        however small. (One uniform lambda I, which IPOPT cannot adapt as
-        the gradient loop adapts its damping, swamped a winch that moves the
-        targets little, 1e-5 of the other's curvature on the 238-node
-        hexapod, and made its steps a linear crawl: 281 iterations instead
-        of 20.) The factor is each winch's adapted ``mu``
-        (:meth:`_adapt_damping`), not the fixed start: a nearly slack winch
-        may still move the targets (the smoothing zone carries a little
-        force), and a fixed lambda made its steps g / lambda, a linear crawl
-        to its bound (the 2,809-node hexapod: 3.6e-3 mm per iteration, 126
-        iterations instead of 11)."""
+        however small (one uniform lambda I, which IPOPT cannot adapt,
+        swamps a winch that moves the targets little). The factor is each
+        winch's adapted ``mu`` (:meth:`_adapt_damping`), not the fixed
+        start: a nearly slack winch may still move the targets (the
+        smoothing zone carries a little force), and a fixed lambda makes
+        its steps g / lambda, a linear crawl to its bound (docs/bilevel.md,
+        "Hessian")."""
         J = self.derivatives(point).J
         curv = np.sum(J * J, axis=0)
-        lam = max(float(np.max(curv, initial=0.0)), np.finfo(float).tiny)
+        lam = self.schedule.scale(curv)
         d = np.where(self._near_slack(point), lam, 0.0)
         if not self.S.any():
             return np.vstack([J, np.diag(np.sqrt(self.mu * d))])
@@ -262,7 +255,7 @@ class Evaluator:
         """A new IPOPT round (after a look-further jump): no secant pair
         across the jump, and the damping back at its start."""
         self.accepted = None
-        self.mu = np.full(len(self.free), float(self.damping))
+        self.mu = np.full(len(self.free), self.schedule.initial)
         self._solves_seen = self.solves
 
     def accept(self, point: Point) -> None:
@@ -271,9 +264,9 @@ class Evaluator:
         second-order term r . d2r/dc2 the Gauss-Newton Hessian drops
         (structured BFGS: S s = (J_new - J_old)^T r_new, kept positive
         definite by skipping a pair with no positive curvature). Where a
-        winch moves the targets far less than another (the 3,008-node
-        hexapod: 1e-5) its Gauss-Newton curvature is far below the true
-        one, and IPOPT's steps along it overshoot and backtrack."""
+        winch moves the targets far less than another its Gauss-Newton
+        curvature is far below the true one, and IPOPT's steps along it
+        overshoot and backtrack (docs/bilevel.md, "Secant term")."""
         prev, self.accepted = self.accepted, self.derivatives(point)
         trials, self._solves_seen = self.solves - self._solves_seen, self.solves
         if prev is None:
@@ -287,9 +280,9 @@ class Evaluator:
         if (not sy > SECANT_CURVATURE * float(np.linalg.norm(step) * np.linalg.norm(y))
                 or not np.array_equal(self._near_slack(point), self._near_slack(prev))):
             # no positive curvature along the step, or a step across the
-            # tendon law's kink (a winch went slack or taut: the finger with
-            # antagonists then crawled, 89 iterations instead of 16): back
-            # to Gauss-Newton until the next good pair
+            # tendon law's kink (a winch went slack or taut: its curvature
+            # there says nothing about the other side): back to
+            # Gauss-Newton until the next good pair
             self.S = np.zeros_like(self.S)
             return
         Ss = self.S @ step
@@ -304,25 +297,25 @@ class Evaluator:
         self.S = S + np.outer(y, y) / sy
 
     def _adapt_damping(self, prev: Point, point: Point, step, trials: int) -> None:
-        """The loop's Levenberg-Marquardt rule, per winch, for the damping
-        of the slack winches. After a first trial that lowered O: down where
-        the step went downhill and left the gradient's sign as it was (it
-        fell short: the crawl), up where it flipped it (overshot), kept
-        elsewhere. Up by the increase per trial IPOPT's line search cut back
-        (the loop's rule per failed trial), and once for a step that kept O
-        (IPOPT's barrier and filter accept those). One factor for every
-        slack winch, lowered after any good step, let the tentacle with
-        unreachable targets throw a winch 3 mm and backtrack 5-25 times per
-        iteration after it (250 equilibrium solves instead of 46)."""
+        """The loop's Levenberg-Marquardt schedule (:class:`~.policy.Damping`),
+        per winch, for the damping of the slack winches. After a first
+        trial that lowered O: down where the step went downhill and left the
+        gradient's sign as it was (it fell short: the crawl), up where it
+        flipped it (overshot), kept elsewhere. Up by the increase per trial
+        IPOPT's line search cut back (the loop's rule per failed trial), and
+        once for a step that kept O (IPOPT's barrier and filter accept
+        those). Per winch, not one factor for every slack winch: lowered
+        after any good step, a shared factor lets one winch be thrown far
+        and backtrack after it (docs/bilevel.md, "Hessian")."""
         if point.objective < prev.objective and trials <= 1:
             g_old, g_new = prev.gradient(), point.gradient()
             short = (step * g_old < 0) & (g_old * g_new > 0)
             flipped = g_old * g_new < 0
-            lower = np.maximum(self.mu / DAMPING_DECREASE, min(MIN_DAMPING, self.damping))
-            higher = np.minimum(self.mu * DAMPING_INCREASE, self.damping)
+            lower = self.schedule.accepted(self.mu)
+            higher = self.schedule.rejected(self.mu)
             self.mu = np.where(short, lower, np.where(flipped, higher, self.mu))
         else:
-            self.mu = np.minimum(self.mu * DAMPING_INCREASE ** max(trials - 1, 1), self.damping)
+            self.mu = self.schedule.rejected(self.mu, max(trials - 1, 1))
 
     def _near_slack(self, point: Point) -> np.ndarray:
         """Free winches (positions in ``free``) whose every tendon has its

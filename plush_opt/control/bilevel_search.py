@@ -6,25 +6,30 @@ certified start, then, where IPOPT stops at a point a local method cannot
 judge (a winch whose tendons are all slack has a zero gradient; a winch
 held at a bound may only see the first millimetres of a pull that engage
 the "wrong" tendon first), the same look-further moves as the gradient
-loop (docs/control.md): reel the slack in, probe inwards from the bound;
-a move that lowers O starts a new IPOPT round from there. A winch whose
-moves found nothing is tried again only once O has dropped by probe_gain
-since (a later round may have moved the others so that its slack now
-matters: the 3,303-node tentacle's left_tip), so the rounds end.
+loop (:mod:`.policy`, docs/control.md): reel the slack in, probe inwards
+from the bound; a move that lowers O starts a new IPOPT round from there.
+A winch whose moves found nothing is tried again only once O has dropped
+by probe_gain since (a later round may have moved the others so that its
+slack now matters), so the rounds end. IPOPT is stopped by the loop's
+stop rules too (:class:`~.policy.StopRules`, checked in
+:data:`~.policy.REDUCED_ORDER` from its iteration callback).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
 
 from ..fem.model import Model
 from ..fem.objective import Targets
+from .bilevel_nlp import jsonable
+from .bilevel_options import BilevelStats
 from .bilevel_reduced import Evaluator, Point, build_solver, history_point
-from .slack import slack_winches, take_up
+from .policy import (REDUCED_ORDER, ProbeSite, StallState, held_at_bounds, look_further,
+                     projected_gradient)
+from .slack import slack_winches
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +65,8 @@ class ReducedRun:
         self.moves: list[str] = []
         self.stop = None                  # our own stop: 'max_time', 'targets_reached'
         self.stationary = ""              # why the round ended by the loop's tests, if it did
-        self._stall, self._last = 0, math.inf
+        self.rules = options.stop_rules()
+        self._stall: StallState = self.rules.init_state()
         self.return_status = "not run"
         self.t_build = 0.0
         self.t_ipopt = 0.0
@@ -69,66 +75,44 @@ class ReducedRun:
     # -- the stop rules IPOPT is given through its iteration callback ------
 
     def _rules(self, c_free) -> bool:
+        """Record IPOPT's iterate at ``c_free``; True where the run stops there.
+
+        The gradient loop's rules (:class:`~.policy.StopRules`), so both
+        methods stop at the same accuracy: IPOPT's own tol is on its scaled
+        KKT error, which the Newton tolerance of the evaluations can keep
+        it from reaching (it then spends its line search on noise)."""
         t = time.perf_counter() - self.t_start
         point = self.ev.at(c_free)
         if point is not None:
             self.ev.accept(point)
             self.history.append(history_point(point, self.ev, len(self.history), t, self._held(point)))
+            self._stall = self.rules.update(self._stall, point.objective)
         self.iterations += 1
-        opts = self.options
-        if opts.max_time is not None and t >= opts.max_time:
-            self.stop = "max_time"
-        elif point is not None and point.objective <= opts.objective_floor:
-            self.stop = "targets_reached"
-        elif self.iterations >= opts.max_iter:
-            self.stop = "max_iterations"
-        elif point is not None:
-            # the gradient loop's stationarity tests, so both methods stop at
-            # the same accuracy (IPOPT's own tol is on its scaled KKT error,
-            # which the Newton tolerance of the evaluations can keep it from
-            # reaching: it then spends its line search on noise)
-            self._stall = self._stalled(point.objective)
-            self._last = min(self._last, point.objective)
-            if self._projected(point) <= opts.gtol * max(point.objective, opts.objective_floor):
-                self.stationary = "projected gradient below gtol"
-            elif self._stall >= opts.patience:
-                self.stationary = "objective stopped decreasing (relative decrease below ftol)"
+        rule = self.rules.first(
+            REDUCED_ORDER, self._stall, iterations=self.iterations, t=t,
+            objective=None if point is None else point.objective,
+            projected=None if point is None else self._projected(point))
+        if rule in ("time", "reached", "iterations"):
+            self.stop = {"time": "max_time", "reached": "targets_reached",
+                         "iterations": "max_iterations"}[rule]
+        elif rule == "stationary":
+            self.stationary = "projected gradient below gtol"
+        elif rule == "stalled":
+            self.stationary = "objective stopped decreasing (relative decrease below ftol)"
         return self.stop is not None or bool(self.stationary)
-
-    def _stalled(self, objective: float) -> int:
-        """The stall count after an iterate with this O: one more where O
-        is within ftol of the best so far (the loop's test), back to zero
-        where it is lower by more. An iterate where O rose by more than ftol
-        leaves the count as it is: the loop only ever takes a step that
-        lowers O, but IPOPT accepts a rise to follow its barrier (a winch
-        with a small gradient near its bound is pushed about mu / |g|
-        inside, then walked back as mu falls), and counting those rises as
-        a stall stopped it half-way back (16 % above the loop's O on a
-        hexapod whose targets are almost reached)."""
-        ftol = self.options.ftol
-        if objective <= self._last * (1 - ftol):
-            return 0
-        if objective > self._last * (1 + ftol):
-            return self._stall
-        return self._stall + 1
 
     def _projected(self, point: Point) -> float:
         """|projected gradient| x the mean bound range (length^2, as O).
 
         A winch near a bound with its gradient pointing out counts as held
-        only if going the rest of the way would gain less than ftol x O:
-        IPOPT's barrier keeps it a little inside, and with a steep gradient
-        that little is not yet the answer (0.065 of O = 200 on the
-        finger with its optimum on a bound)."""
+        only if going the rest of the way would change O by at most
+        ftol x O: IPOPT's barrier keeps it a little inside, and with a steep
+        gradient that little is not yet the answer."""
         g = self.gradient(point)
-        lower, upper = self.model.lower, self.model.upper
-        scale = self.options.ftol * max(point.objective, self.options.objective_floor)
-        for w in self._held_mask(point.c, g):
-            gap = point.c[w] - lower[w] if g[w] > 0 else upper[w] - point.c[w]
-            if abs(g[w]) * gap <= scale:
-                g[w] = 0.0
-        g[self.frozen] = 0.0
-        return float(np.linalg.norm(g)) * float(np.mean(self.span))
+        opts = self.options
+        negligible = opts.ftol * max(point.objective, opts.objective_floor)
+        return projected_gradient(g, self._held_mask(point.c, g), self.span, point.c,
+                                  self.model.lower, self.model.upper, negligible)
 
     # -- the run ------------------------------------------------------------
 
@@ -145,7 +129,7 @@ class ReducedRun:
             if self.iterations >= self.options.max_iter:
                 self.stop = "max_iterations"
                 break
-            self.stationary, self._stall, self._last = "", 0, math.inf
+            self.stationary, self._stall = "", self.rules.init_state()
             self.ev.new_round()            # no secant pair, nor adapted damping, across a jump
             point = self._round(solver, point, lbx, ubx)
             if self.stop is not None or not self._kkt():
@@ -199,10 +183,8 @@ class ReducedRun:
         return tuple(self.model.winch_names[w] for w in self._held_mask(point.c, g))
 
     def _held_mask(self, c, g) -> list[int]:
-        tol = HELD_FRACTION * self.span
-        lo = (c <= self.model.lower + tol) & (g > 0)
-        up = (c >= self.model.upper - tol) & (g < 0)
-        return [int(w) for w in np.flatnonzero((lo | up) & ~self.frozen)]
+        return held_at_bounds(c, g, self.model.lower, self.model.upper, HELD_FRACTION * self.span,
+                              self.frozen)
 
     def gradient(self, point: Point) -> np.ndarray:
         g = np.zeros(self.model.n_winches)
@@ -210,40 +192,29 @@ class ReducedRun:
         return g
 
     def _look_further(self, point: Point, tried: dict) -> Point | None:
-        """The gradient loop's restart moves (docs/control.md), from ``point``.
+        """The gradient loop's restart moves (:func:`~.policy.look_further`), from ``point``.
 
-        ``tried`` maps a winch to O where its moves were last tried: it is
-        tried again only from a point lower by probe_gain (each later round
-        lowers O, so this ends)."""
-        model, opts = self.model, self.options
+        ``tried`` maps a winch to O where its moves were last tried (updated
+        here): it is tried again only from a point lower by probe_gain (each
+        later round lowers O, so this ends)."""
+        model = self.model
         g = self.gradient(point)
-        slack = slack_winches(model, point.eq.x, point.c, ~self.frozen, g)
-        stuck = point.objective > opts.stuck_fraction * self.o_start
-        held = self._held_mask(point.c, g) if stuck else []
-        again = point.objective * (1 + opts.probe_gain)
-        for w in [w for w in dict.fromkeys(slack + held) if tried.get(w, math.inf) > again]:
-            tried[w] = point.objective
-            for frac in (0.0, *opts.probe_fractions):
-                c = point.c.copy()
-                if w in slack:
-                    c[w] = take_up(model, point.eq.x, point.c, w)
-                    inward = 1.0
-                elif frac == 0.0:
-                    continue
-                else:
-                    inward = 1.0 if c[w] <= model.lower[w] + 0.5 * self.span[w] else -1.0
-                c[w] = float(np.clip(c[w] + inward * frac * self.span[w], model.lower[w], model.upper[w]))
-                if c[w] == point.c[w]:
-                    continue
-                trial = self.ev.at(c[self.free], on_branch=False)
-                if trial is None:
-                    continue
-                if frac == 0.0:
-                    if self.gradient(trial)[w] < 0 and trial.objective <= point.objective * (1 + 1e-9):
-                        return self._moved(trial, f"took up the slack of {model.winch_names[w]}")
-                elif trial.objective < point.objective * (1 - opts.probe_gain):
-                    return self._moved(trial, f"probe moved {model.winch_names[w]} to {c[w]:.4g}")
-        return None
+        site = ProbeSite(point.c, point.eq.x, point.objective, self.o_start,
+                         slack_winches(model, point.eq.x, point.c, ~self.frozen, g),
+                         self._held_mask(point.c, g))
+
+        def solve(c):
+            trial = self.ev.at(c[self.free], on_branch=False)
+            return None if trial is None else (trial.objective, trial)
+
+        move, now = look_further(self.options.probe, site, tried, model, solve, self.gradient)
+        tried.update(now)
+        if move is None:
+            return None
+        name = model.winch_names[move.winch]
+        if move.kind == "slack":
+            return self._moved(move.result, f"took up the slack of {name}")
+        return self._moved(move.result, f"probe moved {name} to {move.contraction[move.winch]:.4g}")
 
     def _moved(self, point: Point, what: str) -> Point:
         log.info("bilevel: %s (O = %.6g)", what, point.objective)
@@ -299,6 +270,35 @@ class ReducedRun:
         if slack:
             out += f"; winch {', '.join(names[w] for w in slack)}: all tendons slack (zero gradient)"
         return out
+
+    # -- report -------------------------------------------------------------
+
+    def stats(self, start_info: dict) -> BilevelStats:
+        """What the run measured (the result file's ``bilevel`` section);
+        ``start_info`` describes the starting equilibrium."""
+        model, options, end = self.model, self.options, self.end
+        names = model.winch_names
+        g = self.gradient(end)
+        t_eval = self.ev.t_evaluations
+        return BilevelStats(
+            start=start_info, objective_certified=end.objective, formulation="reduced",
+            moves=self.moves, rounds=self.rounds, return_status=self.return_status,
+            ipopt_success=self.return_status in KKT_STATUSES, iter_count=self.iterations,
+            stopped_by_time_limit=self.stop == "max_time", t_build=self.t_build, cached_solver=False,
+            t_ipopt_total=self.t_ipopt, t_function_evaluations=t_eval,
+            t_inside_ipopt=max(self.t_ipopt - t_eval, 0.0),
+            calls={**self.calls, "equilibrium_solves": self.ev.solves, "failed_equilibrium_solves":
+                   self.ev.failures, "known_past_branch_end": self.ev.past_end},
+            options={"ipopt": jsonable(options.reduced_ipopt_options()), "gtol": options.gtol,
+                     "ftol": options.ftol, "patience": options.patience,
+                     "objective_floor": options.objective_floor, "max_time": options.max_time},
+            frozen=[names[i] for i in np.flatnonzero(self.frozen)],
+            contraction_ipopt={names[i]: float(end.c[i]) for i in range(model.n_winches)},
+            bound_violation=0.0, objective_ipopt=end.objective,
+            kkt={"gradient": {names[i]: float(g[i]) for i in self.free}},
+            active_bounds=[names[w] for w in self._held_mask(end.c, g)],
+            slack_winches=[names[w] for w in slack_winches(model, end.eq.x, end.c, ~self.frozen, g)],
+            equilibrium_solves=self.ev.solves + 1, history_points=len(self.history))
 
 
 def _no_eigenvalue(options):

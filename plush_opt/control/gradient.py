@@ -16,6 +16,10 @@ Each iteration, at the current certified equilibrium x(c):
 accepted iterate, each a stable equilibrium within bounds that can go to
 the robot at once. Between iterates a caller may change the targets or
 freeze/unfreeze winches; the loop continues from where it is.
+
+Its options are :mod:`.gradient_options`; the step (direction and line
+search) is :mod:`.step`; the stop rules and the look-further moves are
+:mod:`.policy`, shared with the reduced bilevel search.
 """
 
 from __future__ import annotations
@@ -23,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -35,116 +38,14 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.sensitivity import objective_gradient, state_sensitivity
 from .bounds import bounds_strategy
+from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
+from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
+                     projected_gradient)
 from .result import ControlIterate, ControlResult, ControlStats
-from .restart import restart_move
 from .slack import slack_winches
+from .step import line_search, search_direction
 
 log = logging.getLogger(__name__)
-
-DIRECTIONS = ("gauss-newton", "gradient")
-BOUNDS = ("reparam", "clip")
-
-
-@dataclass(frozen=True)
-class ControlOptions:
-    """Options of the gradient loop.
-
-    Attributes
-    ----------
-    bounds : 'reparam' (c = f(xi), the default) or 'clip' (step on c, then
-        clip to the bounds: the simple baseline).
-    direction : 'gauss-newton' (Levenberg-Marquardt on the target
-        residuals, uses dx/dc) or 'gradient' (steepest descent, one adjoint
-        solve per iterate, Barzilai-Borwein step length).
-    max_iterations : accepted iterates at most.
-    max_time : seconds at most (None: no limit).
-    ftol : stop when the relative decrease of O stays below ftol for
-        ``patience`` consecutive iterates.
-    gtol : stop when the projected gradient |P dO/dc| times the mean bound
-        range is below gtol * max(O, floor), floor as below.
-    objective_floor : O below this times the mean target weight (length^2)
-        counts as targets reached: relative to the weights, so that tiny
-        weights do not make a far target look reached.
-    patience : see ftol.
-    blend : width of the reparametrisation's blend zone, as a fraction
-        of each winch's range.
-    slope_floor : smallest f' used in the search direction (so a winch on
-        a bound can come back).
-    max_step : largest change of one winch's xi per iterate, as a fraction
-        of its range (keeps the loop in the basin it starts in and every
-        streamed iterate a modest move for the robot).
-    max_backtracks : line-search trials per iterate.
-    initial_damping : Levenberg-Marquardt damping at the start and after
-        every restart, relative to the largest curvature of J^T J (small:
-        the first step is nearly Gauss-Newton).
-    min_damping : the damping never falls below this (keeps J^T J + damping
-        well conditioned when a column vanishes).
-    damping_decrease, damping_increase : the damping is divided by the first
-        after an accepted step and multiplied by the second after a rejected
-        trial (the usual asymmetric Levenberg-Marquardt schedule).
-    initial_gradient_step : first steepest-descent step, as a fraction of the
-        mean bound range per unit of gradient norm (later steps are
-        Barzilai-Borwein).
-    stuck_fraction : a loop whose O is still above this fraction of its O
-        at the start of the current targets is "stuck near its start", which
-        enables the bound probes of a restart.
-    probe_fractions : how far a restart probes inwards from a bound, as
-        fractions of the range.
-    probe_gain : a probe is taken only if it lowers O by this relative amount
-        (a real improvement, not round-off).
-    trial_newton : Newton iterations a line-search trial's equilibrium
-        may take, its sub-steps along the branch included (the starting
-        pose and restarts: ``equilibrium``'s own limit). A trial stays on
-        the current iterate's stable branch (plush_opt/solve/branch.py): past a
-        limit point it fails (0-35 iterations on the P2 hexapod), and the
-        step is cut instead of followed across a snap-through.
-    equilibrium : options of every equilibrium solve.
-    """
-
-    bounds: str = "reparam"
-    direction: str = "gauss-newton"
-    max_iterations: int = 100
-    max_time: float | None = None
-    ftol: float = 1e-9
-    gtol: float = 1e-7
-    objective_floor: float = 1e-14
-    patience: int = 2
-    blend: float = 0.02
-    slope_floor: float = 0.1
-    max_step: float = 0.2
-    max_backtracks: int = 12
-    initial_damping: float = 1e-3
-    min_damping: float = 1e-9
-    damping_decrease: float = 3.0
-    damping_increase: float = 10.0
-    initial_gradient_step: float = 0.1
-    stuck_fraction: float = 0.5
-    probe_fractions: tuple[float, ...] = (0.05, 0.15, 0.4)
-    probe_gain: float = 1e-3
-    trial_newton: int = 100
-    equilibrium: EquilibriumOptions = field(
-        default_factory=lambda: EquilibriumOptions(eigenvalue=False))
-
-    def __post_init__(self):
-        if self.bounds not in BOUNDS:
-            raise ValueError(f"bounds: expected one of {BOUNDS}, got {self.bounds!r}")
-        if self.direction not in DIRECTIONS:
-            raise ValueError(f"direction: expected one of {DIRECTIONS}, got {self.direction!r}")
-        if self.max_iterations < 0:
-            raise ValueError(f"max_iterations: expected >= 0, got {self.max_iterations!r}")
-        if not 0 < self.min_damping <= self.initial_damping:
-            raise ValueError("damping: expected 0 < min_damping <= initial_damping, got "
-                             f"{self.min_damping!r}, {self.initial_damping!r}")
-        if not (self.damping_decrease > 1 and self.damping_increase > 1):
-            raise ValueError("damping_decrease, damping_increase: expected > 1, got "
-                             f"{self.damping_decrease!r}, {self.damping_increase!r}")
-        if not all(0 < f < 1 for f in self.probe_fractions):
-            raise ValueError(f"probe_fractions: expected fractions in (0, 1), got {self.probe_fractions!r}")
-        if not (isinstance(self.trial_newton, int) and self.trial_newton >= 1):
-            raise ValueError(f"trial_newton: expected an integer >= 1, got {self.trial_newton!r}")
-        if not 0 < self.slope_floor <= 1:
-            raise ValueError(f"slope_floor: expected 0 < slope_floor <= 1, got {self.slope_floor!r}")
-
 
 # Every accepted iterate is a ControlIterate carrying its certified equilibrium.
 Iterate = ControlIterate
@@ -205,9 +106,9 @@ class Controller:
         self._eq: Equilibrium | None = None
         self._dirty = False      # targets or frozen set changed since the last iterate
         self._finished = False
-        # restart moves used since the targets / frozen set last changed
-        # (each at most once per winch, so the loop cannot cycle through them)
-        self._restarted: set[int] = set()
+        # restart moves used since the targets / frozen set last changed: winch
+        # -> O where it was tried (each at most once, so the loop cannot cycle)
+        self._restarted: dict[int, float] = {}
 
     # -- what a caller may change between iterates ------------------------
 
@@ -244,9 +145,6 @@ class Controller:
         self._newton += eq.iterations
         return eq
 
-    def _f(self, xi):
-        return self.bounds.f(xi)
-
     def _iterate(self, eq: Equilibrium, grad_c: np.ndarray) -> Iterate:
         # the history keeps poses, not Cholesky factors (the loop keeps the
         # current one itself): long interactive sessions stay small
@@ -261,11 +159,9 @@ class Controller:
 
     def _active(self, c, grad_c) -> tuple[str, ...]:
         """Winches whose bound stops them from going where the gradient points."""
-        tol = self.bounds.margin()
-        up = (c >= self.model.upper - tol) & (grad_c < 0)
-        lo = (c <= self.model.lower + tol) & (grad_c > 0)
-        names = self.model.winch_names
-        return tuple(names[i] for i in np.flatnonzero((up | lo) & ~self.frozen))
+        model = self.model
+        held = held_at_bounds(c, grad_c, model.lower, model.upper, self.bounds.margin(), self.frozen)
+        return tuple(model.winch_names[i] for i in held)
 
     def _gradient(self, eq: Equilibrium, need_jacobian: bool):
         """dO/dc (adjoint) and, for Gauss-Newton, the residual Jacobian."""
@@ -301,45 +197,43 @@ class Controller:
         opts = self.options
         if not self.history:
             yield self._start()
-        stall = 0
+        # the stall count, measured from the iterate the loop (re)starts at
+        stall = self._rules().init_state(self.history[-1].objective)
         steps = 0
         self._finished = False
         while True:
             if self._dirty:
                 # same certified pose, re-scored for the new targets / frozen set
                 self._dirty = False
-                self._restarted = set()
+                self._restarted = {}
                 self._grad, self._J, self._dxdc = self._gradient(
                     self._eq, opts.direction == "gauss-newton")
-                stall = 0
                 yield self._iterate(self._eq, self._grad)
+                stall = self._rules().init_state(self.history[-1].objective)
                 self._objective_at_start = self.history[-1].objective
             last = self.history[-1]
-            reason = _stop_reason(self, last, stall, steps)
+            reason = _stop(self.options, self._rules(), last, stall, steps, self.targets.n_targets,
+                           self.frozen, self.model)
             step = self._step(last) if reason is None else None
             if step is None:
                 if reason is not None:
                     self.converged, self.reason, self.status = reason
-                if not self._out_of_budget(steps, last):
+                if not self._rules().exhausted(last.objective, steps, last.t_wall):
                     moved = self._restart(last)
                     if moved is not None:
-                        stall = 0
+                        stall = self._rules().init_state(moved.objective)
                         yield moved
                         continue
                 self.status += self._slack_note(last)
                 self._finished = True
                 return
             steps += 1
-            if step.objective > last.objective * (1 - opts.ftol):
-                stall += 1
-            else:
-                stall = 0
+            stall = self._rules().update(stall, step.objective)
             yield step
 
-    def _out_of_budget(self, steps: int, last: Iterate) -> bool:
-        opts = self.options
-        return (steps >= opts.max_iterations or last.objective <= self.floor
-                or (opts.max_time is not None and last.t_wall >= opts.max_time))
+    def _rules(self) -> StopRules:
+        """The stop rules, with the floor of the current targets."""
+        return self.options.stop_rules(self.floor)
 
     def _slack_winches(self, last: Iterate) -> list[int]:
         """Free winches with zero gradient because all their tendons are slack."""
@@ -353,9 +247,15 @@ class Controller:
         return f"; winch {names}: all tendons slack (zero gradient)"
 
     def _restart(self, last: Iterate) -> Iterate | None:
-        """Where the loop would stop, look a little further (see :mod:`.restart`)."""
-        found = restart_move(self, last)
-        return None if found is None else self._jump(*found)
+        """Where the loop would stop, look a little further (:func:`_look_further`)."""
+        def solve(c):
+            eq = self._solve(c, last.x)
+            return (self.targets.value(eq.x), eq) if eq.converged else None
+
+        move, self._restarted = _look_further(
+            self.options, self.model, last, self._objective_at_start, self._slack_winches(last),
+            self._restarted, solve, lambda eq: self._gradient(eq, False)[0])
+        return None if move is None else self._jump(move.contraction, move.result)
 
     def _jump(self, c, eq) -> Iterate:
         """Continue the loop from a certified equilibrium found off the line search."""
@@ -369,45 +269,34 @@ class Controller:
         return self._iterate(eq, self._grad)
 
     def _step(self, last: Iterate) -> Iterate | None:
-        opts = self.options
-        gn = opts.direction == "gauss-newton"
-        for attempt in range(opts.max_backtracks):
-            step = _direction(self, last, self._mu)
-            if not gn:
-                step = step * 0.5 ** attempt
-            xi_t = self.xi + step
-            xi_t = self.bounds.clamp(xi_t)
-            xi_t[self.frozen] = self.xi[self.frozen]
-            c_t = self._f(xi_t)
-            c_t[self.frozen] = self.contraction[self.frozen]      # bit-identical
-            if np.array_equal(c_t, self.contraction):
-                self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
-                return None
-            eq = _trial(self, c_t)
-            if eq.converged and self.targets.value(eq.x) < last.objective:
-                self._accept(xi_t, eq, last)
-                if gn:
-                    self._mu = max(self._mu / opts.damping_decrease, opts.min_damping)
-                return self._iterate(eq, self._grad)
-            if gn:
-                self._mu *= opts.damping_increase
+        """The next iterate by a line search from ``last``, or None (status set)."""
+        found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
+                            self.options, self._mu, lambda mu: self._direction(last, mu),
+                            lambda c_t: _trial(self, c_t), lambda eq: self.targets.value(eq.x))
+        self._mu = found.mu
+        if found.kind == "accepted":
+            self._accept(found.xi, found.equilibrium, last)
+            return self._iterate(found.equilibrium, self._grad)
+        if found.kind == "stationary":
+            self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
+            return None
         self.converged, self.reason = False, "no_decrease"
-        self.status = ("cannot decrease the objective further: line search failed"
-                       + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
+        self.status = "cannot decrease the objective further: line search failed" + _bound_note(last)
         return None
 
     def _at_bounds_status(self, last: Iterate) -> str:
-        return ("stationary: every free winch is held at a bound"
-                + (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""))
+        return "stationary: every free winch is held at a bound" + _bound_note(last)
+
+    def _direction(self, last: Iterate, mu: float) -> np.ndarray:
+        """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
+        step, self._bb_step = search_direction(last.gradient, self._J, self.xi, self.frozen, self.bounds,
+                                               self.model.upper - self.model.lower, self.options, mu,
+                                               self._bb_step)
+        return step
 
     def _predict(self, c_t):
         """First-order predictor x + dx/dc (c_t - c), if it is admissible."""
-        x = self._eq.x
-        if self._dxdc is not None:
-            xp = x + self._dxdc @ (c_t - self.contraction)
-            if self.model.admissible(xp):
-                return xp
-        return x
+        return predict(self.model, self._eq.x, self._dxdc, self.contraction, c_t)
 
     def _accept(self, xi_t, eq, last):
         grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
@@ -457,34 +346,62 @@ def solve_control(model: Model, targets: Targets, contraction=None, frozen=None,
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 
-def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
-    """(converged, reason, status) when the loop should stop at ``last``, else None."""
-    opts = ctl.options
-    names = ctl.model.winch_names
-    free = ~ctl.frozen
-    bound_note = (f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else "")
-    if ctl.targets.n_targets == 0:
+def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall: StallState, steps: int,
+          n_targets: int, frozen: np.ndarray, model: Model):
+    """The loop's (converged, reason, status) when it should stop at
+    ``last`` (after ``steps`` steps, with stall state ``stall``), else None."""
+    if n_targets == 0:
         return True, "targets_reached", "no targets"
+    free = ~frozen
     if not free.any():
         return True, "stationary", "every winch is frozen"
-    if last.objective <= ctl.floor:
-        return True, "targets_reached", "targets reached" + bound_note
-    proj = last.gradient.copy()
-    proj[[names.index(n) for n in last.active_bounds]] = 0.0
-    span = float(np.mean(ctl.model.upper - ctl.model.lower))
-    if np.all(last.gradient[free] == 0.0):
-        slack = [names[i] for i in np.flatnonzero(free)]
+    names = model.winch_names
+    held = [names.index(n) for n in last.active_bounds]
+    rule = rules.first(
+        LOOP_ORDER, stall, objective=last.objective, iterations=steps, t=last.t_wall,
+        projected=projected_gradient(last.gradient, held, model.upper - model.lower),
+        no_gradient=bool(np.all(last.gradient[free] == 0.0)))
+    if rule is None:
+        return None
+    return _verdict(rule, last, options, [names[i] for i in np.flatnonzero(free)])
+
+
+def _look_further(options: ControlOptions, model: Model, last: Iterate, objective_at_start: float,
+                  slack: list[int], tried: dict, solve, gradient):
+    """The loop's look-further move from ``last`` (:func:`~.policy.look_further`,
+    each winch once per set of targets, so the loop cannot cycle through
+    the moves); (move or None, the new ``tried``)."""
+    names = model.winch_names
+    site = ProbeSite(last.contraction, last.x, last.objective, objective_at_start, slack,
+                     [names.index(n) for n in last.active_bounds])
+    move, tried = look_further(options.probe, site, tried, model, solve, gradient)
+    if move is not None and move.kind == "slack":
+        log.info("took up the slack of %s", names[move.winch])
+    elif move is not None:
+        log.info("probe: moving %s to %.4g lowered O", names[move.winch], move.contraction[move.winch])
+    return move, tried
+
+
+def _bound_note(last: Iterate) -> str:
+    return f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""
+
+
+def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str]):
+    """The loop's (converged, reason, status) for stop rule ``rule``
+    (:data:`~.policy.RULES`) at ``last``; ``free_names`` the free winches."""
+    note = _bound_note(last)
+    if rule == "no_gradient":
         return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
-                       f"{', '.join(slack)} slack)")
-    if np.linalg.norm(proj) * span <= opts.gtol * max(last.objective, ctl.floor):
-        return True, "stationary", "stationary: projected gradient below tolerance" + bound_note
-    if stall >= opts.patience:
-        return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + bound_note
-    if steps >= opts.max_iterations:
-        return False, "max_iterations", f"iteration limit ({opts.max_iterations}) reached" + bound_note
-    if opts.max_time is not None and last.t_wall >= opts.max_time:
-        return False, "max_time", f"time limit ({opts.max_time:g} s) reached" + bound_note
-    return None
+                                      f"{', '.join(free_names)} slack)")
+    if rule == "reached":
+        return True, "targets_reached", "targets reached" + note
+    if rule == "stationary":
+        return True, "stationary", "stationary: projected gradient below tolerance" + note
+    if rule == "stalled":
+        return True, "stationary", "objective stopped decreasing (relative decrease below ftol)" + note
+    if rule == "iterations":
+        return False, "max_iterations", f"iteration limit ({options.max_iterations}) reached" + note
+    return False, "max_time", f"time limit ({options.max_time:g} s) reached" + note
 
 
 def _trial(ctl: "Controller", c_t) -> Equilibrium:
@@ -506,42 +423,3 @@ def _trial_options(options: ControlOptions) -> EquilibriumOptions:
     """A line-search trial's equilibrium options: at most ``trial_newton`` iterations."""
     eo = options.equilibrium
     return dataclasses.replace(eo, max_iterations=min(eo.max_iterations, options.trial_newton))
-
-
-def _direction(ctl: "Controller", last: Iterate, mu: float) -> np.ndarray:
-    """A step on xi (or on c for clipping) for the free winches.
-
-    Winches sitting on a bound whose step would push them further out
-    are held (projected Gauss-Newton): otherwise a winch that cannot
-    move would still take the length of the step from the others.
-    """
-    slope = ctl.bounds.slope(ctl.xi, ctl.options.slope_floor)
-    g = last.gradient * slope
-    lo_edge, hi_edge = ctl.bounds.edges()
-    span = ctl.model.upper - ctl.model.lower
-    at_lower = ctl.xi <= lo_edge + 1e-12 * span
-    at_upper = ctl.xi >= hi_edge - 1e-12 * span
-    held = ctl.frozen.copy()
-    for _ in range(ctl.model.n_winches + 1):
-        step = np.zeros_like(ctl.xi)
-        move = ~held
-        if not move.any():
-            break
-        if ctl.options.direction == "gauss-newton":
-            J = ctl._J[:, move] * slope[move][None, :]
-            A = J.T @ J
-            # Levenberg damping on the scale of the largest curvature, so a
-            # winch with a tiny column cannot take a huge step
-            damp = mu * max(float(np.max(np.diag(A))), 1e-300)
-            step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
-        else:
-            if ctl._bb_step is None:
-                ctl._bb_step = ctl.options.initial_gradient_step * float(np.mean(span)) / max(np.linalg.norm(g[move]), 1e-300)
-            step[move] = -ctl._bb_step * g[move]
-        outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
-        if not outward.any():
-            break
-        held |= outward
-    limit = ctl.options.max_step * span
-    ratio = np.max(np.abs(step) / limit)
-    return step / ratio if ratio > 1 else step

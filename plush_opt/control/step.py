@@ -1,0 +1,131 @@
+"""The gradient loop's step on the free winches, as functions of explicit state.
+
+:func:`search_direction` is the projected Levenberg-Marquardt step on the
+target residuals (Gauss-Newton) or the steepest-descent step with
+Barzilai-Borwein lengths, on xi (the reparametrised contractions, c = f(xi))
+or on c itself (clipping); :func:`trial_point` turns a step into the
+line-search trial and :func:`line_search` backtracks until a trial's
+certified equilibrium lowers O. What the step remembers between iterates
+(the damping mu, the Barzilai-Borwein step) is passed in and returned,
+never kept here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+# A winch whose xi is within this fraction of its range from where xi stops
+# counts as on that edge (round-off of f's inverse at a bound).
+EDGE_TOLERANCE = 1e-12
+# Keeps the first steepest-descent step finite where the gradient vanishes.
+TINY_GRADIENT = 1e-300
+# Steepest descent multiplies its step by this after each rejected trial
+# (its step length has no damping to raise).
+BACKTRACK = 0.5
+
+
+def search_direction(gradient, J, xi, frozen, bounds, span, options, mu: float,
+                     bb_step: float | None) -> tuple[np.ndarray, float | None]:
+    """A step on xi for the free winches; (step, Barzilai-Borwein step).
+
+    Parameters
+    ----------
+    gradient : (n_winches,) dO/dc at the iterate.
+    J : (2 k, n_winches) the residual Jacobian dr/dc (Gauss-Newton), or None.
+    xi : (n_winches,) the iterate's xi; ``frozen`` (n_winches,) bool.
+    bounds : the bounds strategy (:mod:`.bounds`: ``slope``, ``edges``).
+    span : (n_winches,) upper - lower (length).
+    options : :class:`~plush_opt.control.gradient.ControlOptions`
+        (direction, slope_floor, damping, initial_gradient_step, max_step).
+    mu : the Levenberg-Marquardt damping (Gauss-Newton).
+    bb_step : the Barzilai-Borwein step (steepest descent); None before the
+        first step, which then takes ``initial_gradient_step``.
+
+    Winches sitting on a bound whose step would push them further out are
+    held (projected Gauss-Newton): otherwise a winch that cannot move would
+    still take the length of the step from the others. No winch's xi moves
+    by more than ``max_step`` of its range.
+    """
+    slope = bounds.slope(xi, options.slope_floor)
+    g = gradient * slope
+    lo_edge, hi_edge = bounds.edges()
+    at_lower = xi <= lo_edge + EDGE_TOLERANCE * span
+    at_upper = xi >= hi_edge - EDGE_TOLERANCE * span
+    held = np.array(frozen, dtype=bool)
+    for _ in range(len(xi) + 1):             # each pass holds one more winch at least
+        step = np.zeros_like(xi)
+        move = ~held
+        if not move.any():
+            break
+        if options.direction == "gauss-newton":
+            Jm = J[:, move] * slope[move][None, :]
+            A = Jm.T @ Jm
+            damp = mu * options.damping.scale(np.diag(A))
+            step[move] = -np.linalg.solve(A + damp * np.eye(A.shape[0]), g[move])
+        else:
+            if bb_step is None:
+                bb_step = (options.initial_gradient_step * float(np.mean(span))
+                           / max(np.linalg.norm(g[move]), TINY_GRADIENT))
+            step[move] = -bb_step * g[move]
+        outward = move & ((at_lower & (step < 0)) | (at_upper & (step > 0)))
+        if not outward.any():
+            break
+        held |= outward
+    limit = options.max_step * span
+    ratio = np.max(np.abs(step) / limit)
+    return (step / ratio if ratio > 1 else step), bb_step
+
+
+def trial_point(bounds, xi, contraction, step, frozen) -> tuple[np.ndarray, np.ndarray]:
+    """(xi, c) of the trial ``xi + step``, kept where xi stops; a frozen
+    winch keeps its xi and its contraction bit for bit."""
+    xi_t = bounds.clamp(xi + step)
+    xi_t[frozen] = xi[frozen]
+    c_t = bounds.f(xi_t)
+    c_t[frozen] = contraction[frozen]
+    return xi_t, c_t
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What :func:`line_search` found: ``kind`` 'accepted' (``xi`` and
+    ``equilibrium`` of the accepted trial), 'stationary' (the step moves no
+    contraction) or 'no_decrease' (no trial lowered O); ``mu`` the
+    Levenberg-Marquardt damping after the search."""
+
+    kind: str
+    mu: float
+    xi: np.ndarray | None = None
+    equilibrium: Any = None
+
+
+def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: float,
+                direction: Callable[[float], np.ndarray], trial: Callable[[np.ndarray], Any],
+                value: Callable[[Any], float]) -> Outcome:
+    """Backtrack from the iterate (xi, ``contraction``, O = ``objective``).
+
+    ``direction(mu)`` is the step for damping mu, ``trial(c)`` the trial's
+    equilibrium at contractions c, ``value(eq)`` its O. Gauss-Newton
+    recomputes the step with the damping raised after each rejected trial
+    (:class:`~.policy.Damping`) and lowers it after the accepted one;
+    steepest descent halves its step. A trial is accepted only if its
+    equilibrium is certified and O decreased; at most
+    ``options.max_backtracks`` trials.
+    """
+    gn = options.direction == "gauss-newton"
+    for attempt in range(options.max_backtracks):
+        step = direction(mu)
+        if not gn:
+            step = step * BACKTRACK ** attempt
+        xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen)
+        if np.array_equal(c_t, contraction):
+            return Outcome("stationary", mu)
+        eq = trial(c_t)
+        if eq.converged and value(eq) < objective:
+            return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
+        if gn:
+            mu = options.damping.rejected(mu)
+    return Outcome("no_decrease", mu)
