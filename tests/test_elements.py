@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from plush_opt.fem import elements
-from plush_opt.control import bilevel_nlp
 from plush_opt.base.errors import SceneError
 from plush_opt.io import scene_from_dict
 from plush_opt.fem.mesh import build_mesh
@@ -55,7 +54,7 @@ def _built(element="P2", n=3):
 
 def _elastic(model, x, c):
     """E without pins, gravity and tendons (the slack tendon adds nothing)."""
-    dp = x[model._pin_dofs] - model.X[model._pin_dofs]
+    dp = x[model.pin_dofs] - model.X[model.pin_dofs]
     return (model.energy(x, c) - 0.5 * model.pin_stiffness * dp @ dp + model.f_gravity @ x)
 
 
@@ -100,7 +99,7 @@ def test_shape_functions_partition_unity_and_reproduce_quadratics():
 
 def test_p2_model_gradient_hessian_mixed_against_central_differences():
     scene, mesh, model = _built()
-    assert model.element == "P2" and model._elem_dofs.shape[1] == 12
+    assert model.element is elements.P2 and model.elem_dofs.shape[1] == 12
     rng = np.random.default_rng(7)
     h_len = np.sqrt(np.mean(model.rest_area))
     x = model.X + 0.03 * h_len * rng.standard_normal(model.n_dofs)
@@ -196,7 +195,7 @@ def test_full_bilevel_jacobian_constraint_matches_the_model():
     rng = np.random.default_rng(3)
     x = model.X + 0.05 * rng.standard_normal(model.n_dofs)
     xs = ca.MX.sym("x", model.n_dofs)
-    J = ca.Function("J", [xs], [bilevel_nlp._jacobian_expression(model, xs)])(x)
+    J = ca.Function("J", [xs], [model.jacobian_expression(xs)])(x)
     J = np.array(J).reshape(3, -1).T
     assert J.shape == (model.n_elems, 3)
     assert np.allclose(J.min(axis=1), model.jacobians(x), rtol=1e-12)

@@ -35,7 +35,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .elements import interpolation_weights
 from ..base.geometry import triangle_areas
 from .mesh import Mesh
 
@@ -191,7 +190,7 @@ class AttachmentWeights:
         q_owner = np.concatenate([np.repeat(owner, 3)] + extra_owner)
         elem = cand[q_owner]
         beta = _barycentric(self.corners[elem], qpts)
-        N = interpolation_weights(self.mesh.element, beta) * qw[:, None]
+        N = self.mesh.element.interpolation_weights(beta) * qw[:, None]
         ids = self.mesh.elements[elem]
         pt = np.repeat(point[q_owner], ids.shape[1])
         keys, inv = np.unique(pt * self.mesh.n_nodes + ids.ravel(), return_inverse=True)
