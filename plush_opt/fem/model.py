@@ -332,7 +332,7 @@ HESSIAN_FORMS = ("auto",) + FORMS
 SPLIT_MIN_DISC_NODES = 10
 # ... and only up to this rank of the update (2 per segment + 1 per tendon),
 # above which its solves cost more than the segments' fill: "rank_one" then
-# (the hexapod's 84 against the gripper's 36; same table)
+# (same table)
 SPLIT_MAX_RANK = 48
 
 
