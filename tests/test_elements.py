@@ -95,6 +95,21 @@ def test_shape_functions_partition_unity_and_reproduce_quadratics():
     assert np.allclose(N @ field(nodes), field(points), atol=1e-13)
 
 
+def test_the_element_is_an_object_on_the_mesh_named_as_in_files():
+    import pickle
+    p1, p2 = build_mesh(_square("P1")), build_mesh(_square("P2"))
+    assert p1.element is elements.P1 and p2.element is elements.P2
+    assert (str(p1.element), p2.element.name) == ("P1", "P2")
+    assert elements.named("P2") is elements.P2 and elements.with_nodes(3) is elements.P1
+    assert pickle.loads(pickle.dumps(p2)).element is elements.P2 and pickle.loads(pickle.dumps(p2)) == p2
+    assert p2.elements.shape[1] == elements.P2.nodes and p1.elements is p1.triangles
+    beta = np.array([[0.2, 0.3, 0.5]])
+    assert np.array_equal(elements.P1.interpolation_weights(beta), beta)
+    assert np.array_equal(elements.P2.interpolation_weights(beta), elements.shape_values(beta))
+    with pytest.raises(ValueError, match="P3"):
+        elements.named("P3")
+
+
 # -- the model ---------------------------------------------------------------
 
 def test_p2_model_gradient_hessian_mixed_against_central_differences():

@@ -259,6 +259,41 @@ def test_gravity_term_only_when_the_scene_has_gravity():
         assert "mtimes" not in str(model.E)  # no gravity dot product in the expression
 
 
+# -- the model as a sum of terms -------------------------------------------------
+
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_the_model_is_the_sum_of_its_terms(name):
+    """The terms a scene has, in their order; E, its gradient, d2E/dx dc and
+    the CasADi expression are the sums of the terms'."""
+    import casadi as ca
+    _, _, model, _ = built(name)
+    expected = ("elastic", "pins") + (("gravity",) if model.has_gravity else ()) + ("tendons",)
+    assert tuple(t.name for t in model.terms) == expected
+    x, c = random_state(model, np.random.default_rng(12))
+    parts = [t.evaluate(x, c, 1) for t in model.terms]
+    ev = model.evaluate(x, c, 1)
+    assert ev.energy == pytest.approx(sum(p.energy for p in parts), rel=1e-14)
+    assert_close(ev.gradient, sum(p.gradient for p in parts), 1e-14, "gradient")
+    assert ev.force_scale == max(p.force_scale for p in parts)
+    assert_close(model.mixed(x, c), model.tendons.mixed(x, c), 1e-14, "mixed")
+    xs, cs = ca.MX.sym("x", model.n_dofs), ca.MX.sym("c", model.n_winches)
+    each = ca.Function("each", [xs, cs], [t.expression(xs, cs) for t in model.terms])(x, c)
+    assert float(sum(float(v) for v in each)) == pytest.approx(ev.energy, rel=1e-12)
+
+
+def test_models_share_the_compiled_kernels(monkeypatch):
+    """A second model of the same kind compiles nothing: its element and
+    tendon kernels are the ones their owners already hold."""
+    from plush_opt.fem import kernel_set
+    scene, mesh, model, _ = built("gripper")
+    assert model.elastic.element.kernels is elements.named(str(mesh.element)).kernels
+    calls = []
+    monkeypatch.setattr(kernel_set, "compiled", lambda fn: calls.append(fn.name()) or fn)
+    again = build_model(scene, mesh)
+    again.evaluate(again.X, np.zeros(again.n_winches))
+    assert calls == []
+
+
 # -- the Hessian's forms: one matrix, or tendon terms kept as low rank --------
 
 @pytest.fixture(scope="module")
