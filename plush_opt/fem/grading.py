@@ -75,6 +75,12 @@ DISC_FACTOR = 1.0 / 4
 PASSES = 6
 #: A corner counts as reentrant above 180 degrees by this much (radians).
 ANGLE_TOL = 1e-6
+#: A triangle at most this fraction above its area bound meets it (the
+#: round-off of Triangle's splits would otherwise ask for one more pass).
+AREA_SLACK = 1e-9
+#: A boundary segment whose extent along an axis is below this (length
+#: units) runs parallel to that axis when clipped to the pin box.
+PARALLEL_TOL = 1e-15
 
 
 def _reentrant(ring: np.ndarray, body_left: bool) -> list[np.ndarray]:
@@ -104,7 +110,7 @@ def _pinned_ends(scene: Scene) -> list[np.ndarray]:
             lo, hi = 0.0, 1.0
             for axis, (lo_b, hi_b) in enumerate(((x0, x1), (y0, y1))):
                 d = b[axis] - a[axis]
-                if abs(d) < 1e-15:
+                if abs(d) < PARALLEL_TOL:
                     if not (lo_b - scene.tolerance <= a[axis] <= hi_b + scene.tolerance):
                         lo, hi = 1.0, 0.0
                     continue
@@ -185,7 +191,7 @@ def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, qualit
             near = np.linalg.norm(centroid - centre, axis=1) < r + h_disc
             g[near] = np.minimum(g[near], DISC_FACTOR)
         bound = max_area * g ** 2
-        if not np.any(triangle_areas(p) > bound * (1 + 1e-9)):
+        if not np.any(triangle_areas(p) > bound * (1 + AREA_SLACK)):
             break
         edges = np.sort(np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
         edges, count = np.unique(edges, axis=0, return_counts=True)
