@@ -17,9 +17,6 @@ MAX_CLASS_LINES = 300
 MAX_FUNCTION_LINES = 80
 # Larger pieces, each with the reason it stays whole.
 EXCEPTIONS = {
-    # the index maps and both evaluation paths (CasADi expression, compiled
-    # kernels) of one energy; split, each half would reach into the other
-    "plush_opt/fem/model.py:Model",
     # one Newton iteration with its line search, regularisation and saddle
     # escape reads best as one loop
     "plush_opt/solve/equilibrium.py:_solve_newton",

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from plush_opt.fem import elements
-from plush_opt.control import bilevel_nlp
 from plush_opt.base.errors import SceneError
 from plush_opt.io import scene_from_dict
 from plush_opt.fem.mesh import build_mesh
@@ -55,7 +54,7 @@ def _built(element="P2", n=3):
 
 def _elastic(model, x, c):
     """E without pins, gravity and tendons (the slack tendon adds nothing)."""
-    dp = x[model._pin_dofs] - model.X[model._pin_dofs]
+    dp = x[model.pin_dofs] - model.X[model.pin_dofs]
     return (model.energy(x, c) - 0.5 * model.pin_stiffness * dp @ dp + model.f_gravity @ x)
 
 
@@ -96,11 +95,26 @@ def test_shape_functions_partition_unity_and_reproduce_quadratics():
     assert np.allclose(N @ field(nodes), field(points), atol=1e-13)
 
 
+def test_the_element_is_an_object_on_the_mesh_named_as_in_files():
+    import pickle
+    p1, p2 = build_mesh(_square("P1")), build_mesh(_square("P2"))
+    assert p1.element is elements.P1 and p2.element is elements.P2
+    assert (str(p1.element), p2.element.name) == ("P1", "P2")
+    assert elements.named("P2") is elements.P2 and elements.with_nodes(3) is elements.P1
+    assert pickle.loads(pickle.dumps(p2)).element is elements.P2 and pickle.loads(pickle.dumps(p2)) == p2
+    assert p2.elements.shape[1] == elements.P2.nodes and p1.elements is p1.triangles
+    beta = np.array([[0.2, 0.3, 0.5]])
+    assert np.array_equal(elements.P1.interpolation_weights(beta), beta)
+    assert np.array_equal(elements.P2.interpolation_weights(beta), elements.shape_values(beta))
+    with pytest.raises(ValueError, match="P3"):
+        elements.named("P3")
+
+
 # -- the model ---------------------------------------------------------------
 
 def test_p2_model_gradient_hessian_mixed_against_central_differences():
     scene, mesh, model = _built()
-    assert model.element == "P2" and model._elem_dofs.shape[1] == 12
+    assert model.element is elements.P2 and model.elem_dofs.shape[1] == 12
     rng = np.random.default_rng(7)
     h_len = np.sqrt(np.mean(model.rest_area))
     x = model.X + 0.03 * h_len * rng.standard_normal(model.n_dofs)
@@ -196,7 +210,7 @@ def test_full_bilevel_jacobian_constraint_matches_the_model():
     rng = np.random.default_rng(3)
     x = model.X + 0.05 * rng.standard_normal(model.n_dofs)
     xs = ca.MX.sym("x", model.n_dofs)
-    J = ca.Function("J", [xs], [bilevel_nlp._jacobian_expression(model, xs)])(x)
+    J = ca.Function("J", [xs], [model.jacobian_expression(xs)])(x)
     J = np.array(J).reshape(3, -1).T
     assert J.shape == (model.n_elems, 3)
     assert np.allclose(J.min(axis=1), model.jacobians(x), rtol=1e-12)

@@ -237,7 +237,7 @@ def test_energy_without_pins_is_invariant_under_rigid_motion(angle, tx, ty):
     y = (x.reshape(-1, 2) @ R.T + [tx, ty]).reshape(-1)
 
     def without_pins(z):
-        dp = z[model._pin_dofs] - model.X[model._pin_dofs]
+        dp = z[model.pin_dofs] - model.X[model.pin_dofs]
         return model.energy(z, c) - 0.5 * model.pin_stiffness * dp @ dp
 
     assert without_pins(y) == pytest.approx(without_pins(x), rel=1e-9, abs=1e-12)
@@ -257,6 +257,41 @@ def test_gravity_term_only_when_the_scene_has_gravity():
         _, _, model, _ = built(name)
         assert not model.has_gravity and model.f_gravity is None
         assert "mtimes" not in str(model.E)  # no gravity dot product in the expression
+
+
+# -- the model as a sum of terms -------------------------------------------------
+
+@pytest.mark.parametrize("name", PROBLEMS)
+def test_the_model_is_the_sum_of_its_terms(name):
+    """The terms a scene has, in their order; E, its gradient, d2E/dx dc and
+    the CasADi expression are the sums of the terms'."""
+    import casadi as ca
+    _, _, model, _ = built(name)
+    expected = ("elastic", "pins") + (("gravity",) if model.has_gravity else ()) + ("tendons",)
+    assert tuple(t.name for t in model.terms) == expected
+    x, c = random_state(model, np.random.default_rng(12))
+    parts = [t.evaluate(x, c, 1) for t in model.terms]
+    ev = model.evaluate(x, c, 1)
+    assert ev.energy == pytest.approx(sum(p.energy for p in parts), rel=1e-14)
+    assert_close(ev.gradient, sum(p.gradient for p in parts), 1e-14, "gradient")
+    assert ev.force_scale == max(p.force_scale for p in parts)
+    assert_close(model.mixed(x, c), model.tendons.mixed(x, c), 1e-14, "mixed")
+    xs, cs = ca.MX.sym("x", model.n_dofs), ca.MX.sym("c", model.n_winches)
+    each = ca.Function("each", [xs, cs], [t.expression(xs, cs) for t in model.terms])(x, c)
+    assert float(sum(float(v) for v in each)) == pytest.approx(ev.energy, rel=1e-12)
+
+
+def test_models_share_the_compiled_kernels(monkeypatch):
+    """A second model of the same kind compiles nothing: its element and
+    tendon kernels are the ones their owners already hold."""
+    from plush_opt.fem import kernel_set
+    scene, mesh, model, _ = built("gripper")
+    assert model.elastic.element.kernels is elements.named(str(mesh.element)).kernels
+    calls = []
+    monkeypatch.setattr(kernel_set, "compiled", lambda fn: calls.append(fn.name()) or fn)
+    again = build_model(scene, mesh)
+    again.evaluate(again.X, np.zeros(again.n_winches))
+    assert calls == []
 
 
 # -- the Hessian's forms: one matrix, or tendon terms kept as low rank --------
@@ -284,12 +319,12 @@ def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
     from plush_opt.fem import model as model_module
     from plush_opt.fem.model import SPLIT_MIN_DISC_NODES, Model
     auto = large_discs["auto"]
-    assert auto._points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES
+    assert auto.tendon_points.mean_disc_nodes() >= SPLIT_MIN_DISC_NODES
     assert auto.low_rank and auto.split_segments
     assert not large_discs["assembled"].low_rank
     assert large_discs["rank_one"].low_rank and not large_discs["rank_one"].split_segments
     coarse = built("gripper")[2]            # its file mesh: small discs
-    assert coarse._points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES and not coarse.low_rank
+    assert coarse.tendon_points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES and not coarse.low_rank
     # too many segments to split (the update's rank): each tendon's rank-one term only
     monkeypatch.setattr(model_module, "SPLIT_MAX_RANK", 2 * auto.n_segments + auto.n_tendons - 1)
     many = Model(auto.scene, auto.mesh)
@@ -323,21 +358,21 @@ def test_a_large_disc_has_a_stand_in_in_the_sparse_part(large_discs):
     element pattern alone (a stand-in's 2 x 2 block sits on one node); each
     large disc adds rank 4 to the low-rank term."""
     split, standin = large_discs["split"], large_discs["standin"]
-    n_large = len(standin._layout._standin_dofs) // 2
-    assert n_large == standin._points.n_extra > 0
-    assert standin._layout.nnz < split._layout.nnz
-    assert standin._layout.nnz == element_and_pin_nnz(standin)
+    n_large = len(standin.hessian_layout._standin_dofs) // 2
+    assert n_large == standin.tendon_points.n_extra > 0
+    assert standin.hessian_layout.nnz < split.hessian_layout.nnz
+    assert standin.hessian_layout.nnz == element_and_pin_nnz(standin)
     rng = np.random.default_rng(5)
     x, c = random_state(split, rng)
     a, b = split.evaluate(x, c).hessian_form, standin.evaluate(x, c).hessian_form
     assert b.Q.shape[0] == a.Q.shape[0] + 4 * n_large
-    assert b.body.nnz == standin._layout.nnz
+    assert b.body.nnz == standin.hessian_layout.nnz
 
 
 def element_and_pin_nnz(model) -> int:
     """Entries of the element and pin pattern alone."""
     from plush_opt.fem.hessian_layout import HessianLayout
-    return HessianLayout(model.n_dofs, model._elem_dofs, model._pin_dofs, model._points,
+    return HessianLayout(model.n_dofs, model.elem_dofs, model.pin_dofs, model.tendon_points,
                          np.zeros((0, 4), np.int64), np.zeros((0, 1), np.int64), "assembled").nnz
 
 

@@ -24,7 +24,6 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.fem.elements import interpolation_weights
 from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.io import load_scene
 from plush_opt.fem.mesh import build_mesh
@@ -57,7 +56,7 @@ def _row(name, element, point_loads, max_area):
     u = (eq.x - model.X).reshape(-1, 2)
     tri, beta = model.mesh.locate(scene.targets[0].at[None, :])
     nodes = model.mesh.elements[tri[0]]
-    target = interpolation_weights(model.element, beta)[0] @ u[nodes]
+    target = model.element.interpolation_weights(beta)[0] @ u[nodes]
     end = np.asarray(model.via_weights[0][0] @ u).ravel()
     return {"nodes": model.n_nodes, "converged": eq.converged, "seconds": seconds,
             "target": float(np.linalg.norm(target)), "end": float(np.linalg.norm(end))}

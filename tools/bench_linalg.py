@@ -131,7 +131,7 @@ def bench_forms(name: str, nodes: int, element: str, repeats: int) -> dict:
            for form, H in forms.items()}
     auto = build_model(scene, mesh)
     return {"problem": name, "element": element, "nodes": mesh.n_nodes,
-            "disc_nodes": auto._points.mean_disc_nodes(), "k": forms["split"].M.shape[0],
+            "disc_nodes": auto.tendon_points.mean_disc_nodes(), "k": forms["split"].M.shape[0],
             "auto": "split" if auto.split_segments else "rank_one" if auto.low_rank else "assembled",
             **_best_seconds(fns, repeats)}
 

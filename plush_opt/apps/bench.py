@@ -137,11 +137,11 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
         mesh = build_mesh(scene) if nodes == 0 else mesh_for_nodes(scene, nodes)
     name = scene.name
     row = {"problem": name, "target_nodes": nodes, "accuracy": size[1] if isinstance(size, tuple) else None,
-           "element": mesh.element, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
+           "element": mesh.element.name, "nodes": mesh.n_nodes, "elements": mesh.n_elems}
     label = f"{name} @ {mesh.n_nodes} nodes {mesh.element}"
     if nodes is not None:
         progress(f"{label}: model build")
-        row.update(_build_times(problem, nodes, mesh.element, repeats))
+        row.update(_build_times(problem, nodes, mesh.element.name, repeats))
     problem = from_scene(scene, mesh)
     model, targets = problem.model, problem.targets
     row["friction"] = has_friction(model)

@@ -291,7 +291,7 @@ def result_problem(problem_path, result_path):
     except (ValueError, KeyError, TypeError) as exc:
         raise SceneError(f"{result_path}: not a result file of plush-opt solve ({exc})") from None
     own = build_mesh(scene)
-    if element == own.element and np.array_equal(triangles, own.elements) and _same_nodes(X, own.X):
+    if element == own.element.name and np.array_equal(triangles, own.elements) and _same_nodes(X, own.X):
         return from_scene(scene, own), doc
     corners = {"P1": 3, "P2": 6}.get(element)
     if corners is None or X.ndim != 2 or X.shape[1] != 2 or triangles.ndim != 2 \

@@ -130,31 +130,6 @@ def _objective_expression(x: ca.MX, nodes: np.ndarray, beta: ca.MX, q: ca.MX, sq
     return 0.5 * (ca.sumsqr(rx) + ca.sumsqr(ry))
 
 
-def _jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
-    """J = det F of every element, (n_elems,), as a CasADi expression; for
-    P2, J at every quadrature point of every element, (3 n_elems,)."""
-    e = model._elem_dofs
-    if model.element == "P2":
-        return _p2_jacobian_expression(model, x)
-    xe = [x[e[:, i].tolist()] for i in range(6)]
-    det = (xe[2] - xe[0]) * (xe[5] - xe[1]) - (xe[3] - xe[1]) * (xe[4] - xe[0])
-    return det / ca.DM(2 * model.rest_area)
-
-
-def _p2_jacobian_expression(model: Model, x: ca.MX) -> ca.MX:
-    """J at the three quadrature points of every P2 element: F = sum_i x_i
-    (dN_i/dX)(l_q), linear in x (elements.quadrature_gradients)."""
-    e = model._elem_dofs
-    grads = model._quad_grads                           # (n_elems, 3, 6, 2)
-    xe = [x[e[:, i].tolist()] for i in range(12)]
-    dets = []
-    for q in range(grads.shape[1]):
-        F = [[sum(xe[2 * i + a] * ca.DM(grads[:, q, i, b]) for i in range(6)) for b in range(2)]
-             for a in range(2)]
-        dets.append(F[0][0] * F[1][1] - F[0][1] * F[1][0])
-    return ca.vertcat(*dets)
-
-
 def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, store: dict) -> "NlpEntry":
     """IPOPT on the KKT formulation for these free winches and target
     nodes, with its recorder and the gradient of the Lagrangian (for the KKT
@@ -183,7 +158,7 @@ def build_nlp(model: Model, frozen: np.ndarray, nodes: np.ndarray, options, stor
     lbg = [np.zeros(model.n_dofs)]
     ubg = [np.zeros(model.n_dofs)]
     if options.min_jacobian is not None:
-        jac = _jacobian_expression(model, x)
+        jac = model.jacobian_expression(x)      # J per element (P2: per quadrature point)
         g.append(jac)
         lbg.append(np.full(jac.shape[0], options.min_jacobian))
         ubg.append(np.full(jac.shape[0], np.inf))

@@ -18,11 +18,10 @@ chord where the line crosses the leaf (its area exact, from the circular
 segment formula) taken back out with one point at its middle.
 Error control: a leaf of width h departs from the arc by at most
 h^2 / (2 r); the tangent clip alone errs by O(h^3 / r) per cut leaf, O(h^2)
-in total; the sliver correction leaves O(h^4 / r^2) of it. Measured on
-full, half and quarter discs (radii 0.3 to 4, P1 and P2): relative area
-and centroid errors below 2e-7 at LEAF_FRACTION = 1/16 (below 4e-5 at 1/4,
-1e-9 at 1/64); tests/test_attachments.py pins them below 1e-5, ten times
-inside the 1e-4 the format asks of each weight.
+in total; the sliver correction leaves O(h^4 / r^2) of it
+(docs/model.md, "Finite tendon attachments", has the measured errors);
+tests/test_attachments.py pins them below 1e-5, ten times inside the 1e-4
+the format asks of each weight.
 
 :class:`TendonPoints` turns these weights into what the model needs: an
 extended coordinate vector z = [x; points with r > 0] and the maps between
@@ -35,12 +34,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from .elements import interpolation_weights
 from ..base.geometry import triangle_areas
 from .mesh import Mesh
 
 # Leaf pieces of a cut triangle are at most this fraction of r wide: the
-# corrected tangent-line clip then errs by < 1e-6 of the disc's area (above).
+# corrected tangent-line clip then errs well below 1e-6 of the disc's area.
 LEAF_FRACTION = 1.0 / 16
 # A weight smaller than this (relative to 1) is round-off of an integral that
 # is exactly zero (a P2 corner function over a whole triangle): dropped.
@@ -191,7 +189,7 @@ class AttachmentWeights:
         q_owner = np.concatenate([np.repeat(owner, 3)] + extra_owner)
         elem = cand[q_owner]
         beta = _barycentric(self.corners[elem], qpts)
-        N = interpolation_weights(self.mesh.element, beta) * qw[:, None]
+        N = self.mesh.element.interpolation_weights(beta) * qw[:, None]
         ids = self.mesh.elements[elem]
         pt = np.repeat(point[q_owner], ids.shape[1])
         keys, inv = np.unique(pt * self.mesh.n_nodes + ids.ravel(), return_inverse=True)

@@ -19,7 +19,6 @@ says which nodes carry a via point).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import replace
 
 import casadi as ca
@@ -27,8 +26,8 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from ..base.kernels import compiled
 from .hessian_layout import pair_blocks, segment_pairs
+from .kernel_set import KernelSet
 from ..base.linalg import Factorizer, LowRankHessian
 from .model import Evaluation, Model, Mapped
 from .tendon_law import U_DERIVS
@@ -52,7 +51,6 @@ def via_weights(model: Model, t: int) -> sp.csr_matrix:
 # Kernels
 # --------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
 def segment_kernel() -> ca.Function:
     """fseg(v, K, eps), v = [xs (4 end coordinates), r, R]: one segment's
     energy phi U(G/phi), phi = r/R, and the derivatives the solvers need."""
@@ -72,13 +70,11 @@ def segment_kernel() -> ca.Function:
         ["e", "grad", "hess", "de_dr", "dgrad_dr", "tension", "dtension_dx", "dtension_dr"])
 
 
-@functools.lru_cache(maxsize=None)
 def _compiled_kernels() -> tuple[ca.Function, ca.Function]:
-    """Both kernels compiled (cached on disk) once per process."""
-    return compiled(segment_kernel()), compiled(wrap_kernel())
+    """Both kernels compiled (cached on disk), once per process: :data:`KERNELS` keeps them."""
+    return KERNELS["fseg"], KERNELS["wrap"]
 
 
-@functools.lru_cache(maxsize=None)
 def wrap_kernel() -> ca.Function:
     """wrap(p): the unsigned angle in [0, pi] between segments P0->P1 and
     P1->P2 (p = [P0, P1, P2], 6 coordinates), and its gradient."""
@@ -86,6 +82,10 @@ def wrap_kernel() -> ca.Function:
     u, v = p[2:4] - p[0:2], p[4:6] - p[2:4]
     theta = ca.atan2(ca.fabs(u[0] * v[1] - u[1] * v[0]), ca.dot(u, v))
     return ca.Function("wrap", [p], [theta, ca.gradient(theta, p)], ["p"], ["theta", "grad"])
+
+
+#: the friction law's kernels, compiled on first use (plush_opt.fem.kernel_set)
+KERNELS = KernelSet(fseg=segment_kernel(), wrap=wrap_kernel())
 
 
 # --------------------------------------------------------------------------

@@ -6,22 +6,16 @@ behaves like d^lambda in the distance d from the point (lambda about 0.54
 at a 270 degree corner, about 0.7 where a clamped edge meets a free one at
 90 degrees). On a uniform mesh that singularity sets the convergence of
 every point of the body, at about h^(2 lambda), whatever the element's
-degree: with two such corners at the gripper's T junction (before they
-were rounded) its uniform P2 levels of 9,803 and 19,426 nodes agreed to
-0.03 mm at the bar's tips while both were 0.05-0.08 mm from the graded
-levels' limit there (and 0.15 mm at a point of the bar's top). Neighbouring
-levels agreeing long before they are right is exactly what fools an error
-estimate. A corner rounded as a polyline has every vertex reentrant by a
-few degrees (a mild singularity): each is graded within half a chord,
-which costs little.
+degree, and neighbouring levels can agree long before they are right:
+exactly what fools an error estimate. A corner rounded as a polyline has
+every vertex reentrant by a few degrees (a mild singularity): each is
+graded within half a chord, which costs little.
 
 The second thing a uniform mesh resolves late is a finite tendon attachment
-(a disc of radius r a few mm across, plush_opt.fem.attachments): while the
-elements are larger than r the disc's pull is spread over them like a
-point load's, and the levels converge slowly and unevenly. On the gripper
-(2 mm discs, sharp junction) the P2 levels' mirrored tips still differed by 0.03 mm at
-17,000 nodes with the corners graded; with the elements at the discs a
-quarter of h they agree to 0.001 mm at 5,000 nodes.
+(a disc of radius r, plush_opt.fem.attachments): while the elements are
+larger than r the disc's pull is spread over them like a point load's, and
+the levels converge slowly and unevenly. docs/model.md ("Graded meshes")
+records what both cost on the shipped problems.
 
 A graded mesh (Babuska's remedy) makes its local element size h g(d) with
 
@@ -48,15 +42,11 @@ touching it is bounded by g there, G_MIN (the triangles around it keep the
 centroid: at their nearest vertex a wide zone would be graded finer than
 g). A pinned end carries the reaction of the whole load (gravity and the
 tendons pull against the root), and on a cantilevered body its singular
-term sets the rate of every point (beam_tendon, graded at the centroid:
-0.37 per level of 4x the nodes, the h^(2 lambda) of a loaded clamped
-corner; at the vertex 0.18; docs/accuracy.md). An attachment disc beside
-a pinned end then fills with the small elements (finger_hole's stoppers,
-1 mm from the root's corner: 74 nodes instead of 8 on the first mesh);
-its Hessian term has a stand-in there (plush_opt.fem.hessian_layout), not a
-dense block. Reentrant corners keep the centroid, which reaches the floor
-once h < R: at the vertex they would cost 3 x the first mesh's nodes on
-the hexapod (889 to 2,872) and finger_hole (557 to 1,665), whose estimates
+term sets the rate of every point. An attachment disc beside a pinned end
+then fills with the small elements; its Hessian term has a stand-in there
+(plush_opt.fem.hessian_layout), not a dense block. Reentrant corners keep
+the centroid, which reaches the floor once h < R: graded at the vertex
+they would cost several times the first mesh's nodes, and the estimates
 hold without it. Only meshes the accuracy sweep chooses are graded; a
 problem file's own mesh is what its max_area says.
 """
@@ -67,14 +57,17 @@ import numpy as np
 import triangle as _triangle
 
 from ..base.geometry import body_area, ring_area, triangle_areas
+from .elements import ELEMENTS
 from ..io.scene import Scene
 
 #: Smallest local size, as a fraction of the level's h.
 G_MIN = 1.0 / 16
 #: Grading radius, as a fraction of the body's size sqrt(area).
 RADIUS = 0.25
-#: Grading exponent per element: gamma = 1 - lambda / p with lambda = 1/2.
-GAMMA = {"P1": 0.5, "P2": 0.75}
+#: The singular exponent lambda the grading assumes (the safe side of 0.54-0.7).
+SINGULAR_EXPONENT = 0.5
+#: Grading exponent per element (by its file name): gamma = 1 - lambda / p.
+GAMMA = {e.name: 1 - SINGULAR_EXPONENT / e.degree for e in ELEMENTS}
 #: Local size at a finite tendon attachment, as a fraction of h (within one
 #: such element of the disc's rim).
 DISC_FACTOR = 1.0 / 4
@@ -82,6 +75,12 @@ DISC_FACTOR = 1.0 / 4
 PASSES = 6
 #: A corner counts as reentrant above 180 degrees by this much (radians).
 ANGLE_TOL = 1e-6
+#: A triangle at most this fraction above its area bound meets it (the
+#: round-off of Triangle's splits would otherwise ask for one more pass).
+AREA_SLACK = 1e-9
+#: A boundary segment whose extent along an axis is below this (length
+#: units) runs parallel to that axis when clipped to the pin box.
+PARALLEL_TOL = 1e-15
 
 
 def _reentrant(ring: np.ndarray, body_left: bool) -> list[np.ndarray]:
@@ -111,7 +110,7 @@ def _pinned_ends(scene: Scene) -> list[np.ndarray]:
             lo, hi = 0.0, 1.0
             for axis, (lo_b, hi_b) in enumerate(((x0, x1), (y0, y1))):
                 d = b[axis] - a[axis]
-                if abs(d) < 1e-15:
+                if abs(d) < PARALLEL_TOL:
                     if not (lo_b - scene.tolerance <= a[axis] <= hi_b + scene.tolerance):
                         lo, hi = 1.0, 0.0
                     continue
@@ -149,8 +148,8 @@ def singular_points(scene: Scene) -> np.ndarray:
 
 def grading_radii(singular: np.ndarray, size: float) -> np.ndarray:
     """R per singular point: RADIUS x the body's size, and at most half the
-    distance to the nearest other singular point (the hexapod's legs are
-    narrow: their corners' zones would otherwise cover the whole body)."""
+    distance to the nearest other singular point (on a narrow part, such as
+    a leg, the corners' zones would otherwise cover the whole body)."""
     radius = np.full(len(singular), RADIUS * size)
     if len(singular) > 1:
         d = np.linalg.norm(singular[:, None, :] - singular[None], axis=-1)
@@ -192,7 +191,7 @@ def grade(scene: Scene, X: np.ndarray, tris: np.ndarray, max_area: float, qualit
             near = np.linalg.norm(centroid - centre, axis=1) < r + h_disc
             g[near] = np.minimum(g[near], DISC_FACTOR)
         bound = max_area * g ** 2
-        if not np.any(triangle_areas(p) > bound * (1 + 1e-9)):
+        if not np.any(triangle_areas(p) > bound * (1 + AREA_SLACK)):
             break
         edges = np.sort(np.vstack([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
         edges, count = np.unique(edges, axis=0, return_counts=True)

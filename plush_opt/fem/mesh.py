@@ -12,11 +12,10 @@ from scipy.spatial import cKDTree
 
 from ..base.errors import SceneError, format_point
 from ..base.geometry import body_area, diameter, distance_to_segments, locate_in_triangles
+from .elements import Element, add_midside_nodes, named
 from .grading import grade
 from ..io.scene import POINT_TOL, Scene
 
-# The three edges of a P2 triangle, in the order of its midside nodes.
-_P2_EDGES = ((0, 1), (1, 2), (2, 0))
 DEFAULT_MIN_ANGLE = 20.0     # Triangle's own default for quality meshing, degrees
 MAX_ELEMS = 4_000_000        # refuse a mesh larger than this (the model would not fit in memory)
 # A quality mesh has more triangles than area / max_area (about 1.5 times at
@@ -50,7 +49,9 @@ class Mesh:
     target_beta : (n_targets, 3) float64, barycentric weights in that
         triangle (order of ``triangles[target_triangles[k]]``), summing to 1.
     point_nodes : (n_points,) int64, node of each scene ``points`` entry.
-    element : "P1" or "P2", the element type.
+    element : the element type (:data:`~plush_opt.fem.elements.P1` or
+        :data:`~plush_opt.fem.elements.P2`; given as its file name "P1" or
+        "P2", it is looked up). ``str(mesh.element)`` is the name.
     elements : (n_elems, 3 or 6) int64, each element's nodes: ``triangles``
         for P1; ``[a, b, c, ab, bc, ca]`` for P2 (corners as in
         ``triangles``, then the midside nodes). Pins, via points, points and
@@ -64,7 +65,7 @@ class Mesh:
     target_triangles: np.ndarray
     target_beta: np.ndarray
     point_nodes: np.ndarray
-    element: str = "P1"
+    element: Element | str = "P1"
     elements: np.ndarray | None = None
 
     def __post_init__(self):
@@ -77,9 +78,10 @@ class Mesh:
         set_("target_triangles", _frozen(np.reshape(self.target_triangles, -1), np.int64))
         set_("target_beta", _frozen(np.reshape(self.target_beta, (-1, 3)), np.float64))
         set_("point_nodes", _frozen(np.reshape(self.point_nodes, -1), np.int64))
-        width = 6 if self.element == "P2" else 3
-        set_("elements", self.triangles if self.elements is None and width == 3
-             else _frozen(np.reshape(self.elements, (-1, width)), np.int64))
+        if isinstance(self.element, str):
+            set_("element", named(self.element))
+        set_("elements", self.triangles if self.elements is None
+             else _frozen(np.reshape(self.elements, (-1, self.element.nodes)), np.int64))
 
     @property
     def n_nodes(self) -> int:
@@ -127,35 +129,12 @@ class Mesh:
         return (all(np.array_equal(getattr(self, k), getattr(other, k))
                     for k in ("X", "triangles", "elements", "pin_nodes", "target_triangles",
                               "target_beta", "point_nodes"))
-                and self.element == other.element
+                and self.element is other.element
                 and len(self.tendon_nodes) == len(other.tendon_nodes)
                 and all(np.array_equal(a, b) for a, b in zip(self.tendon_nodes,
                                                              other.tendon_nodes)))
 
     __hash__ = None
-
-
-def add_midside_nodes(X: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Turn a P1 mesh into a P2 mesh: one new node at the midpoint of each
-    edge, numbered after every corner node (corner numbering is kept, so
-    pins, via points and points stay the nodes they were).
-
-    Returns the new ``X`` (n_nodes + n_edges, 2) and the 6-node triangles
-    ``[a, b, c, ab, bc, ca]`` (n_elems, 6), in edge order of first use."""
-    tris = np.asarray(tris, dtype=np.int64)
-    n_elems = len(tris)
-    edges = np.stack([tris[:, list(e)] for e in _P2_EDGES], axis=1).reshape(-1, 2)
-    key = np.sort(edges, axis=1)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    # number the edges by first use, so the numbering follows the triangles
-    order = np.argsort(first, kind="stable")
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    mid_of = rank[inverse].reshape(n_elems, 3)
-    uniq = key[first[order]]
-    mids = 0.5 * (X[uniq[:, 0]] + X[uniq[:, 1]])
-    return np.vstack([X, mids]), np.hstack([tris, len(X) + mid_of])
 
 
 def _forced_points(scene: Scene):
@@ -374,17 +353,14 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
             j = int(np.flatnonzero(~used[node_of])[0])
             raise SceneError(f"{src}: {keys[j]}: point is not part of the mesh")
         X, tris, node_of = X[used], new[tris], new[node_of]
-    elements = None
-    if scene.element == "P2":
-        if tris.shape[1] == 3:
-            X, elements = add_midside_nodes(X, tris)
-        else:
-            elements, tris = tris, tris[:, :3]
-            midside = ~np.isin(node_of, tris)
-            if midside.any():
-                j = int(np.flatnonzero(midside)[0])
-                raise SceneError(f"{src}: {keys[j]}: point is a midside node of the P2 mesh; "
-                                 "pins, via points and points must be corner nodes")
+    element = named(scene.element)
+    X, tris, elements = element.complete(X, tris)
+    if elements is not None:
+        midside = ~np.isin(node_of, tris)
+        if midside.any():
+            j = int(np.flatnonzero(midside)[0])
+            raise SceneError(f"{src}: {keys[j]}: point is a midside node of the {element} mesh; "
+                             "pins, via points and points must be corner nodes")
 
     n_pin = len(scene.pin_points)
     pins = node_of[:n_pin]
@@ -420,7 +396,7 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
 
     return Mesh(X=X, triangles=tris, pin_nodes=pin_nodes, tendon_nodes=tuple(tendon_nodes),
                 target_triangles=target_tri, target_beta=target_beta, point_nodes=point_nodes,
-                element=scene.element, elements=elements)
+                element=element, elements=elements)
 
 
 def mesh_for_nodes(scene: Scene, target_nodes: int, *, rel_tol: float = 0.05,

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from .elements import interpolation_weights
+from .elements import with_nodes
 from ..base.errors import SceneError
 
 
@@ -49,7 +49,7 @@ class Targets:
             object.__setattr__(self, name, arr)
         if np.any(self.weight <= 0):
             raise SceneError("targets: every weight must be > 0")
-        weights = interpolation_weights("P2" if width == 6 else "P1", self.beta)
+        weights = with_nodes(width).interpolation_weights(self.beta)
         weights.setflags(write=False)
         object.__setattr__(self, "weights", weights)
         object.__setattr__(self, "_selections", {})   # B per n_dofs, built on first use

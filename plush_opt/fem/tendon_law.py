@@ -1,11 +1,14 @@
 """The tendon's two energy kernels, defined once: the length of a segment
 and the C2 unilateral spring law U(G) of the paper (zero when slack, cubic
 in the smoothing zone |G| < eps, quadratic beyond), with their derivatives.
-The model maps them over every segment and tendon."""
+The model maps them over every segment and tendon; :data:`KERNELS` holds
+their compiled forms (plush_opt.fem.kernel_set)."""
 
 from __future__ import annotations
 
 import casadi as ca
+
+from .kernel_set import KernelSet
 
 
 def segment_kernels():
@@ -39,3 +42,5 @@ def tendon_kernels():
 
 SEG, SEG_DERIVS = segment_kernels()
 U, U_DERIVS = tendon_kernels()
+#: the kernels the fast path evaluates, compiled on first use
+KERNELS = KernelSet(seg_derivs=SEG_DERIVS, U_derivs=U_DERIVS)

@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from ..base.errors import format_number, format_point
 from ..base.geometry import classify_points, diameter, find_crossing, locate_in_triangles, ring_area
-from .scene import ELEMENTS, FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
+from .scene import ELEMENTS, FORMAT, NODES_PER_TRIANGLE, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, Checker, at_index, at_key, describe
 from .yaml_reader import read_yaml
 
@@ -230,7 +230,7 @@ def _mesh_section(ck: Checker, mesh) -> dict:
             ck.fail(at_key("mesh", k), "only allowed with mesh.outline")
     nodes = ck.points(mesh["nodes"], "mesh.nodes", min_len=3)
     raw = ck.seq(mesh["triangles"], "mesh.triangles", min_len=1, what="list of triangles")
-    width = 6 if out["element"] == "P2" else 3
+    width = NODES_PER_TRIANGLE[out["element"]]
     tris = np.empty((len(raw), width), dtype=np.int64)
     n_nodes = len(nodes)
     for e, t in enumerate(raw):

@@ -18,6 +18,9 @@ from ..base.geometry import diameter
 
 FORMAT = "plush-opt/1"
 ELEMENTS = ("P1", "P2")          # mesh.element: 3-node or 6-node (quadratic) triangles
+# nodes per row of an explicit mesh's triangles, by the file's mesh.element
+# (the element types themselves are plush_opt.fem.elements, a layer above)
+NODES_PER_TRIANGLE = {"P1": 3, "P2": 6}
 POINT_TOL = 1e-9                  # coincidence tolerance, relative to the body diameter
 
 
@@ -153,7 +156,7 @@ class Scene:
             set_("nodes", _points(self.nodes))
         if self.triangles is not None:
             tri = np.ascontiguousarray(np.asarray(self.triangles, dtype=np.int64).reshape(
-                -1, 6 if self.element == "P2" else 3))
+                -1, NODES_PER_TRIANGLE[self.element]))
             tri.setflags(write=False)
             set_("triangles", tri)
         if self.gravity is not None:

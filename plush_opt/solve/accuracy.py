@@ -43,10 +43,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..fem.elements import interpolation_weights
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.geometry import body_area
+from ..fem.elements import ELEMENTS
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -84,7 +84,7 @@ ELEMENT_ORDER = ("P2", "P1")
 #: Best convergence order (in the mesh size h) of point displacements
 #: expected of each element (h^(k+1) for degree k): the estimate never
 #: assumes faster convergence than this, whatever two levels happened to show.
-EXPECTED_ORDER = {"P1": 2.0, "P2": 3.0}
+EXPECTED_ORDER = {e.name: e.degree + 1.0 for e in ELEMENTS}
 #: Differences shrinking by less than this per level are not converging
 #: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
 MAX_RATIO = 0.8
@@ -113,7 +113,7 @@ def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
     out = np.empty_like(mesh_to.X)
     inside = tri >= 0
     nodes = mesh_from.elements[tri[inside]]          # P2: through the six shape functions
-    weights = interpolation_weights(mesh_from.element, beta[inside])
+    weights = mesh_from.element.interpolation_weights(beta[inside])
     out[inside] = np.einsum("kj,kjd->kd", weights, u[nodes])
     if not inside.all():
         from scipy.spatial import cKDTree
@@ -503,7 +503,7 @@ def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
     """An explicit mesh: returned as it is, its error not estimated."""
     _check_arguments(tol, (3.0, 2.0, 1.0), scene)
     mesh = build_mesh(scene)
-    report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element,
+    report = {"tolerance": float(tol), "estimated_error": None, "element": mesh.element.name,
               "nodes": mesh.n_nodes, "reached": False, "status": "explicit_mesh",
               "max_area": None, "graded": False, "refinements": None, "levels": [],
               "summary": "explicit mesh: its resolution is fixed and its error not estimated"}

@@ -42,7 +42,7 @@ def model_dict(model: Model, targets: Targets) -> dict:
     mat = scene.material
     return {
         "rest_nodes": model.X.reshape(-1, 2).tolist(),
-        "element": model.element,
+        "element": model.element.name,
         "triangles": model.mesh.elements.tolist(),       # 3 (P1) or 6 (P2) nodes per row
         "material": {"mu": mat.mu, "lambda": mat.lam, "thickness": mat.thickness,
                      "density": mat.density},
