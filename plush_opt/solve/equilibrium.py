@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import time
-import weakref
 from dataclasses import dataclass, field, replace
 
 import casadi as ca
@@ -46,14 +45,23 @@ class EquilibriumOptions:
     backend : 'newton' (default) or 'ipopt'.
     gtol : relative residual tolerance: converged when
         |grad_x E| <= gtol * force_scale.
-    max_iterations : Newton iterations (IPOPT: its max_iter). Generous: with
-        tendons 1e6 times stiffer than the body Newton needs ~300 (its full
-        steps zig-zag between the tendons' smoothing zones).
+    max_iterations : Newton iterations (IPOPT: its max_iter). Generous:
+        with tendons far stiffer than the body, Newton's full steps
+        zig-zag between the tendons' smoothing zones for hundreds of
+        iterations.
     armijo : sufficient-decrease constant of the line search.
-    max_backtracks : halvings of the step before the line search gives up.
+    max_backtracks : cuts of the step before the line search gives up.
+    backtrack : factor a rejected step is cut by (0 < backtrack < 1).
     escape_saddles : at a saddle (gradient zero, Hessian indefinite), step
         along the most negative curvature direction and continue.
     max_escapes : how many saddles may be escaped in one solve.
+    escape_halvings : step sizes tried along the negative curvature
+        direction, from the mesh size (sqrt of the mean element area)
+        halving down: the first that lowers the energy is taken.
+    symmetric_gradient : an indefinite Hessian whose most negative
+        curvature direction v has |g . v| <= symmetric_gradient * |g| is
+        on a symmetric branch (the gradient is blind to the unstable
+        direction) and is left along v like a saddle.
     eigenvalue : compute the smallest Hessian eigenvalue at the end (a few
         extra solves with the final factor).
     regularise : take a regularised step where the Hessian is not positive
@@ -67,6 +75,18 @@ class EquilibriumOptions:
         branch are regularised as usual. A saddle where the gradient
         vanishes is reported, not escaped (on a branch, that is the fold at
         its end).
+    shift_floor : the smallest regularisation shift, relative to the mean
+        |diagonal| of H: a shift below it does not change a factorisation.
+    shift_growth : factor the shift grows by until H + shift I factors; the
+        next indefinite step of the same solve starts one such factor below
+        the last shift (consecutive Hessians are alike).
+    max_shifts : shifts tried before the regularisation gives up.
+    stall_residual, stall_window, stall_gain : Newton stops as stalled when
+        the relative residual is below ``stall_residual`` (near the
+        tolerance, where round-off of sliver elements or an
+        ill-conditioned H can set a floor above gtol), more than
+        2 * stall_window iterations ran, and the best residual of the last
+        ``stall_window`` is not below ``stall_gain`` times the best before.
     ipopt : raw IPOPT options (backend 'ipopt'), passed through.
     """
 
@@ -75,10 +95,19 @@ class EquilibriumOptions:
     max_iterations: int = 500
     armijo: float = 1e-4
     max_backtracks: int = 60
+    backtrack: float = 0.5            # halving: the classic backtracking cut
     escape_saddles: bool = True
     max_escapes: int = 5
+    escape_halvings: int = 30         # down to 2^-29 of the mesh size: below that a step is round-off
+    symmetric_gradient: float = 1e-6  # far above round-off of g . v, far below a real component
     eigenvalue: bool = True
     regularise: bool = True
+    shift_floor: float = 1e-8         # a shift below ~1e-8 |H| is lost in the factor's round-off
+    shift_growth: float = 10.0        # a decade per try: few factorisations, shift within 10x of needed
+    max_shifts: int = 40              # 40 decades above the floor: no matrix of a body needs more
+    stall_residual: float = 1e-6      # a stall only counts near the tolerance, not in the global phase
+    stall_window: int = 20            # long enough that a slow linear phase is not taken for a stall
+    stall_gain: float = 0.5           # progress means halving the best residual over a window
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -90,6 +119,16 @@ class EquilibriumOptions:
             raise ValueError(f"max_iterations: expected >= 1, got {self.max_iterations!r}")
         if not (0 < self.armijo < 0.5):
             raise ValueError(f"armijo: expected 0 < armijo < 0.5, got {self.armijo!r}")
+        for name in ("backtrack", "stall_gain", "stall_residual", "symmetric_gradient", "shift_floor"):
+            if not (0 < getattr(self, name) < 1):
+                raise ValueError(f"{name}: expected a number in (0, 1), got {getattr(self, name)!r}")
+        if not self.shift_growth > 1:
+            raise ValueError(f"shift_growth: expected > 1, got {self.shift_growth!r}")
+        for name in ("max_backtracks", "escape_halvings", "max_shifts", "stall_window"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)!r}")
+        if self.max_escapes < 0:
+            raise ValueError(f"max_escapes: expected >= 0, got {self.max_escapes!r}")
 
 
 @dataclass(frozen=True)
@@ -138,10 +177,13 @@ class Equilibrium:
         return self.residual_norm / self.force_scale if self.force_scale > 0 else np.inf
 
 
-def solve_equilibrium(model: Model, contraction, x0=None,
-                      options: EquilibriumOptions | None = None) -> Equilibrium:
+def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOptions | None = None,
+                      ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
     """Equilibrium of ``model`` at ``contraction`` (n_winches,), from ``x0``
-    (flat or (n_nodes, 2); default the rest pose). ``x0`` must be admissible."""
+    (flat or (n_nodes, 2); default the rest pose). ``x0`` must be admissible.
+
+    ``ipopt`` : the IPOPT backend's solver of this model, which keeps the
+    NLPs it built (default: a new one, built for this solve alone)."""
     options = options or EquilibriumOptions()
     c = np.array(contraction, dtype=np.float64).reshape(-1)
     if c.shape != (model.n_winches,):
@@ -150,7 +192,11 @@ def solve_equilibrium(model: Model, contraction, x0=None,
     if x.shape != (model.n_dofs,):
         raise SolverError(f"x0: expected {model.n_dofs} coordinates, got {x.size}")
     if options.backend == "ipopt":
-        return _solve_ipopt(model, c, x, options)
+        if ipopt is None:
+            ipopt = IpoptEquilibrium(model)
+        elif ipopt.model is not model:
+            raise ValueError("ipopt: an IpoptEquilibrium of another model")
+        return ipopt.solve(c, x, options)
     return _solve_newton(model, c, x, options)
 
 
@@ -191,6 +237,20 @@ def certify(model: Model, eq: Equilibrium) -> Equilibrium:
 # Newton
 # --------------------------------------------------------------------------
 
+# Round-off of E relative to its size (|E|, the elastic scale, the work of
+# gravity): a few hundred machine epsilons, the error of summing O(mu)
+# element terms whose difference is E.
+ENERGY_ROUNDOFF = 1e-13
+# Energy changes within this many round-off allowances are noise: the full
+# Newton step is then judged by the residual it leaves instead.
+ROUNDOFF_BAND = 100.0
+# ... and is taken if it cuts the residual by at least this factor.
+ROUNDOFF_RESIDUAL_CUT = 0.5
+# A mode whose net displacement is below this fraction of its 1-norm has
+# none (an antisymmetric mode): its sign is fixed by its largest component.
+NO_NET_DISPLACEMENT = 1e-8
+
+
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
     """Round-off allowance for comparing energies near convergence.
 
@@ -202,21 +262,23 @@ def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
     size = abs(ev_energy) + model.energy_roundoff_scale
     if model.has_gravity:
         size += abs(model.f_gravity @ x)
-    return 1e-13 * size
+    return ENERGY_ROUNDOFF * size
 
 
-def _regularised_factor(model: Model, H, previous: float | None = None) -> Factor:
-    """Cholesky of H + shift I with the smallest shift (by factors of 10)
-    that makes it positive definite, starting a decade below the
-    ``previous`` shift of the same solve (the next Hessian is usually alike)."""
+def _regularised_factor(model: Model, H, options: EquilibriumOptions,
+                        previous: float | None = None) -> Factor:
+    """Cholesky of H + shift I with the smallest shift (by factors of
+    ``options.shift_growth``) that makes it positive definite, starting one
+    factor below the ``previous`` shift of the same solve (the next Hessian
+    is usually alike)."""
     diag = np.abs(H.diagonal())
-    floor = 1e-8 * max(float(diag.mean()), 1e-300)
-    shift = floor if previous is None else max(floor, previous / 10)
-    for _ in range(40):
+    floor = options.shift_floor * max(float(diag.mean()), 1e-300)   # (a zero diagonal: still > 0)
+    shift = floor if previous is None else max(floor, previous / options.shift_growth)
+    for _ in range(options.max_shifts):
         try:
             return model.factorizer.factor(H, shift)
         except NotPositiveDefinite:
-            shift *= 10
+            shift *= options.shift_growth
     raise SolverError("Hessian regularisation failed: no shift made it positive definite")
 
 
@@ -247,7 +309,7 @@ def _try_factor(model: Model, H) -> Factor | None:
         return None
 
 
-def _escape_saddle(model: Model, c, x, ev: Evaluation,
+def _escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOptions,
                    pair=None) -> tuple[np.ndarray, Evaluation] | None:
     """Step from a saddle along its most negative curvature direction.
 
@@ -261,10 +323,11 @@ def _escape_saddle(model: Model, c, x, ev: Evaluation,
     # sign rule: the mode's net displacement (sum of components) positive,
     # or, for a mode with none, its largest component positive
     net = float(np.sum(v))
-    v = v * (np.sign(net) if abs(net) > 1e-8 * np.abs(v).sum() else np.sign(v[np.argmax(np.abs(v))]))
+    v = v * (np.sign(net) if abs(net) > NO_NET_DISPLACEMENT * np.abs(v).sum()
+             else np.sign(v[np.argmax(np.abs(v))]))
     h = np.sqrt(np.mean(model.rest_area))
     best = None
-    for s in h * 2.0 ** -np.arange(0, 30):
+    for s in h * 2.0 ** -np.arange(0, options.escape_halvings):
         for sign in (1.0, -1.0):
             xt = x + sign * s * v / np.abs(v).max()
             et = model.evaluate(xt, c, order=0)
@@ -281,6 +344,39 @@ def _escape_saddle(model: Model, c, x, ev: Evaluation,
 
 def _left_branch(it: int) -> str:
     return f"{LEFT_BRANCH}: Hessian not positive definite after {it} iteration(s)"
+
+
+def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
+    """No progress over the last ``stall_window`` relative residuals of
+    ``history`` near the tolerance (see :class:`EquilibriumOptions`)."""
+    w = options.stall_window
+    return (history[-1] < options.stall_residual and len(history) > 2 * w
+            and min(history[-w:]) > options.stall_gain * min(history[:-w]))
+
+
+def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions):
+    """Backtracking from the full step ``dx``: the accepted (x, evaluation
+    with its Hessian) and the step length, or (None, 0.0). A step is never
+    accepted at a non-admissible pose or a non-finite energy."""
+    g = ev.gradient
+    slope = float(g @ dx)
+    slack = _energy_slack(model, ev.energy, x)
+    alpha = 1.0
+    for k in range(options.max_backtracks):
+        xt = x + alpha * dx
+        et = model.evaluate(xt, c, order=2 if k == 0 else 0)
+        if not (et.admissible and np.isfinite(et.energy)):
+            alpha *= options.backtrack
+            continue
+        if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
+            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha
+        if k == 0 and et.energy <= ev.energy + ROUNDOFF_BAND * slack and \
+                np.linalg.norm(et.gradient) < ROUNDOFF_RESIDUAL_CUT * np.linalg.norm(g):
+            # energy differences at round-off level: judge the full
+            # Newton step by the residual it leaves instead
+            return (xt, et), alpha
+        alpha *= options.backtrack
+    return None, 0.0
 
 
 def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
@@ -311,7 +407,7 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             # indefinite Hessian there is the fold at its end, past which
             # the escape would snap through)
             if options.escape_saddles and options.regularise and escapes < options.max_escapes:
-                escaped = _escape_saddle(model, c, x, ev)
+                escaped = _escape_saddle(model, c, x, ev, options)
                 if escaped is not None:
                     x, ev = escaped
                     escapes += 1
@@ -322,9 +418,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             break
         rel = np.linalg.norm(g) / ev.force_scale
         best.append(rel)
-        if factor is not None and rel < 1e-6 and len(best) > 40 and min(best[-20:]) > 0.5 * min(best[:-20]):
-            # no progress for 20 iterations near the tolerance: round-off
-            # (a sliver element, an ill-conditioned H) sets a floor above gtol
+        if factor is not None and _stalled(best, options):
+            # round-off (a sliver element, an ill-conditioned H) sets a floor above gtol
             status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
                       f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
                       "ill-conditioned Hessian)")
@@ -333,7 +428,7 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = _left_branch(it)      # (no symmetric-branch check to make first)
             break
         if factor is None:
-            step_factor = _regularised_factor(model, H, last_shift)
+            step_factor = _regularised_factor(model, H, options, last_shift)
             last_shift = step_factor.shift
         else:
             step_factor = factor
@@ -345,8 +440,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             # the gradient is seen to have a component along it, the scene
             # is not on a symmetric branch: no more checks this solve.)
             pair = step_factor.most_negative_eigenpair()
-            if pair is not None and abs(g @ pair[1]) <= 1e-6 * np.linalg.norm(g):
-                escaped = _escape_saddle(model, c, x, ev, pair)
+            if pair is not None and abs(g @ pair[1]) <= options.symmetric_gradient * np.linalg.norm(g):
+                escaped = _escape_saddle(model, c, x, ev, options, pair)
                 if escaped is not None:
                     x, ev = escaped
                     escapes += 1
@@ -357,29 +452,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
             status = _left_branch(it)
             break
         it += 1
-        dx = -step_factor.solve(g)
-        slope = float(g @ dx)
-        slack = _energy_slack(model, ev.energy, x)
-        alpha = 1.0
-        accepted = None
-        for k in range(options.max_backtracks):
-            xt = x + alpha * dx
-            et = model.evaluate(xt, c, order=2 if k == 0 else 0)
-            if not (et.admissible and np.isfinite(et.energy)):
-                alpha *= 0.5
-                continue
-            if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
-                accepted = (xt, et if k == 0 else model.evaluate(xt, c, order=2))
-                break
-            if k == 0 and et.energy <= ev.energy + 100 * slack and \
-                    np.linalg.norm(et.gradient) < 0.5 * np.linalg.norm(g):
-                # energy differences at round-off level: judge the full
-                # Newton step by the residual it leaves instead
-                accepted = (xt, et)
-                break
-            alpha *= 0.5
-        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e",
-                  it, rel, step_factor.shift, alpha if accepted is not None else 0.0)
+        accepted, alpha = _line_search(model, c, x, ev, -step_factor.solve(g), options)
+        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e", it, rel, step_factor.shift, alpha)
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
@@ -400,83 +474,105 @@ _IPOPT_DEFAULTS = {
     "ipopt.acceptable_tol": 1e-10,
     "ipopt.hessian_approximation": "exact",
 }
-
-_ipopt_cache: "weakref.WeakKeyDictionary[Model, dict]" = weakref.WeakKeyDictionary()
-
-
-def _ipopt_solver(model: Model, options: EquilibriumOptions, extra: dict | None = None):
-    opts = dict(_IPOPT_DEFAULTS)
-    opts["ipopt.max_iter"] = options.max_iterations
-    opts.update(extra or {})
-    opts.update(options.ipopt)
-    key = repr(sorted(opts.items()))
-    cache = _ipopt_cache.setdefault(model, {})
-    if key not in cache:
-        nlp = {"x": model.x_sym, "p": model.c_sym, "f": model.E_sym}
-        cache[key] = ca.nlpsol("equilibrium", "ipopt", nlp, opts)
-    return cache[key]
+# The polishing run's absolute tolerance per coordinate: this fraction of
+# the certificate's residual spread over the sqrt(n_dofs) coordinates, so
+# that IPOPT's max-norm test implies the certificate's 2-norm test.
+POLISH_MARGIN = 0.5
 
 
-def _solve_ipopt(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
-    """Minimise E with IPOPT, then certify with the Newton backend's test.
+class IpoptEquilibrium:
+    """IPOPT minimising one model's energy E(x; c) over x (c a parameter),
+    certified afterwards by the Newton backend's test.
 
-    IPOPT treats a non-finite energy (log J of an inverted element) as an
-    evaluation error and cuts its step back, so it stays admissible.
-    ``converged`` is the certificate's verdict, whatever IPOPT's return
-    status (which the status string reports when it differs).
-    IPOPT's own stopping test works on a scaled problem; when its answer
-    misses the certificate's residual only, it is run again from there with
-    no scaling and an absolute tolerance taken from the force scale. Where
-    it stops on a saddle it is restarted past it along the most negative
-    curvature (the Newton backend's rule), up to ``max_escapes`` times.
+    Building IPOPT's NLP (CasADi's exact Hessian of E) takes far longer
+    than a solve, so the solvers built here, one per IPOPT option set, are
+    kept on this object: hold one per model and pass it to every solve
+    (:func:`solve_equilibrium`'s ``ipopt``) to build each once.
     """
-    t0 = time.perf_counter()
-    if not model.admissible(x):
-        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
-                           np.inf, np.inf, np.nan, False, None, 0, 0.0, "ipopt")
-    iterations, escapes, polished = 0, 0, False
-    extra = {}
-    while True:
-        solver = _ipopt_solver(model, options, extra)
-        sol = solver(x0=x, p=c)
-        stats = solver.stats()
-        iterations += int(stats.get("iter_count", 0))
-        xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
-        ev = model.evaluate(xs, c, order=2)
-        if not ev.admissible:
-            return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
-                               np.inf, np.inf, np.nan, False, None, iterations,
-                               time.perf_counter() - t0, "ipopt")
-        factor = _try_factor(model, ev.hessian_form)
-        small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
-        if factor is not None and not small and not polished:
-            # the residual alone misses the certificate: once more, unscaled
-            tol = 0.5 * options.gtol * ev.force_scale / np.sqrt(model.n_dofs)
-            # a power of ten below: solvers are cached per option set, and
-            # a pose-dependent tolerance would build a new one every time
-            tol = float(10.0 ** np.floor(np.log10(tol)))
-            extra = {"ipopt.nlp_scaling_method": "none", "ipopt.tol": tol,
-                     "ipopt.acceptable_iter": 0}
-            x, polished = xs, True
-            continue
-        if factor is None and small and options.escape_saddles and escapes < options.max_escapes:
-            escaped = _escape_saddle(model, c, xs, ev)
-            if escaped is not None:
-                x, escapes = escaped[0], escapes + 1
+
+    def __init__(self, model: Model):
+        self.model = model
+        self._solvers: dict[str, ca.Function] = {}
+
+    def solver(self, options: EquilibriumOptions, extra: dict | None = None) -> ca.Function:
+        """The NLP solver for these options (``extra``: IPOPT options of a
+        polishing run), built on first use."""
+        opts = dict(_IPOPT_DEFAULTS)
+        opts["ipopt.max_iter"] = options.max_iterations
+        opts.update(extra or {})
+        opts.update(options.ipopt)
+        key = repr(sorted(opts.items()))
+        if key not in self._solvers:
+            m = self.model
+            self._solvers[key] = ca.nlpsol("equilibrium", "ipopt", {"x": m.x_sym, "p": m.c_sym, "f": m.E_sym}, opts)
+        return self._solvers[key]
+
+    def solve(self, c: np.ndarray, x: np.ndarray, options: EquilibriumOptions) -> Equilibrium:
+        """Minimise E at ``c`` (n_winches,) from the admissible ``x`` (n_dofs,).
+
+        IPOPT treats a non-finite energy (log J of an inverted element) as an
+        evaluation error and cuts its step back, so it stays admissible.
+        ``converged`` is the certificate's verdict, whatever IPOPT's return
+        status (which the status string reports when it differs).
+        IPOPT's own stopping test works on a scaled problem; when its answer
+        misses the certificate's residual only, it is run again from there with
+        no scaling and an absolute tolerance taken from the force scale. Where
+        it stops on a saddle it is restarted past it along the most negative
+        curvature (the Newton backend's rule), up to ``max_escapes`` times.
+        """
+        model = self.model
+        t0 = time.perf_counter()
+        if not model.admissible(x):
+            return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
+                               np.inf, np.inf, np.nan, False, None, 0, 0.0, "ipopt")
+        iterations, escapes, polished = 0, 0, False
+        extra = {}
+        while True:
+            solver = self.solver(options, extra)
+            sol = solver(x0=x, p=c)
+            stats = solver.stats()
+            iterations += int(stats.get("iter_count", 0))
+            xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
+            ev = model.evaluate(xs, c, order=2)
+            if not ev.admissible:
+                return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
+                                   np.inf, np.inf, np.nan, False, None, iterations,
+                                   time.perf_counter() - t0, "ipopt")
+            factor = _try_factor(model, ev.hessian_form)
+            small = np.linalg.norm(ev.gradient) <= options.gtol * ev.force_scale
+            if factor is not None and not small and not polished:
+                # the residual alone misses the certificate: once more, unscaled
+                tol = POLISH_MARGIN * options.gtol * ev.force_scale / np.sqrt(model.n_dofs)
+                # a power of ten below: solvers are kept per option set, and
+                # a pose-dependent tolerance would build a new one every time
+                tol = float(10.0 ** np.floor(np.log10(tol)))
+                extra = {"ipopt.nlp_scaling_method": "none", "ipopt.tol": tol,
+                         "ipopt.acceptable_iter": 0}
+                x, polished = xs, True
                 continue
-        break
-    # the certificate decides, not IPOPT's own flag: IPOPT may end with
-    # "search direction too small" on a pose that passes it
-    ok = small and factor is not None
+            if factor is None and small and options.escape_saddles and escapes < options.max_escapes:
+                escaped = _escape_saddle(model, c, xs, ev, options)
+                if escaped is not None:
+                    x, escapes = escaped[0], escapes + 1
+                    continue
+            break
+        status = _ipopt_status(stats, small, factor, escapes)
+        return _finish(model, c, xs, ev, factor, small and factor is not None, status, iterations, t0,
+                       options, "ipopt", escapes)
+
+
+def _ipopt_status(stats: dict, small: bool, factor, escapes: int) -> str:
+    """The status of an IPOPT solve: the certificate decides, not IPOPT's
+    own flag (IPOPT may end with "search direction too small" on a pose
+    that passes it), which is reported where it differs."""
     note = f" (escaped {escapes} saddle(s))" if escapes else ""
-    if ok:
+    if small and factor is not None:
         status = "converged" + note
         if not stats["success"]:
             status += f" (ipopt ended with {stats['return_status']}; the pose passes the certificate)"
-    elif factor is None:
-        status = f"ipopt: {stats['return_status']}; Hessian not positive definite (saddle or maximum)"
-    elif not small:
-        status = f"ipopt: {stats['return_status']}; residual above tolerance"
-    else:
-        status = f"ipopt: {stats['return_status']}"
-    return _finish(model, c, xs, ev, factor, ok, status, iterations, t0, options, "ipopt", escapes)
+        return status
+    if factor is None:
+        return f"ipopt: {stats['return_status']}; Hessian not positive definite (saddle or maximum)"
+    if not small:
+        return f"ipopt: {stats['return_status']}; residual above tolerance"
+    return f"ipopt: {stats['return_status']}"
