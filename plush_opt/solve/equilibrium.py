@@ -8,7 +8,9 @@ Two backends on the same energy:
   non-finite energy, a multiple of the identity added when the Hessian is
   not positive definite, and an escape along the most negative curvature
   direction when the gradient vanishes at a saddle.
-* ``ipopt``: IPOPT minimising the CasADi expression of E, for cross-checks.
+* ``ipopt``: IPOPT minimising the CasADi expression of E, for cross-checks
+  (:class:`IpoptEquilibrium`, which keeps the NLPs it builds for its model;
+  the module holds no state).
 
 Both return an :class:`Equilibrium` that is *certified* by the same test:
 ``converged`` only if the residual |grad_x E| is within tolerance relative
