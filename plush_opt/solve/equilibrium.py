@@ -100,13 +100,13 @@ class EquilibriumOptions:
     backtrack: float = 0.5            # halving: the classic backtracking cut
     escape_saddles: bool = True
     max_escapes: int = 5
-    escape_halvings: int = 30         # down to 2^-29 of the mesh size: below that a step is round-off
+    escape_halvings: int = 30         # down to 2^-29 (~2e-9) of the mesh size: a smaller step escapes nothing
     symmetric_gradient: float = 1e-6  # far above round-off of g . v, far below a real component
     eigenvalue: bool = True
     regularise: bool = True
-    shift_floor: float = 1e-8         # a shift below ~1e-8 |H| is lost in the factor's round-off
+    shift_floor: float = 1e-8         # lifts round-off pivots, leaves the step close to Newton's
     shift_growth: float = 10.0        # a decade per try: few factorisations, shift within 10x of needed
-    max_shifts: int = 40              # 40 decades above the floor: no matrix of a body needs more
+    max_shifts: int = 40              # a bound on the loop: 40 decades above the floor, never needed
     stall_residual: float = 1e-6      # a stall only counts near the tolerance, not in the global phase
     stall_window: int = 20            # long enough that a slow linear phase is not taken for a stall
     stall_gain: float = 0.5           # progress means halving the best residual over a window
