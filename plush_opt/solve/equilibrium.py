@@ -467,6 +467,8 @@ def _solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibriu
 # IPOPT
 # --------------------------------------------------------------------------
 
+# IPOPT silent, with the exact Hessian, and its own tolerances tighter than
+# the certificate's (relative 1e-10 of the force scale), which decides.
 _IPOPT_DEFAULTS = {
     "ipopt.print_level": 0,
     "ipopt.sb": "yes",
