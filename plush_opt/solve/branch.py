@@ -28,7 +28,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, solve_equilibrium
+from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from ..base.errors import SolverError
 from ..base.linalg import assembled
 from ..fem.model import Model
@@ -53,16 +53,16 @@ SAFETY = 100.0
 GROW, CUT = 2.0, 0.5
 
 
-def solve_on_branch(model: Model, c0, x0, c1, guess=None,
-                    options: EquilibriumOptions | None = None) -> Equilibrium:
+def solve_on_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
+                    ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0`` (:func:`follow_branch` without where the
     branch ended)."""
-    return follow_branch(model, c0, x0, c1, guess, options)[0]
+    return follow_branch(model, c0, x0, c1, guess, options, ipopt)[0]
 
 
-def follow_branch(model: Model, c0, x0, c1, guess=None,
-                  options: EquilibriumOptions | None = None) -> tuple[Equilibrium, float | None]:
+def follow_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
+                  ipopt: IpoptEquilibrium | None = None) -> tuple[Equilibrium, float | None]:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0``, and, where the branch ends before ``c1``,
     the fraction of the move c0 -> c1 at which a sub-step found no stable
@@ -71,7 +71,8 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
     ``guess`` : the start of the direct solve at c1 (a predictor; default
     x0). ``options.max_iterations`` bounds the Newton iterations of the
     whole move (every sub-step together). With the IPOPT backend this is
-    one plain solve from ``guess``. A converged answer whose smallest
+    one plain solve from ``guess`` (by ``ipopt``, the model's
+    :class:`IpoptEquilibrium`, if given). A converged answer whose smallest
     Hessian eigenvalue is round-off (the pose on the fold or bifurcation
     ending the branch) is returned not converged. Only a converged answer
     carries that eigenvalue (with ``options.eigenvalue``).
@@ -81,7 +82,7 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
     c1 = np.asarray(c1, dtype=np.float64).reshape(-1)
     guess = x0 if guess is None else guess
     if options.backend != "newton":
-        return solve_equilibrium(model, c1, guess, options), None
+        return solve_equilibrium(model, c1, guess, options, ipopt), None
     t0 = time.perf_counter()
     # no eigenvalue diagnostic on a pose that failed: without a factor it is
     # a Lanczos run on H itself, costlier than the solve, for a pose discarded.
