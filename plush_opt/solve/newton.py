@@ -69,7 +69,7 @@ def _regularised_factor(model: Model, H, options: EquilibriumOptions,
 
 
 def escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOptions,
-                   pair=None) -> tuple[np.ndarray, Evaluation] | None:
+                  pair=None) -> tuple[np.ndarray, Evaluation] | None:
     """Step from a saddle along its most negative curvature direction.
 
     The sign is fixed (net displacement of the mode positive) so the outcome
