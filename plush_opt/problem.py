@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from .solve.equilibrium import Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from .base.errors import SceneError
 from .io import load_scene
 from .fem.mesh import Mesh, build_mesh
@@ -40,6 +40,7 @@ class Problem:
         self._mesh_report = mesh_report
         self._bilevel = None     # the bilevel solver keeps its built NLPs: made on first use
         self._friction = None    # the friction model (False: the scene has none), on first use
+        self._ipopt = IpoptEquilibrium(model)   # the IPOPT backend keeps its built NLPs here
 
     scene = property(lambda self: self._scene)
     mesh = property(lambda self: self._mesh)
@@ -107,7 +108,7 @@ class Problem:
         """
         c = self.contraction_vector(contraction)
         if self.friction is None:
-            return solve_equilibrium(self.model, c, x0, options)
+            return solve_equilibrium(self.model, c, x0, options, self._ipopt)
         from .solve.friction_solve import DEFAULT_PATH_STEPS, solve_forward
         return solve_forward(self.friction, c, DEFAULT_PATH_STEPS if steps is None else steps,
                              equilibrium=options)
@@ -161,7 +162,7 @@ class Problem:
     def with_targets(self, targets: Targets) -> "Problem":
         """The same problem with other targets (model, mesh and solvers shared)."""
         other = Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
-        other._bilevel, other._friction = self._bilevel, self._friction
+        other._bilevel, other._friction, other._ipopt = self._bilevel, self._friction, self._ipopt
         return other
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.equilibrium import EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from plush_opt.base.errors import SolverError
 from shipped import PROBLEMS, body_size, built
 
@@ -76,3 +76,25 @@ def test_full_contraction_from_rest_converges_admissible():
     eq = solve_equilibrium(model, model.upper)
     assert eq.converged, eq.status
     assert model.jacobians(eq.x).min() > 0
+
+
+def test_an_ipopt_equilibrium_builds_its_nlp_once_and_solves_as_a_fresh_one():
+    _, _, model, _ = built("hexapod_leg")
+    options = EquilibriumOptions(backend="ipopt")
+    ipopt = IpoptEquilibrium(model)
+    first = solve_equilibrium(model, [6.0], options=options, ipopt=ipopt)
+    solver = ipopt.solver(options)
+    again = solve_equilibrium(model, [6.0], options=options, ipopt=ipopt)
+    assert ipopt.solver(options) is solver                   # kept, not rebuilt
+    fresh = solve_equilibrium(model, [6.0], options=options)
+    assert first.converged and np.array_equal(first.x, again.x) and np.array_equal(first.x, fresh.x)
+    _, _, other, _ = built("gripper")
+    with pytest.raises(ValueError, match="another model"):
+        solve_equilibrium(other, np.zeros(3), options=options, ipopt=ipopt)
+
+
+@pytest.mark.parametrize("bad", [{"backtrack": 1.0}, {"stall_gain": 0.0}, {"shift_growth": 1.0},
+                                 {"stall_window": 0}, {"max_escapes": -1}, {"symmetric_gradient": 2.0}])
+def test_tuning_options_are_validated(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        EquilibriumOptions(**bad)

@@ -283,7 +283,7 @@ def test_a_huge_contraction_is_refused_by_the_bounds(tmp_path):
 
 
 def test_summary_of_a_non_finite_residual_is_no_crash():
-    from plush_opt.apps.cli import _number
+    from plush_opt.apps.console import _number
     assert _number(None, ".3g") == "n/a" and _number(1.5, ".3g") == "1.5"
 
 

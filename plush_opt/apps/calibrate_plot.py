@@ -45,7 +45,7 @@ def _panel(ax, pred, i, measured, seen, color, title):
     ax.set_title(f"{title}: RMS marker error {rms:.3g}")
     ax.set_aspect("equal")
     ax.autoscale_view()
-    ax.legend(loc="upper right", fontsize=7)   # "best" costs seconds per figure
+    ax.legend(loc="upper right", fontsize=7)   # "best" tries every placement: slow on many points
 
 
 def plot_poses(directory, meas, result) -> list[Path]:

@@ -28,7 +28,7 @@ DEFAULT_PROBLEM = Path(__file__).resolve().parents[2] / "problems" / "cantilever
 DEFAULT_AREAS = (64.0, 16.0, 8.0, 4.0, 2.0, 1.0, 0.5)
 SHEAR_CORRECTION = 5 / 6          # Timoshenko's kappa for a rectangular section
 NO_EIG = EquilibriumOptions(eigenvalue=False)   # timing the solve, not the check
-REPEATS = 5                       # solve times are medians: single runs of ~10 ms are noise
+REPEATS = 5                       # solve times are medians: a single short run is noise
 
 
 def beam_deflection(scene) -> float:

@@ -1,9 +1,9 @@
 """Small CasADi kernels compiled to C, cached on disk.
 
 The per-element and per-segment kernels are evaluated for every element at
-every Newton step; compiled, they run about four times faster than in
-CasADi's virtual machine. Only these small kernels are compiled (well under
-a second, once): the assembled model never is. The cache key is a hash of
+every Newton step; compiled to C they run several times faster than in
+CasADi's virtual machine (docs/benchmarks.md). Only these small kernels are
+compiled, once per source: the assembled model never is. The cache key is a hash of
 the generated C source, the compiler command and the platform, so a changed
 kernel or a new machine compiles afresh. Without a working C compiler the
 kernels run in the virtual machine, with a warning.

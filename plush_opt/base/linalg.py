@@ -58,16 +58,14 @@ BACKEND = _default_backend()
 
 # Above this many unknowns CHOLMOD's supernodal LL^T (dense BLAS on the
 # supernodes) beats its simplicial LDL^T on these meshes when the BLAS is an
-# optimised one (OpenBLAS, which `make` installs): break-even near 20,000
-# unknowns, 1.2x at 30,000, 1.3-1.4x at 40,000-60,000, slower below
-# (docs/benchmarks.md, "Large meshes"). With the reference BLAS it wins less.
+# optimised one (OpenBLAS, which `make` installs); below it the simplicial
+# factor is faster (the crossover: docs/benchmarks.md, "Large meshes").
 SUPERNODAL_MIN_DOFS = 25_000
 # ... or above this many Hessian entries per unknown at any size: finite
 # tendon attachments on a mesh much finer than their discs make each
 # tendon's Hessian block dense over all its discs' nodes, and there
-# supernodal wins by far (a P2 gripper whose discs were resolved, 11,400
-# unknowns, 700 entries per unknown: 3 s against 65 s). A plain P2 mesh has
-# about 30 per unknown.
+# supernodal wins by far (docs/benchmarks.md, "Finite attachments and the
+# factor"). A plain P2 mesh has about 30 entries per unknown.
 SUPERNODAL_MIN_DENSITY = 150
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
@@ -166,7 +164,7 @@ class Factorizer:
         except CholmodNotPositiveDefiniteError as exc:
             raise NotPositiveDefinite(f"non-positive pivot ({exc})") from None
         # D of a supernodal LL^T is diag(L)^2 (read off a simplicial copy of
-        # the factor: a few ms at 60,000 dofs against ~200 ms to factor)
+        # the factor: a small fraction of the factorisation's cost)
         _check_pivots(f.D())
         return Factor(f, H, shift)
 

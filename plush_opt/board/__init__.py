@@ -1,5 +1,9 @@
-"""The winch board: protocol, board file (ticks per mm, limits), serial driver, simulators
-and the links the apps hold.
+"""The winch board: its serial protocol (protocol.py), the board file
+(board_file.py: axes, ticks per length, limits, port), the allowed
+contractions (limits.py), the serial driver (driver.py), the simulated
+boards (emulator.py, simavr.py), the :class:`BoardLink` protocol the apps
+hold (link.py) and its implementations over a serial port, a simulator or
+a dry run (transports.py).
 
 Only this package talks to hardware (serial ports, simulator processes);
 nothing upstream imports it. Apps reach a board only through a

@@ -1,7 +1,13 @@
-"""Board calibration files (hw/boards/*.yaml) -> :class:`BoardCalibration`.
+"""Board files (hw/boards/*.yaml, format ``plush-board/1``) -> :class:`BoardCalibration`.
 
-A calibration says which board axis drives which winch and how encoder
-ticks relate to winch contraction. This is the only place where lengths
+A board file describes one winch board as wired to one robot: which board
+axis drives which winch, how encoder ticks relate to winch contraction
+(spool, encoder, gearing, direction), each winch's allowed contraction and
+top speed, and the serial port settings. Its classes keep the names
+``BoardCalibration`` and ``WinchCalibration`` (and the functions
+``load_calibration``, ``calibration_from_dict``); "calibration" here means
+ticks per length, not fitting the model to a robot, which is
+``plush-opt calibrate`` (:mod:`plush_opt.fit`). This is the only place where lengths
 become ticks: with ``k = ticks_per_rev * gear_ratio / (2 pi spool_radius)``
 ticks per length unit,
 
@@ -108,7 +114,8 @@ class WinchCalibration:
 
 @dataclass(frozen=True)
 class BoardCalibration:
-    """A validated calibration file."""
+    """A validated board file: its winches (axis, ticks per length, limits,
+    speed), port settings, name and description, and where it was read."""
 
     name: str
     winches: tuple[WinchCalibration, ...]

@@ -1,8 +1,9 @@
-"""Allowed contractions: calibration limits within the scene's winch bounds.
+"""Allowed contractions: the board file's winch limits within the scene's winch bounds.
 
 Two pure functions, the only place where contractions are checked against
 limits and turned into ticks. :func:`allowed_ranges` intersects the
-calibration's limits with the scene's bounds (once, where a link or a
+board file's limits (:class:`~plush_opt.board.board_file.BoardCalibration`)
+with the scene's bounds (once, where a link or a
 driver is made); :func:`check_contractions` checks one command against
 those ranges and converts it to ticks. The driver, every board link and
 the run checker call them, so a command refused by one is refused by all.

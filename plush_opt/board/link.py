@@ -1,4 +1,4 @@
-"""The one way apps talk to a winch board.
+"""The one way apps talk to a winch board: the :class:`BoardLink` protocol.
 
 Contractions are ``{winch name: length}`` in the problem's length unit
 everywhere above this module; only the board package converts them to

@@ -1,4 +1,6 @@
-"""The three kinds of :class:`~plush_opt.board.link.BoardLink`, and :func:`open_board`.
+"""The implementations of the :class:`~plush_opt.board.link.BoardLink`
+protocol (one per way of reaching a board), and :func:`open_board`, which
+picks one.
 
 - :class:`SerialLink`: a winch board on a serial port, through a
   :class:`~plush_opt.board.driver.Driver`.
@@ -9,8 +11,8 @@
 
 Every link checks a command with
 :func:`~plush_opt.board.limits.check_contractions` against the same
-allowed ranges (calibration limits within the scene's bounds, intersected
-once when the link is made) before anything is sent.
+allowed ranges (the board file's limits within the scene's bounds,
+intersected once when the link is made) before anything is sent.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from ..solve.branch import solve_on_branch
-from ..solve.equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions, IpoptEquilibrium, certify, solve_equilibrium
 from ..base.errors import SceneError, SolverError
 from ..solve.friction_solve import has_friction
 from ..fem.model import Model
@@ -81,6 +81,7 @@ class Controller:
                 "winches took; use FrictionController (plush_opt.control.friction_control) or "
                 "run_control / Problem.control, which choose it")
         self.model = model
+        self._ipopt = IpoptEquilibrium(model)    # the IPOPT backend's built NLPs, kept across solves
         self.options = options or ControlOptions()
         self.targets = targets
         c = model.scene.contraction if contraction is None else np.array(contraction, dtype=np.float64)
@@ -140,7 +141,7 @@ class Controller:
     # -- the loop ---------------------------------------------------------
 
     def _solve(self, c, x0, options: EquilibriumOptions | None = None) -> Equilibrium:
-        eq = solve_equilibrium(self.model, c, x0, options or self.options.equilibrium)
+        eq = solve_equilibrium(self.model, c, x0, options or self.options.equilibrium, self._ipopt)
         self._solves += 1
         self._newton += eq.iterations
         return eq

@@ -1,5 +1,7 @@
-"""Calibration: fit scene parameters (Young's modulus, tendon assembly
-offsets, ...) to markers measured on a real robot (docs/calibration.md).
+"""Model fitting (``plush-opt calibrate``): fit scene parameters (Young's
+modulus, tendon assembly offsets, ...) to markers measured on a real robot
+(docs/calibration.md). Not the board file's ticks per length, which is
+:mod:`plush_opt.board.board_file`.
 
 ``calibrate(meas)`` is the whole job; :mod:`.parameters` says how each
 parameter enters the energy, :mod:`.predict` gives the markers and their

@@ -1,4 +1,5 @@
-"""The calibration report: what was fitted, how well, and how sure.
+"""The report of a model fit (``plush-opt calibrate --report``, format
+``plush-opt-calibration/1``): what was fitted, how well, and how sure.
 
 Per pose the RMS marker error (length units: root mean square of the
 distances between measured and predicted markers) before and after, and

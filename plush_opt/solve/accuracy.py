@@ -95,10 +95,10 @@ SAFETY = 1.25
 #: The levels' equilibria are solved to this residual (relative to the force
 #: scale), not the default 1e-10: the force scale, a 2-norm of nodal forces,
 #: halves with each uniform refinement while the residual's round-off floor
-#: (eps |H| |x|) grows, and on the finest graded levels (50,000 nodes) the
-#: floor reaches 1-2e-10 of it. A residual of 1e-9 moves the compared points
-#: by about 1e-9 of the displacement, far below any difference the estimate
-#: uses (the smallest, the cantilever's, is 1e-5 of its sag).
+#: (eps |H| |x|) grows, and on the finest graded levels the floor comes
+#: within a factor of a few of 1e-10 (docs/accuracy.md, "Measured"). A
+#: residual of 1e-9 moves the compared points by about 1e-9 of the
+#: displacement, far below any difference the estimate uses.
 LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9)
 
 
@@ -204,11 +204,10 @@ def probe_contractions(scene: Scene) -> np.ndarray:
     scene's own and, for a control problem, each free winch alone at
     mid-range (the others at the scene's): the poses the controller
     combines. Not all of them at once: antagonists pulling against each
-    other can drive the body past a pitchfork (both side winches of the
-    gripper at mid-range compress its stem until it has two stable bent
-    states 0.03-0.09 mm apart at the tips, and which one a solve finds
-    depends on the mesh and the start), and such a pose measures the
-    branch a mesh picks, not its discretisation error."""
+    other can drive the body past a pitchfork (two stable bent states
+    close together, and which one a solve finds depends on the mesh and
+    the start), and such a pose measures the branch a mesh picks, not its
+    discretisation error (docs/accuracy.md)."""
     cs = [scene.contraction.copy()]
     if scene.targets:
         for w in np.flatnonzero(~scene.frozen):
@@ -314,8 +313,8 @@ def bound_errors(levels: list[Level]) -> None:
     at most its distance to y_M plus y_M's). A coarse level whose own
     differences scatter too much to be estimated is then still shown within
     a tolerance by a finer level solved anyway to confirm that one, and a
-    level of one element by a level of the other (on the gripper at 1 mm:
-    208 P1 nodes, through the 2,501-node P2 level). Never below the
+    level of one element by a level of the other (a coarse P1 level
+    through a finer P2 level). Never below the
     estimate of the level it comes from, so no optimism is added."""
     anchors = [(j, m) for j, m in enumerate(levels)
                if m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]

@@ -22,14 +22,13 @@ honest failure that says where (the caller cuts its move). Every returned
 
 from __future__ import annotations
 
-import functools
 import logging
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, solve_equilibrium
+from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from ..base.errors import SolverError
 from ..base.linalg import assembled
 from ..fem.model import Model
@@ -49,18 +48,21 @@ ROUNDOFF_EIGENVALUE = 10.0
 # eigenvalue dominates after a step or two; the others decay as their ratio)
 INVERSE_STEPS = 3
 SAFETY = 100.0
+# a sub-step that stayed on the branch lets the next be this much longer;
+# one that left it is retried this much shorter (bisection of the end)
+GROW, CUT = 2.0, 0.5
 
 
-def solve_on_branch(model: Model, c0, x0, c1, guess=None,
-                    options: EquilibriumOptions | None = None) -> Equilibrium:
+def solve_on_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
+                    ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0`` (:func:`follow_branch` without where the
     branch ended)."""
-    return follow_branch(model, c0, x0, c1, guess, options)[0]
+    return follow_branch(model, c0, x0, c1, guess, options, ipopt)[0]
 
 
-def follow_branch(model: Model, c0, x0, c1, guess=None,
-                  options: EquilibriumOptions | None = None) -> tuple[Equilibrium, float | None]:
+def follow_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
+                  ipopt: IpoptEquilibrium | None = None) -> tuple[Equilibrium, float | None]:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0``, and, where the branch ends before ``c1``,
     the fraction of the move c0 -> c1 at which a sub-step found no stable
@@ -69,7 +71,8 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
     ``guess`` : the start of the direct solve at c1 (a predictor; default
     x0). ``options.max_iterations`` bounds the Newton iterations of the
     whole move (every sub-step together). With the IPOPT backend this is
-    one plain solve from ``guess``. A converged answer whose smallest
+    one plain solve from ``guess`` (by ``ipopt``, the model's
+    :class:`IpoptEquilibrium`, if given). A converged answer whose smallest
     Hessian eigenvalue is round-off (the pose on the fold or bifurcation
     ending the branch) is returned not converged. Only a converged answer
     carries that eigenvalue (with ``options.eigenvalue``).
@@ -79,19 +82,29 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
     c1 = np.asarray(c1, dtype=np.float64).reshape(-1)
     guess = x0 if guess is None else guess
     if options.backend != "newton":
-        return solve_equilibrium(model, c1, guess, options), None
+        return solve_equilibrium(model, c1, guess, options, ipopt), None
     t0 = time.perf_counter()
     # no eigenvalue diagnostic on a pose that failed: without a factor it is
-    # a Lanczos run on H itself, seconds on a P2 mesh, for a pose discarded.
+    # a Lanczos run on H itself, costlier than the solve, for a pose discarded.
     # Sub-steps stop at the first indefinite Hessian without looking for a
     # symmetric branch (a Lanczos run each); only where the branch seems to
     # end is that looked for (a pitchfork: the path goes on, buckled)
-    strict = replace(options, regularise=False, eigenvalue=False, escape_saddles=False)
+    strict = _strict(options)
     direct = solve_equilibrium(model, c1, guess, strict)
     if direct.converged:
         return _at_the_end(direct, time.perf_counter() - t0, options.eigenvalue), None
     if not _left(direct):
         return direct, None
+    return _substeps(model, c0, x0, c1, guess, options, direct, t0)
+
+
+def _substeps(model: Model, c0, x0, c1, guess, options: EquilibriumOptions, direct: Equilibrium,
+              t0: float) -> tuple[Equilibrium, float | None]:
+    """:func:`follow_branch` after the ``direct`` solve at c1 left the
+    branch: sub-steps along the line c0 -> c1, each solved without
+    regularisation, lengthened after one that stays on the branch and
+    shortened after one that leaves it."""
+    strict = _strict(options)
     used, escapes, failed = direct.iterations, 0, None
     done, h, steps, look = 0.0, FIRST_FRACTION, 0, False
     x = np.asarray(x0, dtype=np.float64).reshape(-1)
@@ -106,7 +119,7 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
             break
         if h < MIN_FRACTION and done + h < 1.0:
             if options.escape_saddles and not look:
-                h, look = 2 * h, True       # the smallest step that failed, once more, looking
+                h, look = h / CUT, True     # the smallest step that failed, once more, looking
                 continue
             reached = c0 + done * (c1 - c0)
             status = (f"no stable equilibrium on the branch: it ends (limit point) past "
@@ -131,10 +144,10 @@ def follow_branch(model: Model, c0, x0, c1, guess=None,
                                    time.perf_counter() - t0, options.eigenvalue), None
             x_prev, x, h_prev = x, sub.x, h
             done += h
-            h, look = 2 * h, False
+            h, look = GROW * h, False
         elif look or _left(sub):
             failed = done + h
-            h *= 0.5                        # (after a look: nothing found, the branch ends)
+            h *= CUT                        # (after a look: nothing found, the branch ends)
         else:
             status = sub.status
             break
@@ -180,13 +193,18 @@ def _inverse_estimate(factor) -> float:
     return est
 
 
-@functools.lru_cache(maxsize=8)
 def _start(n: int) -> np.ndarray:
-    """A fixed generic unit vector (no mode of H is orthogonal to it), read-only."""
+    """A fixed generic unit vector (no mode of H is orthogonal to it).
+
+    Drawn anew each time (not cached): n normal samples cost far less than
+    the factor solves of the inverse iteration that uses them."""
     v = np.random.default_rng(0).standard_normal(n)
-    v /= np.linalg.norm(v)
-    v.flags.writeable = False
-    return v
+    return v / np.linalg.norm(v)
+
+
+def _strict(options: EquilibriumOptions) -> EquilibriumOptions:
+    """The options of a solve that stops at the first indefinite Hessian."""
+    return replace(options, regularise=False, eigenvalue=False, escape_saddles=False)
 
 
 def _left(eq: Equilibrium) -> bool:

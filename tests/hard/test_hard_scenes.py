@@ -191,7 +191,7 @@ def test_buckling_continuation_keeps_the_side_of_its_first_escape():
 
 
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "equilibrium._escape_saddle applies its sign rule (net displacement of the mode "
+    "newton.escape_saddle applies its sign rule (net displacement of the mode "
     "positive) to the negative-curvature mode wherever Newton escapes; from rest at c >= 2 "
     "that happens mid-path (|grad E| ~ 1.7, a higher mode: net y > 0 but tip y < 0), so "
     "the final buckled side depends on c: tip y +9.3 at c = 0.5, -27.6 at 2, -39.8 at 4, "

@@ -1,0 +1,215 @@
+"""``plush-opt solve``: a problem file's forward pose, or control to its
+targets; the result JSON, a picture, the iterate trace.
+
+:func:`solve_problem` is the shared path of ``solve``, ``demo`` and
+``export`` (a problem file without a result)."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import logging
+import sys
+import time
+from pathlib import Path
+
+from ..base.errors import SceneError, SolverError
+from .arguments import add_picture_flags, check_tension_max, contraction_arg, pairs
+from .console import EXIT_OK, EXIT_SOLVER, say, summary_line, use_agg
+
+log = logging.getLogger("plush_opt")
+
+
+def add_solve_parser(sub) -> None:
+    p = sub.add_parser("solve", help="solve a problem file: forward pose, or control to its targets",
+                       description="Without targets (or with --method forward): the equilibrium "
+                       "at the given contractions. With targets: winch contractions that bring "
+                       "the equilibrium to them.")
+    p.add_argument("problem", type=Path, help="problem file (YAML, format plush-opt/1)")
+    p.add_argument("--contraction", "-c", action="append", type=contraction_arg, default=[],
+                   metavar="NAME=VALUE", help="contraction of a winch (forward input, or where "
+                   "control starts); repeatable")
+    p.add_argument("--freeze", action="append", default=[], metavar="NAME",
+                   help="freeze a winch during control (keeps its contraction); repeatable")
+    p.add_argument("--method", choices=("forward", "reparam", "clip", "bilevel"), default=None,
+                   help="forward: equilibrium only (targets ignored); reparam (default with "
+                   "targets): the gradient loop with reparametrised bounds; clip: the same loop "
+                   "clipping the contractions to their bounds (the baseline); bilevel: IPOPT on "
+                   "the KKT formulation")
+    p.add_argument("--direction", choices=("gauss-newton", "gradient"), default="gauss-newton",
+                   help="search direction of the gradient loop (reparam, clip): Gauss-Newton on "
+                   "the target residuals (default) or steepest descent with Barzilai-Borwein steps")
+    p.add_argument("--equilibrium", choices=("newton", "ipopt"), default="newton",
+                   help="equilibrium backend (default newton; ipopt for cross-checks)")
+    p.add_argument("--out", "-o", type=Path, help="write the result JSON here")
+    p.add_argument("--plot", type=Path, help="write a PNG of the pose here")
+    add_picture_flags(p)
+    p.add_argument("--trace", type=Path, help="write the control iterate history (CSV) here")
+    p.add_argument("--accuracy", type=float, default=None, metavar="TOL",
+                   help="choose the element (P1, P2) and mesh whose estimated error of the pose "
+                   "at the targets is below TOL (length units) at the least solve time; says so "
+                   "if no mesh level meets TOL")
+    p.add_argument("--max-iterations", type=int, default=None, help="control iterations at most")
+    p.add_argument("--max-time", type=float, default=None, help="control seconds at most")
+    p.add_argument("--ipopt-print-level", type=int, default=None, metavar="N", choices=range(13),
+                   help="IPOPT's print_level, 0-12 (bilevel method, ipopt equilibrium backend); "
+                   "its output goes to stdout")
+    p.set_defaults(func=cmd_solve)
+def write_trace(path, model, targets, history) -> None:
+    """Iterate history as CSV, written atomically."""
+    from ..base.files import write_text_atomic
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    names = list(model.winch_names)
+    w.writerow(["iteration", "t_wall_s", "objective", "rms_target_error"]
+               + [f"c_{n}" for n in names] + [f"dO_dc_{n}" for n in names]
+               + ["active_bounds", "equilibrium_solves", "newton_iterations", "residual_norm"])
+    for h in history:
+        w.writerow([h.iteration, f"{h.t_wall:.6f}", repr(h.objective), repr(targets.rms_error(h.x)),
+                    *[repr(float(c)) for c in h.contraction], *[repr(float(g)) for g in h.gradient],
+                    " ".join(h.active_bounds), h.equilibrium_solves, h.newton_iterations,
+                    repr(h.equilibrium.residual_norm)])
+    write_text_atomic(path, buf.getvalue())
+
+
+def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, equilibrium="newton",
+                  max_iterations=None, max_time=None, accuracy=None, direction="gauss-newton",
+                  ipopt_print_level=None):
+    """Load and solve one problem; returns (problem, equilibrium, result document, history).
+
+    The shared path of ``solve`` and ``demo``.
+    """
+    from ..control import BilevelOptions, ControlOptions
+    from ..solve.equilibrium import EquilibriumOptions
+    from ..problem import load
+    from ..solve.result_file import control_result_dict, result_dict
+
+    t0 = time.perf_counter()
+    if max_iterations is not None and max_iterations < 0:
+        raise SceneError(f"--max-iterations: expected >= 0, got {max_iterations}")
+    if max_time is not None and not max_time > 0:
+        raise SceneError(f"--max-time: expected a number of seconds > 0, got {max_time}")
+    log.info("%s: meshing and building the model", Path(problem).name)
+    p = load(problem, accuracy=accuracy)
+    log.debug("%s: %d nodes, %d elements, %d tendons, winches %s", p.source, p.mesh.n_nodes, p.mesh.n_elems,
+              p.model.n_tendons, ", ".join(p.winch_names))
+    contraction = pairs(contraction_pairs)
+    p.contraction_vector(contraction, what="--contraction")   # names and bounds checked first
+    p.frozen_vector(freeze, what="--freeze")           # names checked before any solve
+    if method is None:
+        method = "reparam" if p.targets.n_targets else "forward"
+    if method != "forward" and not p.targets.n_targets:
+        raise SceneError(f"{p.source}: targets: --method {method} needs targets; the file has none")
+    extra = {} if p.mesh_report is None else accuracy_record(p.mesh_report)
+    # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
+    eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
+    log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
+    if method == "forward":
+        t_solve = time.perf_counter()
+        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium, ipopt=eq_ipopt))
+        t_end = time.perf_counter()
+        doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
+                          status=eq.status, total_s=t_end - t0, solve_s=t_end - t_solve,
+                          iterations=eq.iterations, extra=extra)
+        return p, eq, doc, ()
+    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False, ipopt=eq_ipopt)
+    if method == "bilevel":
+        options = BilevelOptions(equilibrium=quiet,
+                                 ipopt={} if ipopt_print_level is None else {"print_level": ipopt_print_level})
+        if max_iterations is not None:
+            options = dataclasses.replace(options, max_iter=max_iterations)
+    else:
+        options = ControlOptions(equilibrium=quiet, direction=direction)
+        if max_iterations is not None:
+            options = dataclasses.replace(options, max_iterations=max_iterations)
+    if max_time is not None:
+        options = dataclasses.replace(options, max_time=max_time)
+    try:
+        res = p.control(method, contraction, freeze, options=options)
+    except SolverError as exc:
+        # Control cannot start (the starting equilibrium is not certified):
+        # the result still says where the robot is, honestly not converged.
+        return _start_failed(p, contraction, method, equilibrium, exc, t0, extra)
+    # an iterate history is a trace only if every iterate is a certified
+    # equilibrium (the loop's and the reduced-space bilevel's are)
+    history = res.history if all(h.equilibrium is not None for h in res.history) else ()
+    for it in history:
+        log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
+                 ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
+    doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
+    return p, res.equilibrium, doc, history
+
+
+def accuracy_record(report: dict) -> dict:
+    """The result JSON's keys for a mesh chosen by ``--accuracy``: ``accuracy``
+    (tolerance, estimated_error, element, nodes, whether the tolerance was
+    met, whether the mesh is graded, how often it was refined uniformly,
+    the summary) and ``mesh_accuracy``."""
+    keys = ("tolerance", "estimated_error", "element", "nodes", "reached", "status", "max_area",
+            "graded", "refinements", "summary")
+    return {"accuracy": {k: report.get(k) for k in keys}, "mesh_accuracy": report}
+
+
+def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
+    """The result of a control run that could not start: the starting
+    equilibrium, ``converged: false``, the reason as its status."""
+    from ..solve.equilibrium import EquilibriumOptions
+    from ..solve.result_file import result_dict
+    t_solve = time.perf_counter()
+    eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium))
+    t_end = time.perf_counter()
+    if eq.converged:
+        raise exc            # the start is fine: the error is another one
+    doc = result_dict(p.model, p.targets, eq, method=method, converged=False,
+                      status="start_not_certified", total_s=t_end - t0, solve_s=t_end - t_solve,
+                      iterations=eq.iterations, extra={"reason": str(exc), **extra})
+    return p, eq, doc, ()
+
+
+def _check_solve_outputs(args) -> None:
+    """Every output path of ``solve`` refused before the solve, not after it."""
+    from ..base.files import check_output_path
+    for option, path in (("--out", args.out), ("--plot", args.plot), ("--trace", args.trace)):
+        if path is not None:
+            check_output_path(path, option)
+    if args.trace is not None and args.method == "forward":
+        raise SceneError("--trace: only a control run has an iterate history (not --method forward)")
+
+
+def cmd_solve(args) -> int:
+    from ..base.files import write_json_atomic
+    check_tension_max(args.tension_max)
+    _check_solve_outputs(args)
+    p, eq, doc, history = solve_problem(
+        args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
+        args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
+    if "accuracy" in doc:
+        acc = doc["accuracy"]
+        if acc["reached"]:
+            say(f"plush-opt: {acc['summary']}", err=True)
+        else:                                   # not met: a warning, not a progress line
+            log.warning("%s", acc["summary"])
+    if args.trace and not history and doc["status"] != "start_not_certified":
+        raise SceneError("--trace: only a control run whose iterates are certified equilibria "
+                         "(the gradient loop, the reduced-space bilevel method) has an iterate history")
+    if args.out:
+        write_json_atomic(args.out, doc)
+    if args.plot:
+        from ..base.files import atomic_path, check_output_path
+        from .plot import plot_pose
+        use_agg()
+        check_output_path(args.plot, "--plot")     # still writable after the solve
+        with atomic_path(args.plot) as tmp:
+            plot_pose(tmp, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
+                      tension_max=args.tension_max)
+    if args.trace and history:
+        write_trace(args.trace, p.model, p.targets, history)
+    if args.vtk:
+        from .export import write_control
+        write_control(args.vtk, p.model, eq, history)
+    say(summary_line(doc))
+    if not doc["converged"]:
+        print(f"plush-opt: not converged: {doc['status']}", file=sys.stderr)
+        return EXIT_SOLVER
+    return EXIT_OK

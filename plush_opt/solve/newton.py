@@ -1,0 +1,233 @@
+"""The Newton backend of :func:`~plush_opt.solve.equilibrium.solve_equilibrium`.
+
+Newton on the exact sparse Hessian (one factorisation per step, its
+symbolic analysis kept by the model's factoriser), with a backtracking
+line search that never accepts a non-admissible pose (some J <= 0) or a
+non-finite energy, a multiple of the identity added where the Hessian is
+not positive definite, and an escape along the most negative curvature
+direction at a saddle and off a symmetric branch. Its tuning is
+:class:`~plush_opt.solve.certificate.EquilibriumOptions`.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from ..base.errors import SolverError
+from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..fem.model import Evaluation, Model
+from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
+
+log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
+
+# Round-off of E relative to its size (|E|, the elastic scale, the work of
+# gravity): a few hundred machine epsilons, the error of summing O(mu)
+# element terms whose difference is E.
+ENERGY_ROUNDOFF = 1e-13
+# Energy changes within this many round-off allowances are noise: the full
+# Newton step is then judged by the residual it leaves instead.
+ROUNDOFF_BAND = 100.0
+# ... and is taken if it cuts the residual by at least this factor.
+ROUNDOFF_RESIDUAL_CUT = 0.5
+# A mode whose net displacement is below this fraction of its 1-norm has
+# none (an antisymmetric mode): its sign is fixed by its largest component.
+NO_NET_DISPLACEMENT = 1e-8
+
+
+def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
+    """Round-off allowance for comparing energies near convergence.
+
+    The Neo-Hookean density is a small difference of O(mu) terms
+    (tr F^T F - 2 against 2 ln J), so E carries an absolute round-off of
+    about machine epsilon times mu, lambda and the body volume, however
+    small E itself is.
+    """
+    size = abs(ev_energy) + model.energy_roundoff_scale
+    if model.has_gravity:
+        size += abs(model.f_gravity @ x)
+    return ENERGY_ROUNDOFF * size
+
+
+def _regularised_factor(model: Model, H, options: EquilibriumOptions,
+                        previous: float | None = None) -> Factor:
+    """Cholesky of H + shift I with the smallest shift (by factors of
+    ``options.shift_growth``) that makes it positive definite, starting one
+    factor below the ``previous`` shift of the same solve (the next Hessian
+    is usually alike)."""
+    diag = np.abs(H.diagonal())
+    floor = options.shift_floor * max(float(diag.mean()), 1e-300)   # (a zero diagonal: still > 0)
+    shift = floor if previous is None else max(floor, previous / options.shift_growth)
+    for _ in range(options.max_shifts):
+        try:
+            return model.factorizer.factor(H, shift)
+        except NotPositiveDefinite:
+            shift *= options.shift_growth
+    raise SolverError("Hessian regularisation failed: no shift made it positive definite")
+
+
+def escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOptions,
+                  pair=None) -> tuple[np.ndarray, Evaluation] | None:
+    """Step from a saddle along its most negative curvature direction.
+
+    The sign is fixed (net displacement of the mode positive) so the outcome
+    is deterministic; both signs are tried, the lower energy wins (the first
+    sign on a tie: a symmetric scene always buckles the same way).
+    """
+    lam, v = pair if pair is not None else smallest_eigenpair(ev.hessian)
+    if lam >= 0:
+        return None
+    # sign rule: the mode's net displacement (sum of components) positive,
+    # or, for a mode with none, its largest component positive
+    net = float(np.sum(v))
+    v = v * (np.sign(net) if abs(net) > NO_NET_DISPLACEMENT * np.abs(v).sum()
+             else np.sign(v[np.argmax(np.abs(v))]))
+    h = np.sqrt(np.mean(model.rest_area))
+    best = None
+    for s in h * 2.0 ** -np.arange(0, options.escape_halvings):
+        for sign in (1.0, -1.0):
+            xt = x + sign * s * v / np.abs(v).max()
+            et = model.evaluate(xt, c, order=0)
+            if et.admissible and np.isfinite(et.energy) and et.energy < ev.energy - _energy_slack(model, ev.energy, x):
+                if best is None or et.energy < best[0] - _energy_slack(model, et.energy, xt):
+                    best = (et.energy, xt)
+        if best is not None:
+            break
+    if best is None:
+        return None
+    log.info("escaped a saddle (lambda_min = %.3g) by a step of %.3g", lam, s)
+    return best[1], model.evaluate(best[1], c, order=2)
+
+
+def _left_branch(it: int) -> str:
+    return f"{LEFT_BRANCH}: Hessian not positive definite after {it} iteration(s)"
+
+
+def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
+    """No progress over the last ``stall_window`` relative residuals of
+    ``history`` near the tolerance (see :class:`EquilibriumOptions`)."""
+    w = options.stall_window
+    return (history[-1] < options.stall_residual and len(history) > 2 * w
+            and min(history[-w:]) > options.stall_gain * min(history[:-w]))
+
+
+def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions):
+    """Backtracking from the full step ``dx``: the accepted (x, evaluation
+    with its Hessian) and the step length, or (None, 0.0). A step is never
+    accepted at a non-admissible pose or a non-finite energy."""
+    g = ev.gradient
+    slope = float(g @ dx)
+    slack = _energy_slack(model, ev.energy, x)
+    alpha = 1.0
+    for k in range(options.max_backtracks):
+        xt = x + alpha * dx
+        et = model.evaluate(xt, c, order=2 if k == 0 else 0)
+        if not (et.admissible and np.isfinite(et.energy)):
+            alpha *= options.backtrack
+            continue
+        if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
+            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha
+        if k == 0 and et.energy <= ev.energy + ROUNDOFF_BAND * slack and \
+                np.linalg.norm(et.gradient) < ROUNDOFF_RESIDUAL_CUT * np.linalg.norm(g):
+            # energy differences at round-off level: judge the full
+            # Newton step by the residual it leaves instead
+            return (xt, et), alpha
+        alpha *= options.backtrack
+    return None, 0.0
+
+
+def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
+                          options: EquilibriumOptions):
+    """At an indefinite Hessian (``step_factor`` its regularised factor):
+    (the escaped pose and evaluation, or None; whether to keep checking).
+
+    A gradient blind to the unstable direction (a symmetric scene on its
+    symmetric branch) would let a regularised step pick a side by
+    round-off: leave along the negative curvature by the same rule as at a
+    saddle. Once the gradient is seen to have a component along it, the
+    scene is not on a symmetric branch: no more checks this solve."""
+    g = ev.gradient
+    pair = step_factor.most_negative_eigenpair()
+    if pair is not None and abs(g @ pair[1]) <= options.symmetric_gradient * np.linalg.norm(g):
+        escaped = escape_saddle(model, c, x, ev, options, pair)
+        if escaped is not None:
+            return escaped, True
+    return None, pair is None
+
+
+def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
+    """Newton from the pose ``x`` (n_dofs,) at ``c`` (n_winches,): the
+    certified :class:`Equilibrium` where it converges, else an honest
+    status (iteration limit, stall, saddle, left the branch, line search)."""
+    t0 = time.perf_counter()
+    ev = model.evaluate(x, c, order=2)
+    if not ev.admissible:
+        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
+                           np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
+                           "newton")
+    escapes = 0
+    status = f"iteration limit ({options.max_iterations}) reached"
+    best: list[float] = []        # relative residual per iteration (stall detection)
+    watch_symmetry = True         # look for a gradient blind to negative curvature
+    last_shift = None             # regularisation of the previous indefinite step
+    converged = False
+    factor = None
+    it = 0
+    while True:
+        g, H = ev.gradient, ev.hessian_form
+        factor = try_factor(model, H)
+        small = np.linalg.norm(g) <= options.gtol * ev.force_scale
+        if small and factor is not None:
+            converged = True
+            status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
+            break
+        if small:
+            # (not when staying on a branch: a converged point with an
+            # indefinite Hessian there is the fold at its end, past which
+            # the escape would snap through)
+            if options.escape_saddles and options.regularise and escapes < options.max_escapes:
+                escaped = escape_saddle(model, c, x, ev, options)
+                if escaped is not None:
+                    x, ev = escaped
+                    escapes += 1
+                    continue
+            status = "saddle: the gradient vanishes but the Hessian is not positive definite"
+            break
+        if it >= options.max_iterations:
+            break
+        rel = np.linalg.norm(g) / ev.force_scale
+        best.append(rel)
+        if factor is not None and _stalled(best, options):
+            # round-off (a sliver element, an ill-conditioned H) sets a floor above gtol
+            status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
+                      f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
+                      "ill-conditioned Hessian)")
+            break
+        if factor is None and not options.regularise and not options.escape_saddles:
+            status = _left_branch(it)      # (no symmetric-branch check to make first)
+            break
+        if factor is None:
+            step_factor = _regularised_factor(model, H, options, last_shift)
+            last_shift = step_factor.shift
+        else:
+            step_factor = factor
+        if factor is None and watch_symmetry and options.escape_saddles and escapes < options.max_escapes:
+            escaped, watch_symmetry = _off_symmetric_branch(model, c, x, ev, step_factor, options)
+            if escaped is not None:
+                x, ev = escaped
+                escapes += 1
+                it += 1
+                continue
+        if factor is None and not options.regularise and escapes == 0:
+            status = _left_branch(it)
+            break
+        it += 1
+        accepted, alpha = _line_search(model, c, x, ev, -step_factor.solve(g), options)
+        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e", it, rel, step_factor.shift, alpha)
+        if accepted is None:
+            status = "line search failed: no admissible step decreases the energy"
+            break
+        x, ev = accepted
+    return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
