@@ -163,7 +163,7 @@ def test_forward_and_control_agree_on_gripper(monkeypatch):
 
 def test_environment_variable_forces_the_fallback():
     env = dict(os.environ, PLUSH_OPT_LINALG="qdldl")
-    code = "from plush_opt import linalg; print(linalg.BACKEND, linalg.Factorizer().backend)"
+    code = "from plush_opt.base import linalg; print(linalg.BACKEND, linalg.Factorizer().backend)"
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["qdldl", "qdldl"]
 

@@ -507,6 +507,7 @@ class _Numpy:
         return getattr(np, name)
 
 
+@pytest.mark.slow
 def test_large_outline_loads_in_reasonable_time(tmp_path, monkeypatch, reader_stages):
     n = 20000
     th = np.linspace(0, 2 * np.pi, n, endpoint=False)
@@ -624,6 +625,7 @@ def _paths(node, prefix=()):
             yield from _paths(v, prefix + (i,))
 
 
+@pytest.mark.slow
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(problems(), st.data())
 def test_random_mutations_load_or_raise_scene_error(d, data):

@@ -201,6 +201,7 @@ def test_run_on_the_emulator(tmp_path, emulator):
     assert state["enabled"] == [False] * 3 and not any(state["moving"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["emulator", "simavr"])
 def test_gripper_run_arrives_within_tolerance(tmp_path, request, kind):
     """The shipped run, as a user starts it: every arrival in its log has
@@ -290,6 +291,7 @@ def test_a_planner_that_never_finishes_is_an_error(tmp_path, monkeypatch):
         run_script(write_script(tmp_path, steps), dry_run=True, planner=SilentPlanner(), log_path=os.devnull)
 
 
+@pytest.mark.slow
 def test_sigint_mid_move_stops_the_board_and_leaves_a_parseable_log(tmp_path, make_emulator):
     emu = make_emulator(3, speed=400.0)    # slow: the winches are mid-move when interrupted
     cal = fast_calibration_dict()

@@ -26,6 +26,8 @@ from hardlib import HARD, INVALID, ROOT, assert_one_line_error, cli, expect_line
 from plush_opt.base.errors import SceneError
 from spec_checker import check_result
 
+pytestmark = pytest.mark.slow  # one process per file, all started by the first test
+
 BAD = ROOT / "tests" / "bad"
 INVALID_FILES = sorted(INVALID.glob("*.yaml"))
 #: the loader's bad files that cover cases of the issue not in problems/hard/invalid/
