@@ -4,7 +4,6 @@ SceneError naming the file, the key and the list index."""
 import copy
 import math
 import re
-import types
 
 import numpy as np
 import pytest
