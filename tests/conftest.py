@@ -1,8 +1,11 @@
-"""Shared fixtures: where problem files live."""
+"""Shared fixtures: where problem files live, and what the YAML reader did."""
 
 from pathlib import Path
 
 import pytest
+import yaml
+
+import plush_opt.io.yaml_reader as yaml_reader
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -17,3 +20,49 @@ def problems_dir() -> Path:
 def bad_dir() -> Path:
     """Deliberately invalid problem files used by the loader tests."""
     return ROOT / "tests" / "bad"
+
+
+class ReaderStages(list):
+    """The stages the YAML reader reached, in order (one entry per event):
+
+    ``"parse"``      the file's text went to the YAML parser,
+    ``"node"``       one YAML node was composed,
+    ``"walk"``       the composed tree was walked (the duplicate-key check),
+    ``"construct"``  the document was built as Python data.
+
+    A stage in ``forbidden`` fails the test the moment it is reached (an
+    ``AssertionError`` from inside the reader), so a file whose refusal
+    regressed to after expanding fails at once instead of expanding.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self.forbidden: set[str] = set()
+
+    def reach(self, stage: str) -> None:
+        self.append(stage)
+        assert stage not in self.forbidden, f"the reader reached {stage!r}: {self.summary()}"
+
+    def summary(self) -> str:
+        return ", ".join(f"{s} x{self.count(s)}" for s in dict.fromkeys(self)) or "nothing"
+
+
+@pytest.fixture
+def reader_stages(monkeypatch) -> ReaderStages:
+    """Record what :mod:`plush_opt.io.yaml_reader` does while the test runs
+    (the reader works as before; see :class:`ReaderStages`)."""
+    stages = ReaderStages()
+
+    def wrap(owner, name, stage):
+        original = getattr(owner, name)
+
+        def recorded(*args, **kwargs):
+            stages.reach(stage)
+            return original(*args, **kwargs)
+        monkeypatch.setattr(owner, name, recorded)
+
+    wrap(yaml_reader, "_parse_yaml", "parse")
+    wrap(yaml_reader._Guard, "compose_node", "node")
+    wrap(yaml_reader, "_duplicate_key_path", "walk")
+    wrap(yaml.constructor.BaseConstructor, "construct_document", "construct")
+    return stages

@@ -124,6 +124,7 @@ def test_a_level_without_its_own_estimate_is_bounded_through_a_confirmed_one():
     assert all(lv.bound is None and not lv.meets(1e9) for lv in alone)
 
 
+@pytest.mark.slow
 def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
     scene = load_scene(CANTILEVER)
     cs = probe_contractions(scene)
@@ -151,6 +152,7 @@ def test_cantilever_estimate_bounds_the_error_against_a_fine_p2_solve():
     assert true <= p1.estimate                         # P1 locks in bending: large, but bounded
 
 
+@pytest.mark.slow
 def test_cantilever_nested_estimates_hold_and_are_within_2x_of_the_error_against_4x_finer():
     scene = load_scene(CANTILEVER)
     cs = probe_contractions(scene)
@@ -171,6 +173,7 @@ def test_cantilever_nested_estimates_hold_and_are_within_2x_of_the_error_against
     assert checked >= 1
 
 
+@pytest.mark.slow
 def test_tighter_tolerances_pick_finer_levels_and_a_met_one_is_within_it():
     scene = load_scene(CANTILEVER)
     tip = 0.214                                  # mm, the tip deflection
@@ -189,6 +192,7 @@ def test_tighter_tolerances_pick_finer_levels_and_a_met_one_is_within_it():
     assert {row["element"] for row in reports[1e-2]["levels"]} == {"P1", "P2"}
 
 
+@pytest.mark.slow
 def test_unreachable_tolerance_says_so(tmp_path):
     scene = load_scene(_coarse_leg(tmp_path))
     levels = [scene.max_area * f for f in (4, 2, 1)]
@@ -199,6 +203,7 @@ def test_unreachable_tolerance_says_so(tmp_path):
         row["n_nodes"] for row in report["levels"] if row["element"] == "P2")
 
 
+@pytest.mark.slow
 def test_levels_solved_before_are_reused_not_solved_again(tmp_path, monkeypatch):
     import plush_opt.solve.accuracy as accuracy
     scene = load_scene(_coarse_leg(tmp_path))
@@ -217,6 +222,7 @@ def test_levels_solved_before_are_reused_not_solved_again(tmp_path, monkeypatch)
     assert again["levels"] == first["levels"] and again["nodes"] == first["nodes"]
 
 
+@pytest.mark.slow
 def test_levels_that_are_not_finer_are_skipped():
     scene = load_scene(ROOT / "problems" / "gripper.yaml")
     # 400 and 200 give the same mesh (forced points and the angle bound rule)
@@ -290,6 +296,7 @@ def test_explicit_mesh_is_returned_as_is():
 
 # --- the command line ----------------------------------------------------
 
+@pytest.mark.slow
 def test_result_json_records_the_accuracy(tmp_path):
     out = tmp_path / "r.json"
     p = run("solve", str(CANTILEVER), "--method", "forward", "--accuracy", "0.002", "--out", str(out))
@@ -309,16 +316,36 @@ def test_result_json_records_the_accuracy(tmp_path):
     assert acc["summary"] in p.stderr and "warning" not in p.stderr
 
 
+#: the command line in a child whose default ladder is short: one refinement
+#: of each family instead of three (what the command does with the levels is
+#: the same, and the finest level has 4x, not 64x, the coarsest's nodes)
+SHORT_LADDER = """
+import sys
+import plush_opt.solve.accuracy as accuracy
+default_levels = accuracy.default_levels
+accuracy.default_levels = lambda scene, element="P2": default_levels(scene, element, refinements=1)
+from plush_opt.apps.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def run_with_short_ladder(*args):
+    return subprocess.run([sys.executable, "-c", SHORT_LADDER, *args], capture_output=True, text=True,
+                          cwd=ROOT, timeout=600)
+
+
+@pytest.mark.slow
 def test_cli_warns_when_the_tolerance_is_not_met(tmp_path):
     out = tmp_path / "r.json"
-    p = run("solve", str(_coarse_leg(tmp_path, max_area=200.0)), "--method", "forward",
-            "--accuracy", "1e-12", "--out", str(out))
+    p = run_with_short_ladder("solve", str(_coarse_leg(tmp_path, max_area=200.0)), "--method", "forward",
+                              "--accuracy", "1e-12", "--out", str(out))
     assert p.returncode == 0, p.stderr
     assert "warning" in p.stderr and "NOT met" in p.stderr
     acc = json.loads(out.read_text())["accuracy"]
     assert acc["reached"] is False and acc["status"] == "tolerance_not_met"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("value, message", [("-1", "the tolerance must be a finite number > 0"),
                                             ("nan", "the tolerance must be a finite number > 0"),
                                             ("abc", "--accuracy")])

@@ -13,6 +13,7 @@ from shipped import ROOT
 from spec_checker import check_result
 
 
+@pytest.mark.slow
 def test_the_documented_example_runs_and_writes_a_valid_result(tmp_path, capsys):
     tour = runpy.run_path(str(ROOT / "examples" / "api_tour.py"))
     result = tour["main"](str(tmp_path / "r.json"))
@@ -55,6 +56,7 @@ def test_control_without_targets_is_an_input_error():
         p.control()
 
 
+@pytest.mark.slow
 def test_every_method_returns_the_same_result_shape():
     p = plush_opt.load(ROOT / "problems" / "gripper.yaml")
     for method in ("reparam", "clip", "bilevel"):

@@ -9,6 +9,8 @@ import pytest
 
 from shipped import ROOT
 
+pytestmark = pytest.mark.slow  # each runs the command line on several meshes
+
 
 def test_bench_writes_markdown_and_json(tmp_path):
     p = subprocess.run([sys.executable, "-m", "plush_opt", "bench",

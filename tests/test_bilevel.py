@@ -54,6 +54,7 @@ def test_shipped_problems_end_at_certified_stable_equilibria(name):
     json.dumps(res.to_dict(), allow_nan=False)
 
 
+@pytest.mark.slow
 def test_full_space_formulation_is_certified_by_newton():
     _, _, model, targets = built("gripper")
     res = solve_bilevel(model, targets, options=BilevelOptions(formulation="full"))
@@ -105,6 +106,7 @@ def test_targets_from_a_forward_solve_are_reached():
     assert np.abs(res.contraction - c_true).max() <= 1e-4
 
 
+@pytest.mark.slow
 def test_full_space_solver_is_cached_and_targets_are_parameters():
     _, _, model, targets = built("gripper")
     solver = BilevelSolver(model)

@@ -43,6 +43,7 @@ def _evaluator(p, start, options=QUICK):
     return ev
 
 
+@pytest.mark.slow
 def test_an_evaluation_past_the_fold_fails_in_a_few_newton_iterations():
     p, start = hexapod_p2()
     ev = _evaluator(p, start)
@@ -65,6 +66,7 @@ def test_an_evaluation_past_the_fold_fails_in_a_few_newton_iterations():
     assert plain.newton_iterations == 40
 
 
+@pytest.mark.slow
 def test_the_branch_follower_says_how_far_out_the_branch_has_ended():
     p, start = hexapod_p2()
     eq, failed = follow_branch(p.model, start.contraction, start.x, [A, 25.0], options=QUICK)
@@ -85,6 +87,7 @@ def test_an_evaluation_along_the_branch_is_the_certified_plain_equilibrium():
     assert np.abs(point.eq.x - plain.x).max() <= 1e-7 * body_size(p.model)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PROBLEMS)
 def test_runs_that_cross_no_fold_are_the_plain_solves_bit_for_bit(name, monkeypatch):
     p = problem(name)

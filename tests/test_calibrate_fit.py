@@ -54,6 +54,7 @@ def write_measurements(path, max_area, seed, hidden=0.0):
     return truth
 
 
+@pytest.mark.slow
 def test_synthetic_recovery_and_held_out_prediction(tmp_path):
     truth = write_measurements(tmp_path / "m.yaml", None, seed=7)
     meas = load_measurements(tmp_path / "m.yaml")
@@ -68,6 +69,7 @@ def test_synthetic_recovery_and_held_out_prediction(tmp_path):
     assert not res.warnings
 
 
+@pytest.mark.slow
 def test_standard_errors_cover_the_truth_at_the_usual_rate(tmp_path):
     """Over seeded repeats, |fitted - true| <= 1.96 standard errors about
     95% of the time, and the normalised errors have unit variance."""
@@ -152,6 +154,7 @@ def run(*args):
                           text=True, timeout=600)
 
 
+@pytest.mark.slow
 def test_calibrate_command_writes_fitted_file_and_report(tmp_path):
     write_measurements(tmp_path / "m.yaml", None, seed=7)
     out, rep = tmp_path / "fitted.yaml", tmp_path / "rep.json"
@@ -175,6 +178,7 @@ def test_calibrate_command_writes_fitted_file_and_report(tmp_path):
     assert Values.of_scene(scene).youngs_modulus == pytest.approx(doc["parameters"][0]["fitted"])
 
 
+@pytest.mark.slow
 def test_calibrate_command_draws_each_pose(tmp_path):
     write_measurements(tmp_path / "m.yaml", 16.0, seed=7)
     doc = yaml.safe_load((tmp_path / "m.yaml").read_text())
@@ -189,6 +193,7 @@ def test_calibrate_command_draws_each_pose(tmp_path):
     assert all(f.read_bytes()[:4] == b"\x89PNG" and f.stat().st_size > 20_000 for f in pngs)
 
 
+@pytest.mark.slow
 def test_calibrate_command_refuses_a_non_identifiable_set(tmp_path):
     write_measurements(tmp_path / "m.yaml", 16.0, seed=3)
     out, rep = tmp_path / "fitted.yaml", tmp_path / "rep.json"
@@ -203,6 +208,7 @@ def test_calibrate_command_refuses_a_non_identifiable_set(tmp_path):
     assert "winch_offset:lift" in doc["warnings"][0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args, message", [
     (("--fit", "stiffness"), "--fit: unknown parameter 'stiffness'"),
     (("--fit", "assembly_offset:nope"), "--fit: 'assembly_offset:nope': no tendon named 'nope'"),

@@ -79,6 +79,7 @@ def test_assembly_offset_is_read_validated_and_written_to_the_result():
             scene_from_dict(doc, "t.yaml")
 
 
+@pytest.mark.slow
 def test_a_result_with_offsets_passes_the_spec_checker(tmp_path):
     from plush_opt.problem import from_scene
     from plush_opt.solve.result_file import result_dict
@@ -130,6 +131,7 @@ def test_mixed_columns_match_finite_differences_of_the_gradient(kind):
         assert np.linalg.norm(cols[:, j] - fd) <= 1e-6 * np.linalg.norm(fd), p.name
 
 
+@pytest.mark.slow
 def test_marker_sensitivities_match_finite_differences_of_fresh_solves(tmp_path):
     """dy/dtheta from H dx/dtheta = -d2E/dx dtheta against central
     differences of equilibria solved afresh, for every parameter kind."""

@@ -10,6 +10,8 @@ import pytest
 from shipped import ROOT
 from spec_checker import check_result
 
+pytestmark = pytest.mark.slow  # each runs the command line in a new process
+
 GRIPPER = str(ROOT / "problems" / "gripper.yaml")
 
 

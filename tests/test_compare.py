@@ -13,6 +13,7 @@ from plush_opt.base.errors import SceneError
 from shipped import ROOT
 
 
+@pytest.mark.slow
 def test_coarse_comparison_on_two_shipped_problems(tmp_path):
     # (its run time is not asserted here: figures live in benchmarks; this
     # run takes about 30 s on the 2-core CI machine)
@@ -68,6 +69,7 @@ def test_pareto_front():
     assert pareto_front(points) == [3, 0, 1, 4]
 
 
+@pytest.mark.slow
 def test_command_line_entry(tmp_path, capsys):
     parser = argparse.ArgumentParser(prog="plush-opt")
     sub = parser.add_subparsers(dest="command")

@@ -81,6 +81,7 @@ def test_tension_chain_rule_equals_implicit_sensitivity():
     assert np.abs(chain - ref).max() <= 1e-9 * np.abs(ref).max()
 
 
+@pytest.mark.slow
 def test_reparametrisation_is_c1_monotone_and_within_bounds():
     r = Reparametrisation.for_bounds([0.0, -5.0], [25.0, 5.0], blend=0.05)
     xi = np.linspace(-10, 35, 20001)
@@ -202,6 +203,7 @@ def test_changing_targets_between_iterates_continues_from_the_current_pose():
     assert ctl.history[-1].objective < nxt.objective
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("options", [ControlOptions(direction="gradient"), ControlOptions(bounds="clip")])
 def test_other_directions_and_clipping_reduce_the_objective(options):
     _, _, model, targets = built("gripper")

@@ -10,6 +10,7 @@ from shipped import PROBLEMS, body_size, built
 LEVELS = (0.1, 0.4, 0.8)   # fractions of each winch's range
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PROBLEMS)
 @pytest.mark.parametrize("level", LEVELS)
 def test_newton_and_ipopt_agree_and_are_certified(name, level):

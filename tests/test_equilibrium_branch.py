@@ -35,6 +35,7 @@ def hexapod_p2():
     return model, start
 
 
+@pytest.mark.slow
 def test_a_move_past_the_limit_point_fails_fast_and_says_where():
     model, start = hexapod_p2()
     past = [A, 25.0]

@@ -183,6 +183,7 @@ def test_check_state_reports_a_violated_bound():
     assert problems and any("exp(mu theta)" in m for m in problems)
 
 
+@pytest.mark.slow
 def test_sweep_command_writes_csv_and_plot(tmp_path):
     import subprocess
     import sys
@@ -294,6 +295,7 @@ def arc_with_target(friction=0.3):
     return doc
 
 
+@pytest.mark.slow
 def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
     from plush_opt.control import ControlOptions
     from plush_opt.solve.friction_solve import FrictionEquilibrium, drive
@@ -379,6 +381,7 @@ def test_gui_session_drives_the_robot_and_shows_segment_tensions():
     assert "/" not in status_line(plain).split("T [N]: arc ")[1]
 
 
+@pytest.mark.slow
 def test_solve_command_forward_records_the_path_and_bilevel_refuses(tmp_path):
     import json
     import subprocess

@@ -67,6 +67,7 @@ def test_controller_refuses_a_friction_scene_and_gradient_controller_chooses(fri
 
 # -- the posing window's drag loop ---------------------------------------------
 
+@pytest.mark.slow
 def test_gui_drag_loop_follows_the_friction_state_on_screen(friction_problem):
     from plush_opt.apps.gui.session import PosingSession
     from plush_opt.control import FrictionController
@@ -121,6 +122,7 @@ def _tensions(pose):
     return pose.cell_data["tension"][1]
 
 
+@pytest.mark.slow
 def test_export_of_a_result_keeps_its_recorded_state(friction_problem, coarse_file, tmp_path):
     meshio = pytest.importorskip("meshio")
     p = friction_problem
@@ -153,6 +155,7 @@ def test_export_of_a_result_keeps_its_recorded_state(friction_problem, coarse_fi
     assert np.max(np.abs(meshio.read(tmp_path / "b" / "pose.vtu").points - pose_f.points)) <= SAME
 
 
+@pytest.mark.slow
 def test_export_of_a_result_refuses_another_problem_or_a_result_as_source(coarse_file, tmp_path):
     pytest.importorskip("meshio")
     p = load(coarse_file)
@@ -165,6 +168,7 @@ def test_export_of_a_result_refuses_another_problem_or_a_result_as_source(coarse
     assert not (tmp_path / "pose.vtu").exists()
 
 
+@pytest.mark.slow
 def test_export_of_a_result_solved_on_another_mesh_uses_the_mesh_it_recorded(coarse_file, tmp_path):
     meshio = pytest.importorskip("meshio")
     p = load(coarse_file)              # the friction gripper on a coarser mesh than FRICTION's own

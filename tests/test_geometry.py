@@ -24,6 +24,7 @@ def _brute_force_crossing(rings):
     return False
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.lists(st.tuples(st.integers(0, 5), st.integers(0, 5)), min_size=3, max_size=7),
                 min_size=1, max_size=3),
@@ -81,7 +82,7 @@ def _graded_nodes(rng, n):
     return np.unique(np.concatenate([corners, uniform, crowded]), axis=0)
 
 
-@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("seed", [0, *(pytest.param(s, marks=pytest.mark.slow) for s in range(1, 4))])
 @pytest.mark.parametrize("tol", [0.0, 1e-9, 1e-3, 0.2])
 @pytest.mark.parametrize("grid", [False, True])
 def test_located_like_brute_force_on_a_random_mesh(seed, tol, grid):

@@ -9,6 +9,8 @@ import pytest
 
 from shipped import ROOT, problem
 
+pytestmark = pytest.mark.slow  # every control method on every shipped problem
+
 GOLDEN = ROOT / "tests" / "golden" / "control.txt"
 # the loops stop at gtol/ftol: a refactor that keeps the arithmetic keeps
 # every digit; this leaves room for summation-order round-off only

@@ -153,6 +153,7 @@ def _tip(scene, mesh):
     return Targets.at_points(mesh, TIP, TIP).y(eq.x)[0]
 
 
+@pytest.mark.slow
 def test_grading_beats_uniform_refinement_at_a_reentrant_corner():
     """The L-shape's arm tip under gravity: the P2 error of a graded mesh is
     several times below that of uniform meshes with more nodes, and the

@@ -228,6 +228,7 @@ SESSION_SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_session_runs_without_matplotlib(tmp_path):
     out = subprocess.run([sys.executable, "-c", SESSION_SCRIPT, str(ROOT / "problems" / "gripper.yaml"),
                           str(tmp_path / "pose.json")], capture_output=True, text=True, cwd=tmp_path)
@@ -304,6 +305,7 @@ def test_unknown_winch_names_are_refused():
 
 # -- mode 2: drag to pose ------------------------------------------------------
 
+@pytest.mark.slow
 def test_drag_creates_target_at_the_body_point_under_the_cursor(make_window):
     w, s = make_window()
     w.sliders["left"].set_val(12.0)       # deform first: the press must invert it
@@ -332,6 +334,7 @@ def test_press_off_the_body_makes_no_target(make_window):
     assert "press on the body" in s.message
 
 
+@pytest.mark.slow
 def test_objective_falls_iterate_by_iterate_one_iterate_per_tick(make_window):
     w, s = make_window()
     c_goal = [10.0, 0.0, 6.0]
@@ -352,6 +355,7 @@ def test_objective_falls_iterate_by_iterate_one_iterate_per_tick(make_window):
     assert objectives[-1] < 1e-3 * objectives[0], objectives
 
 
+@pytest.mark.slow
 def test_sliders_follow_the_loop_without_forward_solves(make_window):
     w, s = make_window()
     drag(w, where_now(s, TIP), reachable_destination(s.model, TIP, [8.0, 0.0, 5.0]))
@@ -365,6 +369,7 @@ def test_sliders_follow_the_loop_without_forward_solves(make_window):
     assert s.contraction.any()
 
 
+@pytest.mark.slow
 def test_move_and_right_click_remove_targets_while_the_loop_runs(make_window):
     w, s = make_window()
     drag(w, where_now(s, TIP), where_now(s, TIP) + [0.0, -15.0])
@@ -395,6 +400,7 @@ def test_move_and_right_click_remove_targets_while_the_loop_runs(make_window):
 
 # -- mode 3: freeze --------------------------------------------------------------
 
+@pytest.mark.slow
 def test_frozen_winch_keeps_its_contraction_bit_for_bit(make_window):
     w, s = make_window()
     grip = 7.123456789012345
@@ -418,6 +424,7 @@ def test_frozen_winch_keeps_its_contraction_bit_for_bit(make_window):
 
 # -- mode 1: contractions ---------------------------------------------------------
 
+@pytest.mark.slow
 def test_slider_resolves_the_pose_warm_started(make_window):
     w, s = make_window()
     x_rest = s.x.copy()
@@ -432,6 +439,7 @@ def test_slider_resolves_the_pose_warm_started(make_window):
     assert np.allclose(verts, s.x.reshape(-1, 2)[s.model.mesh.triangles[0]])
 
 
+@pytest.mark.slow
 def test_slider_holds_a_running_loop_and_a_new_target_runs_it(make_window):
     w, s = make_window()
     drag(w, where_now(s, TIP), where_now(s, TIP) + [0.0, -15.0])
@@ -444,6 +452,7 @@ def test_slider_holds_a_running_loop_and_a_new_target_runs_it(make_window):
 
 # -- keys -------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_space_pauses_and_resumes(make_window):
     w, s = make_window()
     drag(w, where_now(s, TIP), reachable_destination(s.model, TIP, [10.0, 0.0, 6.0]))
@@ -461,6 +470,7 @@ def test_space_pauses_and_resumes(make_window):
     assert w.tick() is not None
 
 
+@pytest.mark.slow
 def test_r_resets_to_the_scene(make_window):
     w, s = make_window()
     w.sliders["right"].set_val(9.0)
@@ -473,6 +483,7 @@ def test_r_resets_to_the_scene(make_window):
     assert s.controller is None
 
 
+@pytest.mark.slow
 def test_s_saves_a_valid_result_and_a_png(make_window, tmp_path):
     out = tmp_path / "session" / "pose.json"
     w, s = make_window(options=GuiOptions(save_path=out))
@@ -493,6 +504,7 @@ def test_s_saves_a_valid_result_and_a_png(make_window, tmp_path):
     assert "saved" in s.message
 
 
+@pytest.mark.slow
 def test_s_without_targets_saves_a_forward_result_in_out(make_window, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     w, s = make_window()
@@ -517,6 +529,7 @@ def test_q_quits_and_stops_the_board(make_window):
 
 # -- the board --------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_board_sends_are_rate_limited_and_the_last_pose_is_sent(make_window):
     clock, board = Clock(), FakeBoard()
     w, s = make_window(board=board, clock=clock, options=GuiOptions(send_rate=20.0))
@@ -553,6 +566,7 @@ def test_board_sends_are_rate_limited_and_the_last_pose_is_sent(make_window):
     assert s.measured == board.sent[-1]
 
 
+@pytest.mark.slow
 def test_closing_the_window_stops_the_board(make_window):
     clock, board = Clock(), FakeBoard()
     w, s = make_window(board=board, clock=clock)
@@ -567,6 +581,7 @@ def test_closing_the_window_stops_the_board(make_window):
     assert board.stops == 1                          # once
 
 
+@pytest.mark.slow
 def test_board_error_stops_the_board_and_keeps_the_window(make_window):
     board = FakeBoard(fail_send=True)
     w, s = make_window(board=board)
@@ -602,6 +617,7 @@ class DriverLink:
         self.driver.close()
 
 
+@pytest.mark.slow
 def test_emulated_board_follows_the_contractions(make_window):
     board_mod = pytest.importorskip("plush_opt.board")
     try:
@@ -663,6 +679,7 @@ def test_no_window_without_an_interactive_backend():
         run_gui(ROOT / "problems" / "gripper.yaml")
 
 
+@pytest.mark.slow
 def test_command_line_says_so_with_status_2(tmp_path):
     import os
     env = dict(os.environ, MPLBACKEND="Agg")
@@ -672,6 +689,7 @@ def test_command_line_says_so_with_status_2(tmp_path):
     assert out.stderr.startswith("plush-opt: error: matplotlib backend") and "Traceback" not in out.stderr
 
 
+@pytest.mark.slow
 def test_screenshot_command_headless(tmp_path, capsys):
     png = tmp_path / "shot.png"
     assert run_gui(ROOT / "problems" / "gripper.yaml", screenshot=png) == 0
@@ -688,6 +706,7 @@ def test_importing_the_module_stays_light():
     assert out.stdout.strip() == "[]"
 
 
+@pytest.mark.slow
 def test_targets_of_the_problem_file_start_held(make_window):
     _, mesh, model, targets = built("gripper")
     w, s = make_window(targets=targets)

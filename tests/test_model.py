@@ -43,6 +43,7 @@ def assert_close(actual, expected, rel, what):
     assert err <= rel * ref, f"{what}: relative error {err / ref:.3e} > threshold {rel:.1e}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PROBLEMS)
 def test_gradient_hessian_mixed_against_central_differences(name):
     _, _, model, _ = built(name)
@@ -81,6 +82,7 @@ def test_gradient_hessian_mixed_against_central_differences(name):
     assert_close(M, M_fd, 1e-6, f"{name} mixed derivative")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", PROBLEMS)
 def test_fast_evaluator_matches_casadi_expression(name):
     _, _, model, _ = built(name)
@@ -228,6 +230,7 @@ def test_no_actuation_leaves_the_body_at_rest():
     assert eq.converged and eq.iterations == 0 and np.array_equal(eq.x, model.X)
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None)
 @given(angle=st.floats(-np.pi, np.pi), tx=st.floats(-50, 50), ty=st.floats(-50, 50))
 def test_energy_without_pins_is_invariant_under_rigid_motion(angle, tx, ty):
@@ -315,6 +318,7 @@ def large_discs():
     return models
 
 
+@pytest.mark.slow
 def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
     from plush_opt.fem import model as model_module
     from plush_opt.fem.model import SPLIT_MIN_DISC_NODES, Model
@@ -331,6 +335,7 @@ def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
     assert many.low_rank and not many.split_segments
 
 
+@pytest.mark.slow
 def test_hessian_forms_agree_and_match_differences(large_discs):
     """Every form gives the same Hessian (assembled) and the same solves,
     at poses with slack, smoothing-zone and taut tendons; the split form's
@@ -376,6 +381,7 @@ def element_and_pin_nnz(model) -> int:
                          np.zeros((0, 4), np.int64), np.zeros((0, 1), np.int64), "assembled").nnz
 
 
+@pytest.mark.slow
 def test_equilibria_agree_across_hessian_forms(large_discs):
     from plush_opt.solve.equilibrium import solve_equilibrium
     model = large_discs["assembled"]

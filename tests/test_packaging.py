@@ -14,6 +14,8 @@ import pytest
 
 from shipped import ROOT
 
+pytestmark = pytest.mark.slow  # builds and installs the wheel in a new virtualenv
+
 BUILD_TIMEOUT = 600    # s: the wheel, then the dependencies' wheels into a new venv
 
 

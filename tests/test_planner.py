@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from plush_opt.apps.planner import ControlPlanner
 from shipped import ROOT
@@ -25,6 +26,7 @@ def test_planner_forward_then_pose_streams_certified_iterates_within_bounds():
     assert iterates[-1]["converged"] and iterates[-1]["status"] != "running"
 
 
+@pytest.mark.slow
 def test_cli_run_dry_run_writes_a_parseable_log(tmp_path):
     log = tmp_path / "run.jsonl"
     p = subprocess.run([sys.executable, "-m", "plush_opt", "run",
@@ -36,6 +38,7 @@ def test_cli_run_dry_run_writes_a_parseable_log(tmp_path):
     assert {r["kind"] for r in rows} >= {"pose", "set", "hold", "release"}
 
 
+@pytest.mark.slow
 def test_demo_solves_and_plays_on_the_emulator(tmp_path):
     p = subprocess.run([sys.executable, "-m", "plush_opt", "demo", "--out", str(tmp_path)],
                        capture_output=True, text=True, timeout=600, cwd=tmp_path)

@@ -87,6 +87,7 @@ def test_sequence_numbers_are_echoed_in_decimal(board, raw_port):
     assert [port.ser.readline().split()[0] for _ in range(3)] == [b"10", b"11", b"12"]
 
 
+@pytest.mark.slow
 def test_out_of_limit_targets_are_refused_not_clamped(board, raw_port):
     port = raw_port(board.port)
     assert port.ask("1 LIMIT 0 -100 500") == "1 OK lo=-100 hi=500"
@@ -127,6 +128,7 @@ def test_zero_limit_speed_and_busy(board, raw_port):
 REST_CREEP = 1   # ticks: "at rest" is slower than 20 ticks/s, so the last edge of a coast may still come
 
 
+@pytest.mark.slow
 def test_arrival_is_settled_not_passing_through(board, raw_port):
     """Not moving means within the deadband AND at rest: once the firmware says
     so, the motor has stopped and stays within the deadband (board time)."""

@@ -61,6 +61,7 @@ def test_parse_info_and_state():
         P.parse_state("pos=1,2 tgt=3,4 mov=0,1 en=1,1", 2)
 
 
+@pytest.mark.slow
 @given(st.integers(0, P.MAX_SEQ),
        st.dictionaries(st.from_regex(r"[a-z][a-z0-9]{0,5}", fullmatch=True),
                        st.from_regex(r"[!-~]{1,12}", fullmatch=True).filter(lambda v: "=" not in v), max_size=5))

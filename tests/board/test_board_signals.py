@@ -21,6 +21,8 @@ import yaml
 from board_helpers import default_sigint, fast_calibration_dict, wait_until
 from plush_opt.io.run_script import FORMAT
 
+pytestmark = pytest.mark.slow  # each runs and interrupts a command-line run
+
 CHILD = Path(__file__).with_name("cli_child.py")
 SIGNALS = ("SIGTERM", "SIGHUP", "SIGINT")
 POSE = {"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30}}

@@ -27,6 +27,7 @@ def _get(port, seq, axes=4):
     return P.parse_state(reply.payload, axes)
 
 
+@pytest.mark.slow
 def test_firmware_builds_for_the_mega_and_reports_its_size():
     if shutil.which("avr-gcc") is None:
         pytest.fail("avr-gcc not found: the firmware needs gcc-avr avr-libc binutils-avr arduino-core-avr "
@@ -60,6 +61,7 @@ def test_exits_cleanly_on_sigterm(make_simavr, raw_port):
     assert sim.stop() == 0
 
 
+@pytest.mark.slow
 def test_stalled_motor_at_the_deadband_is_not_driven(make_simavr, raw_port):
     """A target exactly DEADBAND ticks away counts as arrived for the watchdog
     (the core: moving means |error| > deadband), so the firmware must hold

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from plush_opt.solve.equilibrium import EquilibriumOptions
 from plush_opt.io import load_scene
@@ -33,6 +34,17 @@ INVALID = HARD / "invalid"
 SHIPPED = ROOT / "problems"
 GTOL = EquilibriumOptions().gtol
 BACKENDS = ("newton", "ipopt")
+
+
+def backend_marks(backend: str) -> list:
+    """Marks of a test parameter that solves with ``backend``: IPOPT's
+    solves of these scenes take seconds each (``pytest -m "not slow"``
+    leaves them out), Newton's a fraction of one."""
+    return [pytest.mark.slow] if backend == "ipopt" else []
+
+
+#: BACKENDS as test parameters, with their marks
+BACKEND_PARAMS = [pytest.param(b, marks=backend_marks(b)) for b in BACKENDS]
 
 #: hard scenes that build a model (the under-pinned ones are refused, or
 #: should be: see test_hard_scenes.py)

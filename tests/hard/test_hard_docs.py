@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import importlib.util
 
+import pytest
+
 from hardlib import HARD, ROOT
 
 DOC = ROOT / "docs" / "robustness.md"
@@ -28,6 +30,7 @@ def test_the_document_covers_every_hard_scene():
     assert "WRONG" not in text.split("## Known defects")[0].split("## Summary")[1]
 
 
+@pytest.mark.slow
 def test_the_generator_renders_headers_tests_and_known_defects():
     tool = _tool()
     scenes = sorted(HARD.glob("*.yaml"))

@@ -35,6 +35,8 @@ from plush_opt.io import load_scene
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import build_model
 
+pytestmark = pytest.mark.slow  # many mutated files loaded, meshed and modelled
+
 OUTLINE_SOURCES = ("gripper", "hexapod", "hexapod_leg", "near_inversion", "stiff_tendons",
                    "slack_taut", "contradictory_targets", "unreachable_target")
 EXPLICIT_SOURCES = ("inverted_explicit", "sliver_explicit", "underpinned_hinge")

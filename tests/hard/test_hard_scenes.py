@@ -14,9 +14,9 @@ import functools
 import numpy as np
 import pytest
 
-from hardlib import (BACKENDS, GTOL, HARD, UNDERPINNED, assert_certified, assert_honest,
-                     assert_within_bounds, build, built, eq_options, header, positive_definite,
-                     recheck)
+from hardlib import (BACKEND_PARAMS, BACKENDS, GTOL, HARD, UNDERPINNED, assert_certified, assert_honest,
+                     assert_within_bounds, backend_marks, build, built, eq_options, header,
+                     positive_definite, recheck)
 from plush_opt.control.gradient import ControlOptions, Controller, solve_control
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.base.errors import SceneError
@@ -32,7 +32,9 @@ except ImportError:                      # pragma: no cover - depends on the tre
 
 needs_bilevel = pytest.mark.skipif(solve_bilevel is None,
                                    reason="plush_opt.control.bilevel not present")
-CONTROL = [("reparam", "newton"), ("clip", "newton"), ("reparam", "ipopt"), ("clip", "ipopt")]
+CONTROL = [pytest.param(bounds, backend, marks=backend_marks(backend))
+           for bounds, backend in [("reparam", "newton"), ("clip", "newton"), ("reparam", "ipopt"),
+                                   ("clip", "ipopt")]]
 
 
 def control_options(bounds="reparam", backend="newton", **kw) -> ControlOptions:
@@ -68,7 +70,7 @@ def test_every_hard_scene_has_a_header_saying_what_is_hard_and_what_is_right():
 
 # -- 1. near-inversion ---------------------------------------------------------
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_near_inversion_never_returns_an_inverted_pose(backend):
     _, _, model, _ = built("near_inversion")
     min_j = {}
@@ -104,6 +106,7 @@ def test_near_inversion_newton_rejects_inverted_trial_steps(monkeypatch):
     assert model.jacobians(eq.x).min() > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bounds", ["reparam", "clip"])
 def test_near_inversion_control_ends_at_the_bound_admissible(bounds):
     _, _, model, targets = built("near_inversion")
@@ -146,6 +149,7 @@ def test_buckling_scene_is_exactly_symmetric_and_straight_is_a_saddle():
     assert abs(saddle.nodes[_tip(mesh), 1]) < 1e-9 and saddle.min_eigenvalue < 0
 
 
+@pytest.mark.slow
 def test_buckling_below_the_critical_contraction_stays_straight():
     _, mesh, model, _ = built("buckling")
     for backend in BACKENDS:
@@ -249,6 +253,7 @@ def _mirror_run():
     return model, mesh, solve_control(model, mirror, options=control_options())
 
 
+@pytest.mark.slow
 def test_buckling_control_towards_the_mirror_side_is_honest():
     """Target on the side opposite to the escape rule's. Either the loop
     still gets there (round-off took it across) or it stops before the
@@ -296,7 +301,8 @@ def _stiff_cases():
     for backend in BACKENDS:
         for ratio in (1e4, 1e5, 1e6):
             for c in ((3.0, 0.0), (12.0, 0.0), (6.0, 6.0)):
-                yield pytest.param(backend, ratio, c, id=f"{backend}-{ratio:.0e}-{c[0]:g},{c[1]:g}")
+                yield pytest.param(backend, ratio, c, marks=backend_marks(backend),
+                                   id=f"{backend}-{ratio:.0e}-{c[0]:g},{c[1]:g}")
 
 
 @pytest.mark.parametrize("backend, ratio, c", list(_stiff_cases()))
@@ -313,6 +319,7 @@ def test_stiff_tendons_converge_relative_to_the_force_scale(backend, ratio, c):
     assert eq.force_scale >= f_tendon * (1 - 1e-12)
 
 
+@pytest.mark.slow
 def test_stiff_tendons_backends_agree_where_both_converge():
     mesh, model, _ = _stiff(1e6)
     size = float(np.ptp(mesh.X, axis=0).max())
@@ -375,6 +382,7 @@ def test_hinge_is_never_certified_even_without_the_pin_check(monkeypatch):
 STAGES = ([70.0, 30.0], [70.0, -25.0], [74.0, 22.0], [72.0, -20.0])
 
 
+@pytest.mark.slow
 def test_slack_taut_switching_every_iterate_certified():
     _, _, model, targets = built("slack_taut")
     eps = model.tendon_smoothing
@@ -401,7 +409,7 @@ def test_slack_taut_switching_every_iterate_certified():
         assert s.startswith(("targets reached", "stationary", "objective stopped decreasing")), s
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_slack_taut_forward_across_the_switch_points(backend):
     """Forward solves at contractions on both sides of each tendon's
     slack/taut switch, warm-started along a path that crosses it."""
@@ -503,7 +511,7 @@ def test_a_pose_that_inverts_an_element_is_not_admissible():
         assert eq.status == "initial pose not admissible (some element has J <= 0)"
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("backend", BACKEND_PARAMS)
 def test_sliver_element_is_reported_not_converged(backend):
     _, _, model, _ = built("sliver_explicit")
     for c in (0.0, 1.0, 2.0):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hardlib import (BACKENDS, SHIPPED, assert_honest, assert_within_bounds, built, eq_options,
+from hardlib import (BACKENDS, SHIPPED, assert_honest, assert_within_bounds, backend_marks, built, eq_options,
                      hard_names, recheck)
 from plush_opt.control.gradient import ControlOptions, solve_control
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
@@ -49,7 +49,7 @@ def _params():
         for backend in BACKENDS:
             reason = KNOWN.get((name, backend))
             marks = ([pytest.mark.xfail(strict=True, raises=AssertionError, reason=reason)]
-                     if reason else [])
+                     if reason else []) + backend_marks(backend)
             yield pytest.param(name, backend, marks=marks, id=f"{name}-{backend}")
 
 
@@ -73,6 +73,7 @@ def test_equilibria_are_certified_or_honest(name, backend):
         assert claimed == 4, f"{name}: a shipped problem should solve at every setting"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SWEPT)
 def test_method1_iterates_are_certified_within_bounds(name):
     _, _, model, targets = built(name)
@@ -103,6 +104,7 @@ def test_method1_iterates_are_certified_within_bounds(name):
             assert res.objective <= res.history[0].objective
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(solve_bilevel is None, reason="plush_opt.control.bilevel not present")
 @pytest.mark.parametrize("name", SWEPT)
 def test_bilevel_claims_are_certified(name):
@@ -123,6 +125,7 @@ def test_bilevel_claims_are_certified(name):
         assert not recheck(model, res.equilibrium), res.status
 
 
+@pytest.mark.slow
 def test_ipopt_backend_certifies_a_pose_that_passes_the_certificate():
     _, _, model, _ = built("gripper")
     c = np.zeros(model.n_winches)
