@@ -27,13 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..solve.branch import solve_on_branch
-from ..solve.equilibrium import Equilibrium, EquilibriumOptions, certify, solve_equilibrium
-from ..base.errors import SceneError, SolverError
-from ..solve.friction_solve import has_friction
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions
+from ..base.errors import SolverError
 from ..fem.model import Model
 from ..fem.objective import Targets
-from ..solve.sensitivity import objective_gradient, state_sensitivity
+from ..solve.plant import Plant, make_plant
 from .bounds import bounds_strategy
 from .result import ControlIterate, ControlResult, ControlStats
 from .restart import restart_move
@@ -42,6 +40,8 @@ from .slack import slack_winches
 log = logging.getLogger(__name__)
 
 DIRECTIONS = ("gauss-newton", "gradient")
+# where a path-dependent plant's iterates were driven from (recorded on them)
+CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
 BOUNDS = ("reparam", "clip")
 
 
@@ -162,23 +162,14 @@ class Controller:
         (default: the scene's ``frozen`` flags).
     x0 : a starting pose near the equilibrium at ``contraction`` (optional).
     options : :class:`ControlOptions`.
-
-    Raises :class:`~plush_opt.base.errors.SceneError` for a scene with friction at
-    via points: its poses depend on the robot's history, which this loop
-    does not follow (:class:`~plush_opt.control.friction_control.FrictionController` does).
+    plant : the :class:`~plush_opt.solve.plant.Plant` of ``model`` the loop drives
+        (default: ``make_plant(model)``): from its committed state, each trial
+        from the current iterate, committing every accepted iterate.
     """
 
-    #: the loop follows the robot's friction state (only FrictionController)
-    follows_friction = False
-
     def __init__(self, model: Model, targets: Targets, contraction=None, frozen=None,
-                 x0=None, options: ControlOptions | None = None):
-        if not self.follows_friction and has_friction(model):
-            raise SceneError(
-                f"{model.scene.source}: tendons.friction: the gradient Controller solves every pose "
-                "without friction, but with friction at via points the pose depends on the path the "
-                "winches took; use FrictionController (plush_opt.control.friction_control) or "
-                "run_control / Problem.control, which choose it")
+                 x0=None, options: ControlOptions | None = None, *, plant: Plant | None = None):
+        self.plant = make_plant(model) if plant is None else plant
         self.model = model
         self.options = options or ControlOptions()
         self.targets = targets
@@ -239,7 +230,7 @@ class Controller:
     # -- the loop ---------------------------------------------------------
 
     def _solve(self, c, x0, options: EquilibriumOptions | None = None) -> Equilibrium:
-        eq = solve_equilibrium(self.model, c, x0, options or self.options.equilibrium)
+        eq = self.plant.drive(c, x0, options or self.options.equilibrium, origin=CONTROL_ORIGIN)
         self._solves += 1
         self._newton += eq.iterations
         return eq
@@ -271,14 +262,14 @@ class Controller:
         """dO/dc (adjoint) and, for Gauss-Newton, the residual Jacobian."""
         free = np.flatnonzero(~self.frozen)
         if need_jacobian:
-            dxdc = state_sensitivity(self.model, eq, columns=free)
+            dxdc = self.plant.sensitivity(eq, columns=free)
             B = self.targets.selection(self.model.n_dofs)
             J = (np.repeat(np.sqrt(self.targets.weight), 2)[:, None] * (B @ dxdc))
             r = self.targets.residual(eq.x)
             grad = J.T @ r
             grad[self.frozen] = 0.0
             return grad, J, dxdc
-        grad = objective_gradient(self.model, eq, self.targets.gradient(eq.x))
+        grad = self.plant.objective_gradient(eq, self.targets.gradient(eq.x), columns=free)
         grad[self.frozen] = 0.0
         return grad, None, None
 
@@ -288,6 +279,7 @@ class Controller:
         if not eq.converged:
             raise SolverError(f"the starting equilibrium is not certified: {eq.status}")
         self._eq = eq
+        self.plant.commit(eq)
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self.status = "running"
         first = self._iterate(eq, self._grad)
@@ -362,6 +354,7 @@ class Controller:
         self.xi = self.bounds.to_xi(c)
         self.contraction = c
         self._eq = eq
+        self.plant.commit(eq)
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self._mu = self.options.initial_damping
         self.status = "running"
@@ -421,19 +414,25 @@ class Controller:
         self.xi = xi_t
         self.contraction = eq.contraction.copy()
         self._eq = eq
+        self.plant.commit(eq)
         self._grad = grad
 
     def result(self, eigenvalue: bool = True) -> ControlResult:
         """Run to the end (if not done yet) and collect the outcome.
 
-        The final pose is certified once more with its smallest Hessian
-        eigenvalue (from the factor the loop already holds), so callers
-        need no further solve for the result file."""
+        The final pose is certified once more by the plant as the end of the
+        path of iterates (:meth:`Plant.finish`, with its smallest Hessian
+        eigenvalue), so callers need no further solve for the result file."""
         if not self._finished:
             for _ in self.iterates():
                 pass
         last = self.history[-1]
-        eq = certify(self.model, self._eq) if eigenvalue else last.equilibrium
+        eq = self.plant.finish(self._eq, np.array([it.contraction for it in self.history]),
+                               EquilibriumOptions(eigenvalue=eigenvalue, escape_saddles=False), origin=CONTROL_ORIGIN)
+        if eq is self._eq and not eigenvalue:
+            eq = last.equilibrium            # nothing added: the last iterate as it is
+        elif eq is not self._eq:             # the path's certified end: the history ends there
+            self.history[-1], self._eq = dataclasses.replace(last, equilibrium=eq), eq
         converged = self.converged and eq.converged
         status = self.status if eq.converged else f"{self.status}; final pose: {eq.status}"
         names = self.model.winch_names
@@ -452,8 +451,7 @@ class Controller:
 
 def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,
                   options: ControlOptions | None = None) -> ControlResult:
-    """Run the gradient loop to the end (see :class:`Controller`; a friction
-    scene is refused: :func:`plush_opt.control.run_control` follows its path)."""
+    """Run the gradient loop to the end (see :class:`Controller`)."""
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 
@@ -490,13 +488,12 @@ def _stop_reason(ctl: "Controller", last: Iterate, stall: int, steps: int):
 def _trial(ctl: "Controller", c_t) -> Equilibrium:
     """A line-search trial's equilibrium at ``c_t``, warm-started from the predictor.
 
-    Without friction it stays on the current iterate's stable branch
-    (plush_opt/solve/branch.py): a trial past a limit point fails in a few
-    iterations instead of wandering after a snap-through."""
+    The plant reaches it from the current iterate (:meth:`Plant.trial`):
+    on its stable branch where the pose does not depend on the path (a
+    trial past a limit point fails in a few iterations instead of
+    wandering after a snap-through), along the path where it does."""
     x0 = ctl._predict(c_t)
-    if ctl.follows_friction:
-        return ctl._solve(c_t, x0, _trial_options(ctl.options))
-    eq = solve_on_branch(ctl.model, ctl.contraction, ctl._eq.x, c_t, x0, _trial_options(ctl.options))
+    eq = ctl.plant.trial(c_t, x0, _trial_options(ctl.options), origin=CONTROL_ORIGIN)
     ctl._solves += 1
     ctl._newton += eq.iterations
     return eq
