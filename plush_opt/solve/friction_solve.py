@@ -218,13 +218,13 @@ def path_sensitivity(fm: FrictionModel, state: FrictionState, factor=None, colum
     mode = state.mode
     active = mode != STICK
     cols = range(fm.n_winches) if columns is None else columns
-    g_c = np.zeros((fm.n_dofs, fm.n_winches))
+    g_c = np.zeros((fm.n_dofs, fm.n_winches), order="F")     # each rate a contiguous column
     h_c = {}
     for w in cols:
         g_c[:, w], h_c[w] = _rates(fm, state, w, active, mode)
     held = implicit_derivative(factor, g_c, cols)        # the rest lengths held: -H^-1 dg/dc
     if not active.any():
-        return held
+        return np.ascontiguousarray(held)
     seg = fm.segments(x, r, c)
     Ds = fm.D[:, active].toarray()
     _, _, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)

@@ -40,12 +40,14 @@ def implicit_derivative(factor, mixed, columns=None) -> np.ndarray:
 
     Returns
     -------
-    (n_dofs, n_params) dx/dp (length per unit of each parameter). A zero
-    column of ``mixed`` (a parameter the energy does not depend on here)
-    gives a zero column without a solve.
+    (n_dofs, n_params) dx/dp (length per unit of each parameter), laid out
+    in memory as ``mixed`` is (its columns contiguous if ``mixed``'s are:
+    a product with a strided column rounds differently). A zero column of
+    ``mixed`` (a parameter the energy does not depend on here) gives a
+    zero column without a solve.
     """
     mixed = np.asarray(mixed)
-    out = np.zeros(mixed.shape)
+    out = np.zeros_like(mixed, dtype=np.float64)      # the same memory layout as ``mixed``
     for j in range(mixed.shape[1]) if columns is None else columns:
         if np.any(mixed[:, j]):
             out[:, j] = -factor.solve(mixed[:, j])
