@@ -107,3 +107,16 @@ def test_implicit_derivative_solves_column_by_column():
         assert np.array_equal(D[:, j], -eq.factor.solve(M[:, j]) if M[:, j].any() else np.zeros(eq.x.size))
     only = implicit_derivative(eq.factor, M, columns=[2])
     assert np.array_equal(only[:, 2], D[:, 2]) and not only[:, :2].any()
+
+
+def test_control_commits_to_its_own_fork_never_to_the_problems_plant():
+    from plush_opt.control import ControlOptions, Controller
+    from test_friction import arc_with_target
+    p = problem(arc_with_target())
+    res = p.control("clip", options=ControlOptions(max_iterations=2))
+    assert p.plant.state is None                                   # Problem.control forked it
+    plant = p.plant.fork()
+    ctl = Controller(p.model, p.targets, options=ControlOptions(bounds="clip", max_iterations=2), plant=plant)
+    for it in ctl.iterates():
+        assert plant.state is it.equilibrium.friction              # every iterate committed
+    assert np.array_equal(ctl.history[-1].x, res.history[-1].x) and p.plant.state is None

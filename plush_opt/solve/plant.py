@@ -1,5 +1,5 @@
 """The plant: the forward model of one scene as one object that owns its
-history (docs/architecture.md, "The plant").
+history (docs/plant.md).
 
 A plant answers what the body does when its winches are driven: the pose
 (an :class:`~plush_opt.solve.equilibrium.Equilibrium`) at contractions c,
