@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import abc
+
 import numpy as np
 
 from ..fem.model import Model
@@ -10,7 +12,7 @@ from .equilibrium import Equilibrium, EquilibriumOptions
 from .friction_solve import segment_table
 
 
-class Plant:
+class Plant(abc.ABC):
     """The forward model of one scene with its committed history.
 
     Attributes
@@ -43,9 +45,9 @@ class Plant:
         """The committed state (None: the scene's start state)."""
         return self._state
 
+    @abc.abstractmethod
     def state_of(self, eq: Equilibrium):
         """The state ``eq`` stands for, as :meth:`commit` would keep it."""
-        raise NotImplementedError
 
     def commit(self, eq: Equilibrium) -> None:
         """Make ``eq`` (an equilibrium this plant returned) the committed
@@ -66,14 +68,15 @@ class Plant:
 
     # -- solves -----------------------------------------------------------
 
+    @abc.abstractmethod
     def equilibrium(self, contraction, x0=None, options: EquilibriumOptions | None = None,
                     steps: int | None = None) -> Equilibrium:
         """The pose at ``contraction`` (n_winches,) reached from the scene's
         start state, whatever is committed (a history-free plant: the
         equilibrium from ``x0``, default the rest pose; a path-dependent
         one: a straight path from the start state in ``steps`` steps)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def drive(self, contraction, x0=None, options: EquilibriumOptions | None = None, *,
               origin: str | None = None) -> Equilibrium:
         """The pose at ``contraction`` reached from the committed state
@@ -81,8 +84,8 @@ class Plant:
         the rest pose); a path-dependent one follows a straight path from
         its committed state in steps and records ``origin`` (where that
         state came from, in words) on the result."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def trial(self, contraction, guess=None, options: EquilibriumOptions | None = None, *,
               origin: str | None = None) -> Equilibrium:
         """A search's trial pose at ``contraction``, a small move from the
@@ -90,37 +93,36 @@ class Plant:
         committed equilibrium's stable branch, warm-started from ``guess``
         (a limit point makes it fail instead of snapping through); a
         path-dependent one drives there (``guess`` unused)."""
-        raise NotImplementedError
 
     # -- derivatives ------------------------------------------------------
 
+    @abc.abstractmethod
     def sensitivity(self, eq: Equilibrium, columns=None):
         """dx/dc at ``eq``, (n_dofs, n_winches) dense (only ``columns``, the
         others zero), with the factorisation ``eq`` kept: the implicit
         derivative at a history-free equilibrium, the derivative of a path
         that goes on in its last step's modes at a path-dependent one."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def objective_gradient(self, eq: Equilibrium, dO_dx, columns=None):
         """dO/dc at ``eq`` (n_winches,) for an objective whose gradient in
         the pose is ``dO_dx`` (n_dofs,); only ``columns`` need be right."""
-        raise NotImplementedError
 
     # -- certified poses --------------------------------------------------
 
+    @abc.abstractmethod
     def finish(self, eq: Equilibrium, path, options: EquilibriumOptions, *,
                origin: str | None = None) -> Equilibrium:
         """The certified end of a path (``path`` (n_steps, n_winches), the
         contractions followed) whose last equilibrium is ``eq``. Returns
         ``eq`` itself when there is nothing to add (a history-free plant
         without ``options.eigenvalue``)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def certify(self, eq: Equilibrium, options: EquilibriumOptions, *,
                 origin: str | None = None) -> Equilibrium:
         """``eq`` checked by one Newton solve from its pose with its smallest
         Hessian eigenvalue (at its own history where it has one)."""
-        raise NotImplementedError
 
     def require_history_free(self, what: str, instead: str) -> None:
         """Raise a :class:`~plush_opt.base.errors.SceneError` if the plant is
@@ -134,13 +136,13 @@ class Plant:
         ``eq`` (see :func:`~plush_opt.solve.friction_solve.segment_table`)."""
         return segment_table(self.model, eq.x, eq.contraction, eq)
 
+    @abc.abstractmethod
     def recorded(self, doc: dict, x, contraction, options: EquilibriumOptions, where: str
                  ) -> tuple[Equilibrium, str]:
         """The pose a result document recorded (pose ``x``, contractions
         ``contraction``, read and checked by the caller), as an equilibrium
         of this plant, and a note saying what was done; ``where`` names
         the file in messages."""
-        raise NotImplementedError
 
 
 def moved_note(note: str, eq: Equilibrium, x) -> tuple[Equilibrium, str]:
