@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from plush_opt import load
-from plush_opt.base.errors import SceneError
 from shipped import ROOT, with_max_area
 
 FRICTION = ROOT / "problems" / "gripper_friction.yaml"
