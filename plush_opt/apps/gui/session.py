@@ -134,12 +134,11 @@ class PosingSession:
 
     Attributes
     ----------
-    pose : the :class:`~.pose.ShownPose` (the pose on screen and the history it
-        follows); ``equilibrium``, ``contraction``, ``x``,
-        ``forward_solves`` and ``solve_seconds`` read through to it.
-    contraction : (n_winches,) contractions on screen (length units).
-    equilibrium : the equilibrium on screen (a forward solve may not have
-        converged: see its ``converged`` and ``status``).
+    pose : the :class:`~.pose.ShownPose`, the pose on screen and the history
+        it follows; read through to it: ``equilibrium`` (a forward solve
+        may not have converged: see its ``converged`` and ``status``),
+        ``contraction`` ((n_winches,), length units), ``x``,
+        ``forward_solves``, ``solve_seconds``.
     targets : the current :class:`~plush_opt.fem.objective.Targets`.
     frozen : (n_winches,) bool.
     paused : the user paused the loop.
