@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .solve.equilibrium import Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
+from .solve.equilibrium import Equilibrium, EquilibriumOptions
 from .base.errors import SceneError
 from .io import load_scene
 from .fem.mesh import Mesh, build_mesh
@@ -39,8 +39,7 @@ class Problem:
         self._scene, self._mesh, self._model, self._targets = scene, mesh, model, targets
         self._mesh_report = mesh_report
         self._bilevel = None     # the bilevel solver keeps its built NLPs: made on first use
-        self._friction = None    # the friction model (False: the scene has none), on first use
-        self._ipopt = IpoptEquilibrium(model)   # the IPOPT backend keeps its built NLPs here
+        self._plant = None       # the forward model with its history: made on first use
 
     scene = property(lambda self: self._scene)
     mesh = property(lambda self: self._mesh)
@@ -97,30 +96,28 @@ class Problem:
     def equilibrium(self, contraction: Mapping[str, float] | None = None, x0=None,
                     options: EquilibriumOptions | None = None, steps: int | None = None) -> Equilibrium:
         """The equilibrium at these contractions (by winch name; the others
-        at the scene's values), from ``x0`` (default the rest pose).
-
-        With friction at via points the state depends on the path: the
-        winches are driven from the scene's start state along a straight
-        line in ``steps`` steps (default ``DEFAULT_PATH_STEPS``) and the
-        result is a :class:`~plush_opt.solve.friction_solve.FrictionEquilibrium`
-        recording that path; ``x0`` is not used there (a pose alone is not
-        a friction state).
+        at the scene's values), reached from the scene's start state by the
+        :attr:`plant` (:meth:`~plush_opt.solve.plant.Plant.equilibrium`):
+        from ``x0`` (default the rest pose) where the pose does not depend
+        on the path; where it does (friction at via points), along a
+        straight line from the start state in ``steps`` steps (default
+        ``DEFAULT_PATH_STEPS``), ``x0`` unused, the result a
+        :class:`~plush_opt.solve.friction_solve.FrictionEquilibrium`
+        recording that path.
         """
-        c = self.contraction_vector(contraction)
-        if self.friction is None:
-            return solve_equilibrium(self.model, c, x0, options, self._ipopt)
-        from .solve.friction_solve import DEFAULT_PATH_STEPS, solve_forward
-        return solve_forward(self.friction, c, DEFAULT_PATH_STEPS if steps is None else steps,
-                             equilibrium=options)
+        return self.plant.equilibrium(self.contraction_vector(contraction), x0, options, steps)
 
     @property
-    def friction(self):
-        """The :class:`~plush_opt.fem.friction.FrictionModel` of a scene with
-        friction at via points (built on first use), or None."""
-        if self._friction is None:
-            from .fem.friction import FrictionModel, friction_tendons
-            self._friction = FrictionModel(self.model) if friction_tendons(self.scene) else False
-        return self._friction or None
+    def plant(self):
+        """The :class:`~plush_opt.solve.plant.Plant` of the scene (built on
+        first use by :func:`~plush_opt.solve.plant.make_plant`, the one place
+        that asks whether the scene has friction at via points). Nothing is
+        ever committed to it: a caller that keeps a history takes
+        ``problem.plant.fork()``."""
+        if self._plant is None:
+            from .solve.plant import make_plant
+            self._plant = make_plant(self.model)
+        return self._plant
 
     def control(self, method: str = "reparam", contraction: Mapping[str, float] | None = None,
                 frozen: Iterable[str] | None = None, x0=None, options=None, start=None):
@@ -134,10 +131,10 @@ class Problem:
         frozen : winch names to hold, besides the scene's frozen ones.
         x0 : a pose near the starting equilibrium (optional).
         options : the method's options (``ControlOptions`` or ``BilevelOptions``).
-        start : with friction at via points, the robot's friction state to
-            start from (default: the scene's start state driven to
-            ``contraction``); each iterate is then reached from the one
-            before (see plush_opt/control/friction_control.py).
+        start : the plant's state to start from (a path-dependent plant:
+            the robot's friction state; default: the scene's start state
+            driven to ``contraction``); each iterate is then reached from
+            the one before (see :class:`~plush_opt.solve.plant.Plant`).
 
         Returns
         -------
@@ -148,8 +145,8 @@ class Problem:
             raise SceneError(f"{self.source}: targets: control needs targets; the file has none")
         return run_control(self.model, self.targets, method, self.contraction_vector(contraction),
                            self.frozen_vector(frozen), x0, options,
-                           bilevel=self.bilevel_solver if method == "bilevel" and self.friction is None
-                           else None, friction=self.friction, start=start)
+                           bilevel=self.bilevel_solver if method == "bilevel" else None,
+                           plant=self.plant.fork(start))
 
     @property
     def bilevel_solver(self):
@@ -162,7 +159,7 @@ class Problem:
     def with_targets(self, targets: Targets) -> "Problem":
         """The same problem with other targets (model, mesh and solvers shared)."""
         other = Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
-        other._bilevel, other._friction, other._ipopt = self._bilevel, self._friction, self._ipopt
+        other._bilevel, other._plant = self._bilevel, self._plant
         return other
 
 
@@ -176,8 +173,8 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
         if accuracy is not None:
             from .solve.accuracy import choose_mesh
             mesh, report = choose_mesh(scene, accuracy)
-            if mesh.element.name != scene.element:
-                scene = dataclasses.replace(scene, element=mesh.element.name)
+            if mesh.element != scene.element:
+                scene = dataclasses.replace(scene, element=mesh.element)
         else:
             mesh = build_mesh(scene, max_area)
     model = build_model(scene, mesh)

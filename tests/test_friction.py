@@ -222,7 +222,7 @@ def test_forward_solve_with_friction_follows_the_path_from_the_start_state():
     assert isinstance(eq, FrictionEquilibrium) and eq.converged, eq.status
     assert np.allclose(eq.path[:, 0], [0.75, 1.5, 2.25, 3.0]) and eq.steps_done == 4
     assert eq.min_eigenvalue is not None and eq.min_eigenvalue > 0
-    fm = p.friction
+    fm = p.plant.friction_model
     assert not check_state(fm, eq.friction)
     by_hand = follow(fm, start_state(fm), eq.path)[-1]
     assert np.max(np.abs(by_hand.x - eq.x)) <= 1e-6
@@ -258,7 +258,7 @@ def test_a_frictionless_result_records_proportional_segments_and_equal_tensions(
 def test_forward_solve_that_cannot_start_reports_it(monkeypatch):
     import plush_opt.solve.friction_solve as fs
     p = problem(arc(0.3, stiff=False))
-    bad = fs.start_state(p.friction)
+    bad = fs.start_state(p.plant.friction_model)
     monkeypatch.setattr(fs, "start_state", lambda fm, options=None: copy.copy(bad).__class__(
         **{**bad.__dict__, "converged": False, "status": "no equilibrium"}))
     eq = p.equilibrium({"w": 1.0}, steps=2)
@@ -278,7 +278,7 @@ def _settled(fm, path):
 def test_path_sensitivity_against_a_small_step_in_the_same_modes(path, direction):
     from plush_opt.solve.friction_path import step
     from plush_opt.solve.friction_solve import path_sensitivity
-    fm = problem(arc(0.3, stiff=False)).friction
+    fm = problem(arc(0.3, stiff=False)).plant.friction_model
     s = _settled(fm, path)[-1]
     S = path_sensitivity(fm, s, s.equilibrium.factor)[:, 0]
     errors = []
@@ -304,7 +304,7 @@ def test_control_iterates_are_the_states_of_the_robot_driven_in_that_order():
     assert isinstance(res.equilibrium, FrictionEquilibrium)
     assert len(res.history) >= 3
     # drive a fresh robot through the accepted contractions, in order
-    fm = p.friction
+    fm = p.plant.friction_model
     eq = drive(fm, start_state(fm), res.history[0].contraction)
     assert np.max(np.abs(eq.x - res.history[0].x)) <= 1e-6
     for it in res.history[1:]:
@@ -325,7 +325,7 @@ def test_control_starts_from_the_robots_state():
     from plush_opt.control import ControlOptions
     from plush_opt.solve.friction_solve import drive
     p = problem(arc_with_target())
-    fm = p.friction
+    fm = p.plant.friction_model
     # the same contraction reached two ways: straight there, or past it and back
     there = drive(fm, start_state(fm), [1.0]).friction
     back = drive(fm, drive(fm, start_state(fm), [3.0]).friction, [1.0]).friction
@@ -352,7 +352,7 @@ def test_a_run_carries_the_friction_state_from_step_to_step(tmp_path):
     for c in (3.0, 1.0):
         assert round_trip.forward({"w": c})["converged"]
     assert np.max(np.abs(straight.x - round_trip.x)) > 1e-3      # same command, other history
-    fm = round_trip.problem.friction
+    fm = round_trip.problem.plant.friction_model
     by_hand = drive(fm, drive(fm, drive(fm, start_state(fm), [0.0]).friction, [3.0]).friction, [1.0])
     assert np.max(np.abs(by_hand.x - round_trip.x)) <= 1e-6
     before = round_trip.state
@@ -371,7 +371,7 @@ def test_gui_session_drives_the_robot_and_shows_segment_tensions():
         session.set_contraction("w", c)
     eq = session.equilibrium
     assert eq.converged and eq.friction is not None
-    fm = p.friction
+    fm = p.plant.friction_model
     by_hand = drive(fm, drive(fm, solve_forward(fm, [0.0]).friction, [3.0]).friction, [1.0])
     assert np.max(np.abs(by_hand.x - eq.x)) <= 1e-6
     text = status_line(session)

@@ -1,7 +1,7 @@
 """Control and export of a friction scene keep the robot's history: the
-frictionless Controller refuses such a scene, the posing window's drag loop
-follows the friction state on screen, and an export uses the state a result
-recorded (or says which history it assumed).
+Controller drives the path-dependent plant the one factory chose, the
+posing window's drag loop follows the friction state on screen, and an
+export uses the state a result recorded (or says which history it assumed).
 
 problems/gripper_friction.yaml on a coarse mesh (COARSE) keeps them fast.
 """
@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from plush_opt import load
-from plush_opt.base.errors import SceneError
 from shipped import ROOT, with_max_area
 
 FRICTION = ROOT / "problems" / "gripper_friction.yaml"
@@ -46,23 +45,23 @@ def round_trip(p):
     left = 8 does not reach."""
     from plush_opt.solve.friction_path import start_state
     from plush_opt.solve.friction_solve import drive
-    fm = p.friction
+    fm = p.plant.friction_model
     up = drive(fm, start_state(fm), p.contraction_vector({"left": 15.0}))
     return drive(fm, up.friction, p.contraction_vector({"left": 8.0}))
 
 
 # -- the low-level loop --------------------------------------------------------
 
-def test_controller_refuses_a_friction_scene_and_gradient_controller_chooses(friction_problem):
-    from plush_opt.control import Controller, FrictionController, gradient_controller
-    from plush_opt.control.gradient import solve_control
+def test_controller_follows_the_plant_the_one_factory_chose(friction_problem):
+    """The loop does not choose: the plant made from the model (by the one
+    factory) is path-dependent for a friction scene, history-free without."""
+    from plush_opt.control import Controller
+    from plush_opt.solve.plant import ElasticPlant, FrictionPlant
     p = friction_problem
-    for make in (lambda: Controller(p.model, p.targets), lambda: solve_control(p.model, p.targets)):
-        with pytest.raises(SceneError, match=r"gripper_friction.yaml: tendons.friction: .*FrictionController"):
-            make()
-    assert type(gradient_controller(p.model, p.targets)) is FrictionController
+    assert type(Controller(p.model, p.targets).plant) is FrictionPlant and p.plant.path_dependent
     plain = load(ROOT / "problems" / "gripper.yaml", max_area=COARSE)
-    assert type(gradient_controller(plain.model, plain.targets)) is Controller
+    assert type(Controller(plain.model, plain.targets).plant) is ElasticPlant
+    assert not plain.plant.path_dependent
 
 
 # -- the posing window's drag loop ---------------------------------------------
@@ -70,11 +69,10 @@ def test_controller_refuses_a_friction_scene_and_gradient_controller_chooses(fri
 @pytest.mark.slow
 def test_gui_drag_loop_follows_the_friction_state_on_screen(friction_problem):
     from plush_opt.apps.gui.session import PosingSession
-    from plush_opt.control import FrictionController
     from plush_opt.solve.friction_path import check_state
     from plush_opt.solve.friction_solve import drive
     p = friction_problem
-    fm = p.friction
+    fm = p.plant.friction_model
     session = PosingSession(p)
     for c in (15.0, 8.0):
         session.set_contraction("left", c)
@@ -84,7 +82,8 @@ def test_gui_drag_loop_follows_the_friction_state_on_screen(friction_problem):
     assert np.max(np.abs(fresh.x - before.x)) > HISTORY          # the history matters here
     session.move_target(0, p.targets.to[0] + [-5.0, 0.0])         # a drag runs the loop
     shown = [it for it in (session.tick() for _ in range(4)) if it is not None]
-    assert len(shown) >= 3 and isinstance(session.controller, FrictionController)
+    assert len(shown) >= 3 and session.controller.plant is session.pose.plant
+    assert session.controller.plant.path_dependent
     # the loop started from the state on screen, and every iterate shown is
     # the robot driven there from the one before
     assert np.max(np.abs(shown[0].x - before.x)) <= SAME

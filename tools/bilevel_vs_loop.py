@@ -26,7 +26,6 @@ from plush_opt.solve.accuracy import base_area
 from plush_opt.apps.compare.settings import LARGE_SHORTFALL
 from plush_opt.control import BilevelOptions, run_control
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
-from plush_opt.solve.friction_solve import has_friction
 from plush_opt.io import load_scene
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.problem import from_scene
@@ -71,7 +70,7 @@ def main() -> None:
         scene = load_scene(f)
         for level, area in _areas(scene):
             p = from_scene(scene, max_area=area)
-            if p.targets.n_targets == 0 or has_friction(p.model):
+            if p.targets.n_targets == 0 or p.plant.path_dependent:
                 break          # no targets, or friction: bilevel refuses a pose that depends on the path
             # CHOLMOD's symbolic analysis is model set-up, paid by neither method
             solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))

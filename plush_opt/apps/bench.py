@@ -24,7 +24,6 @@ import numpy as np
 
 from ..control import BilevelOptions, BilevelSolver, run_control
 from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
-from ..solve.friction_solve import has_friction
 from ..base.linalg import Factorizer
 from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
@@ -144,7 +143,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
         row.update(_build_times(problem, nodes, mesh.element.name, repeats))
     problem = from_scene(scene, mesh)
     model, targets = problem.model, problem.targets
-    row["friction"] = has_friction(model)
+    row["friction"] = problem.plant.path_dependent      # the pose depends on the path (marked *)
     c = _default_contraction(model, name)
     row["contraction"] = c.tolist()
 
@@ -191,7 +190,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
             if method == "reparam":
                 row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
                 row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
-        if has_friction(model):
+        if problem.plant.path_dependent:
             row["inverse_bilevel_skipped"] = "the bilevel method refuses friction at via points"
         else:
             row.update(_bench_bilevel(model, targets, repeats, progress, label))

@@ -24,7 +24,11 @@ contractions without saying which history it assumed:
 - a run log (:func:`run_frames`) is replayed by driving the robot from
   command to command in order;
 - a problem file alone gets the pose reached from the scene's start state
-  along a straight path (:data:`FRESH_PATH`, which the command prints).
+  along a straight path (the plant's ``history_note``, which the command
+  prints).
+
+Which of these a scene needs is the plant's business
+(:class:`~plush_opt.solve.plant.Plant`): this module only replays and records.
 """
 
 from __future__ import annotations
@@ -37,15 +41,12 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..base.errors import SceneError, SolverError
-from ..solve.friction_path import STICK, FrictionState, check_state, state_at
-from ..solve.friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table
+from ..solve.plant import segment_table
 
 NO_VALUE = np.nan   # a field that does not apply to a cell (J of a tendon segment)
 # The recorded rest nodes must be the problem's mesh: JSON keeps doubles
 # exactly, so only a mesh of another file or size differs beyond this.
 REST_MATCH = 1e-9
-FRESH_PATH = (f"friction at via points: the pose reached from the scene's start state along a straight "
-              f"path to these contractions ({DEFAULT_PATH_STEPS} steps), not any earlier history")
 
 
 def _xyz(points2d: np.ndarray) -> np.ndarray:
@@ -127,10 +128,11 @@ def write_control(folder, model, eq, history=()) -> list[Path]:
 
 def run_frames(log_path, problem):
     """``(time, x, contraction, equilibrium)`` of each command in a run log,
-    the pose recomputed: the equilibrium at the commanded contractions, each
-    solve starting from the previous pose; with friction at via points the
-    robot driven from command to command in order, from the scene's start
-    state driven to the scene's contractions (where the run's planner starts)."""
+    the pose recomputed by a fork of the problem's plant: the equilibrium
+    at the commanded contractions, each solve starting from the previous
+    pose; where the pose depends on the path the robot driven from command
+    to command in order, from the scene's start state driven to the
+    scene's contractions (where the run's planner starts)."""
     rows = []
     for i, line in enumerate(Path(log_path).read_text().splitlines()):
         try:
@@ -140,15 +142,15 @@ def run_frames(log_path, problem):
     commands = [r for r in rows if r.get("event") in ("start", "command") and r.get("commanded")]
     if not commands:
         raise SceneError(f"{log_path}: no commanded contractions (a run log from plush-opt run?)")
-    frames, eq = [], None if problem.friction is None else problem.equilibrium()
+    plant = problem.plant.fork()
+    plant.commit(problem.equilibrium())      # where the run's planner starts
+    frames, eq = [], None
     for r in commands:
-        if problem.friction is None:
-            eq = problem.equilibrium(r["commanded"], None if eq is None else eq.x)
-        elif eq.converged:
-            eq = drive(problem.friction, eq.friction, problem.contraction_vector(r["commanded"]),
-                       origin="the run's previous command")
+        eq = plant.drive(problem.contraction_vector(r["commanded"]), None if eq is None else eq.x,
+                         origin="the run's previous command")
         if not eq.converged:
             raise SolverError(f"{log_path}: t = {r['t']} s: no equilibrium at {r['commanded']}: {eq.status}")
+        plant.commit(eq)
         frames.append((r["t"], eq.x, eq.contraction, eq))
     return frames
 
@@ -165,37 +167,6 @@ def export_run(folder: Path, log_path: Path) -> Path:
     if first.get("kind") != "start" or not first.get("problem"):
         raise SceneError(f"{log_path}: line 1: not the start line of a run log (no problem named)")
     return write_run(folder, log_path, load(first["problem"]))
-
-
-def _stuck(fm, x, c, rest, status: str) -> FrictionState:
-    """A recorded state: every via point taken as stuck (it has no last step)."""
-    zero = np.zeros(fm.n_interior)
-    return state_at(fm, x, rest, c, np.full(fm.n_interior, STICK, dtype=np.int8), zero, True, status)
-
-
-def _recorded_rest(doc: dict, fm, where: str) -> np.ndarray | None:
-    """The friction tendons' segment rest lengths recorded in a result
-    document, in the friction model's order; None if it has none."""
-    entries = doc["model"]["tendons"]["list"]
-    scene = fm.model.scene
-    rest = []
-    for t in fm.tendons:
-        key = f"{where}: model.tendons.list[{t}]"
-        entry = entries[t]
-        if entry.get("name") != scene.tendons[t].name:
-            raise SceneError(f"{key}.name: {entry.get('name')!r}, but the problem's tendon {t} is "
-                             f"{scene.tendons[t].name!r}")
-        if "segment_rest_lengths" not in entry:
-            return None
-        if entry.get("friction", scene.tendons[t].friction) != scene.tendons[t].friction:
-            raise SceneError(f"{key}.friction: {entry['friction']!r}, but the problem has "
-                             f"{scene.tendons[t].friction!r}: a result of another friction")
-        r = np.asarray(entry["segment_rest_lengths"], dtype=np.float64)
-        want = int(np.sum(fm.seg_tendon == t))
-        if r.shape != (want,) or not np.all(np.isfinite(r) & (r > 0)):
-            raise SceneError(f"{key}.segment_rest_lengths: expected {want} positive lengths, got {r.tolist()}")
-        rest.append(r)
-    return np.concatenate(rest)
 
 
 def _read_result(result_path, scene) -> dict:
@@ -230,7 +201,7 @@ def recorded_pose(problem, result_path, options=None, doc=None):
     what was done and how far the solve moved the recorded pose; a friction
     result without rest lengths gets a fresh path from the start state, and
     the note says so."""
-    from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
+    from ..solve.equilibrium import EquilibriumOptions
     where = str(result_path)
     model = problem.model
     doc = _read_result(result_path, model.scene) if doc is None else doc
@@ -251,26 +222,7 @@ def recorded_pose(problem, result_path, options=None, doc=None):
                          f"{sorted(model.winch_names)}")
     c = problem.contraction_vector(contraction, what=f"{where}: contractions:")
     x = nodes.reshape(-1)
-    options = options or EquilibriumOptions()
-    fm = problem.friction
-    rest = None if fm is None else _recorded_rest(doc, fm, where)
-    if fm is None:
-        eq = solve_equilibrium(model, c, x, options)
-        note = "the equilibrium at the recorded contractions, solved from the recorded pose"
-    elif rest is None:
-        eq = problem.equilibrium(contraction, options=options)
-        note = f"{where} records no segment rest lengths: {FRESH_PATH}"
-        return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
-    else:
-        state = _stuck(fm, x, c, rest, f"recorded in {where}")
-        eq = finish(fm, state, np.atleast_2d(c), 1, options)
-        eq = dataclasses.replace(eq, friction=_stuck(fm, eq.x, c, rest, state.status),
-                                 origin=f"the state recorded in {where}")
-        note = ("the state recorded (segment rest lengths), its equilibrium solved from the recorded pose"
-                + "".join(f"; recorded state: {v}" for v in check_state(fm, state)))
-    moved = float(np.max(np.abs(eq.x - x), initial=0.0))
-    note += f"; moved the recorded pose by at most {moved:.2g} (length units)"
-    return eq, note if eq.converged else f"{note}; NOT converged: {eq.status}"
+    return problem.plant.recorded(doc, x, c, options or EquilibriumOptions(), where)
 
 
 def result_problem(problem_path, result_path):

@@ -27,7 +27,7 @@ def add_export_parser(sub) -> None:
 
 
 def cmd_export(args) -> int:
-    from .export import FRESH_PATH, export_result, export_run, write_pose
+    from .export import export_result, export_run, write_pose
     if args.source.suffix == ".json":
         raise SceneError(f"{args.source}: a result file: export PROBLEM.yaml --result {args.source} --out DIR")
     if (args.contraction or args.result) and (args.source.suffix == ".jsonl" or args.contraction and args.result):
@@ -40,8 +40,9 @@ def cmd_export(args) -> int:
         say(f"export: {note}", err=True)
     else:
         p, eq, doc, _ = solve_problem(args.source, args.contraction, method="forward")
-        if p.friction is not None:
-            say(f"export: {p.source}: {FRESH_PATH}; --result FILE exports a state a solve recorded", err=True)
+        if p.plant.history_note:       # the pose depends on the path: which history it assumed
+            say(f"export: {p.source}: {p.plant.history_note}; --result FILE exports a state a solve recorded",
+                err=True)
         path, converged = write_pose(args.out / "pose.vtu", p.model, eq.x, eq.contraction, eq), doc["converged"]
     say(str(path))
     return EXIT_OK if converged else EXIT_SOLVER

@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt import problem as problems
-from plush_opt.control.friction_control import gradient_controller
-from plush_opt.control.gradient import ControlOptions
+from plush_opt.control.gradient import ControlOptions, Controller
 from plush_opt.base.errors import SolverError
 from plush_opt.fem.objective import Targets
 
@@ -27,9 +26,10 @@ class ControlPlanner:
 
     Keeps the current contractions and pose: each forward solve and each
     control run starts from where the previous one ended (warm starts).
-    With friction at via points it keeps the robot's friction state too,
-    and drives it from step to step: what the robot does depends on the
-    steps before (plush_opt/solve/friction_solve.py, control/friction_control.py).
+    Its own fork of the problem's plant (:class:`~plush_opt.solve.plant.Plant`)
+    holds what the robot went through: every step is driven from the state
+    the steps before left (with friction at via points the robot's friction
+    state, so what it does depends on them).
     """
 
     def __init__(self, problem: Path | str, options: ControlOptions | None = None):
@@ -44,7 +44,13 @@ class ControlPlanner:
         if not eq.converged:
             raise SolverError(f"{self.problem.source}: starting pose: {eq.status}")
         self.x = eq.x
-        self.state = getattr(eq, "friction", None)    # the robot's friction state, if any
+        self.plant = self.problem.plant.fork()         # the robot's history: committed steps
+        self.plant.commit(eq)
+
+    @property
+    def state(self):
+        """The robot's committed state (the plant's, :attr:`Plant.state`)."""
+        return self.plant.state
 
     def _named(self, c) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.winch_names, c)}
@@ -52,18 +58,12 @@ class ControlPlanner:
     def forward(self, contraction: dict[str, float]) -> dict:
         """Equilibrium at these contractions (the others keep theirs); raises
         :class:`~plush_opt.base.errors.SceneError` for an unknown winch or a value outside its bounds."""
-        if self.state is None:
-            eq = self.problem.equilibrium({**self._named(self.contraction), **contraction}, self.x,
-                                          self.options.equilibrium)
-        else:
-            from plush_opt.solve.friction_solve import drive
-            c = self.problem.contraction_vector({**self._named(self.contraction), **contraction})
-            eq = drive(self.problem.friction, self.state, c, equilibrium=self.options.equilibrium,
-                       origin="the run's previous step")
+        c = self.problem.contraction_vector({**self._named(self.contraction), **contraction})
+        eq = self.plant.drive(c, self.x, self.options.equilibrium, origin="the run's previous step")
         c = eq.contraction
         if eq.converged:
             self.contraction, self.x = c.copy(), eq.x
-            self.state = getattr(eq, "friction", None)
+            self.plant.commit(eq)
         return {"contraction": self._named(c), "objective": 0.0, "converged": eq.converged,
                 "status": eq.status}
 
@@ -78,12 +78,10 @@ class ControlPlanner:
                                  [t.get("weight", 1.0) for t in targets])
         frozen = np.array([n in freeze for n in self.winch_names])
         options = dataclasses.replace(self.options, max_time=max_time)
-        ctl = gradient_controller(self.problem.model, goal, self.contraction, frozen, self.x, options,
-                                  friction=self.problem.friction, start=self.state)
+        ctl = Controller(self.problem.model, goal, self.contraction, frozen, self.x, options, plant=self.plant)
         t0 = time.perf_counter()
-        for it in ctl.iterates():
+        for it in ctl.iterates():             # the controller commits every iterate to the plant
             self.contraction, self.x = it.contraction.copy(), it.x
-            self.state = getattr(ctl, "state", None)
             yield {"contraction": self._named(it.contraction), "objective": it.objective,
                    "converged": False, "status": "running", "t": time.perf_counter() - t0}
         last = ctl.history[-1]

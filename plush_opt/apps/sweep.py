@@ -14,10 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..base.errors import SceneError, SolverError
-from ..fem.friction import FrictionModel
-from ..solve.friction_path import follow, start_state
+from ..base.errors import SceneError
 from ..problem import load
+from ..solve.plant import make_plant
 from ..base.files import atomic_path
 
 
@@ -62,15 +61,14 @@ def sweep_path(problem, winch: str, to: float, back: float | None, steps: int,
 
 
 def run_sweep(problem, path: np.ndarray):
-    """States from the start state along ``path`` (and the start state)."""
-    fm = FrictionModel(problem.model, include_frictionless=True)
-    start = start_state(fm)
-    if not start.converged:
-        raise SolverError(f"the start state did not converge: {start.status}")
-    return fm, [start] + follow(fm, start, path)
+    """The segmented plant of the problem (every tendon with via points in
+    segments, :func:`~plush_opt.solve.plant.make_plant`) and its states
+    from the start state along ``path`` (the start state first)."""
+    plant = make_plant(problem.model, segmented=True)
+    return plant, plant.follow(path)
 
 
-def write_csv(problem, fm, states, out: Path) -> None:
+def write_csv(problem, plant, states, out: Path) -> None:
     scene = problem.scene
     header = ["step"] + [f"c_{w}" for w in problem.winch_names]
     for k in range(len(problem.mesh.point_nodes)):
@@ -84,10 +82,7 @@ def write_csv(problem, fm, states, out: Path) -> None:
             row = [i] + [float(v) for v in s.contraction]
             for node in problem.mesh.point_nodes:
                 row += [float(v) for v in s.nodes[node]]
-            one = problem.model.tendon_state(s.x, s.contraction)["tension"]
-            for t in range(len(scene.tendons)):
-                seg = np.flatnonzero(fm.seg_tendon == t)
-                ends = (s.tension[seg[-1]], s.tension[seg[0]]) if seg.size else (one[t], one[t])
+            for ends in plant.end_tensions(s):
                 row += [float(v) for v in ends]
             writer.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
 
@@ -96,8 +91,8 @@ def cmd_sweep(args) -> int:
     t0 = time.perf_counter()
     problem = load(args.problem, max_area=args.max_area)
     path = sweep_path(problem, args.winch, args.to, args.back, args.steps, dict(args.contraction))
-    fm, states = run_sweep(problem, path)
-    write_csv(problem, fm, states, args.out)
+    plant, states = run_sweep(problem, path)
+    write_csv(problem, plant, states, args.out)
     if args.plot is not None:
         from .sweep_plot import plot_sweep
         plot_sweep(problem, states, args.winch, args.plot)

@@ -92,12 +92,12 @@ class BilevelSolver:
             Bad sizes, a start outside the bounds, or a starting equilibrium
             that cannot be certified.
         SceneError
-            A scene with friction at via points (the method has no history).
+            A scene whose pose depends on the path (friction at via
+            points): the method has no history.
         """
-        from ..solve.friction_solve import has_friction
-        if has_friction(self.model):      # its pose depends on the path: refuse, never solve without it
-            from .friction_control import refuse_bilevel
-            refuse_bilevel(self.model)
+        from ..solve.plant import make_plant     # a pose that depends on the path: refuse, never solve without it
+        make_plant(self.model).require_history_free("the bilevel method",
+                                                    "use --method reparam or clip (they follow the path)")
         options = options or BilevelOptions()
         t_start = time.perf_counter()
         c0, frozen = _checked_start(self.model, contraction0, frozen)

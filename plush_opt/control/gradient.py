@@ -30,13 +30,11 @@ import time
 
 import numpy as np
 
-from ..solve.branch import solve_on_branch
-from ..solve.equilibrium import Equilibrium, EquilibriumOptions, IpoptEquilibrium, certify, solve_equilibrium
-from ..base.errors import SceneError, SolverError
-from ..solve.friction_solve import has_friction
+from ..solve.equilibrium import Equilibrium, EquilibriumOptions
+from ..base.errors import SolverError
 from ..fem.model import Model
 from ..fem.objective import Targets
-from ..solve.sensitivity import objective_gradient, state_sensitivity
+from ..solve.plant import Plant, make_plant
 from .bounds import bounds_strategy
 from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
 from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
@@ -46,6 +44,10 @@ from .slack import slack_winches
 from .step import line_search, search_direction
 
 log = logging.getLogger(__name__)
+
+# where a path-dependent plant's iterates were driven from (recorded on them)
+CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
+
 
 # Every accepted iterate is a ControlIterate carrying its certified equilibrium.
 Iterate = ControlIterate
@@ -63,25 +65,15 @@ class Controller:
         (default: the scene's ``frozen`` flags).
     x0 : a starting pose near the equilibrium at ``contraction`` (optional).
     options : :class:`ControlOptions`.
-
-    Raises :class:`~plush_opt.base.errors.SceneError` for a scene with friction at
-    via points: its poses depend on the robot's history, which this loop
-    does not follow (:class:`~plush_opt.control.friction_control.FrictionController` does).
+    plant : the :class:`~plush_opt.solve.plant.Plant` of ``model`` the loop drives
+        (default: ``make_plant(model)``): from its committed state, each trial
+        from the current iterate, committing every accepted iterate.
     """
 
-    #: the loop follows the robot's friction state (only FrictionController)
-    follows_friction = False
-
     def __init__(self, model: Model, targets: Targets, contraction=None, frozen=None,
-                 x0=None, options: ControlOptions | None = None):
-        if not self.follows_friction and has_friction(model):
-            raise SceneError(
-                f"{model.scene.source}: tendons.friction: the gradient Controller solves every pose "
-                "without friction, but with friction at via points the pose depends on the path the "
-                "winches took; use FrictionController (plush_opt.control.friction_control) or "
-                "run_control / Problem.control, which choose it")
+                 x0=None, options: ControlOptions | None = None, *, plant: Plant | None = None):
+        self.plant = make_plant(model) if plant is None else plant
         self.model = model
-        self._ipopt = IpoptEquilibrium(model)    # the IPOPT backend's built NLPs, kept across solves
         self.options = options or ControlOptions()
         self.targets = targets
         c = model.scene.contraction if contraction is None else np.array(contraction, dtype=np.float64)
@@ -141,7 +133,7 @@ class Controller:
     # -- the loop ---------------------------------------------------------
 
     def _solve(self, c, x0, options: EquilibriumOptions | None = None) -> Equilibrium:
-        eq = solve_equilibrium(self.model, c, x0, options or self.options.equilibrium, self._ipopt)
+        eq = self.plant.drive(c, x0, options or self.options.equilibrium, origin=CONTROL_ORIGIN)
         self._solves += 1
         self._newton += eq.iterations
         return eq
@@ -168,14 +160,14 @@ class Controller:
         """dO/dc (adjoint) and, for Gauss-Newton, the residual Jacobian."""
         free = np.flatnonzero(~self.frozen)
         if need_jacobian:
-            dxdc = state_sensitivity(self.model, eq, columns=free)
+            dxdc = self.plant.sensitivity(eq, columns=free)
             B = self.targets.selection(self.model.n_dofs)
             J = (np.repeat(np.sqrt(self.targets.weight), 2)[:, None] * (B @ dxdc))
             r = self.targets.residual(eq.x)
             grad = J.T @ r
             grad[self.frozen] = 0.0
             return grad, J, dxdc
-        grad = objective_gradient(self.model, eq, self.targets.gradient(eq.x))
+        grad = self.plant.objective_gradient(eq, self.targets.gradient(eq.x), columns=free)
         grad[self.frozen] = 0.0
         return grad, None, None
 
@@ -185,6 +177,7 @@ class Controller:
         if not eq.converged:
             raise SolverError(f"the starting equilibrium is not certified: {eq.status}")
         self._eq = eq
+        self.plant.commit(eq)
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self.status = "running"
         first = self._iterate(eq, self._grad)
@@ -263,6 +256,7 @@ class Controller:
         self.xi = self.bounds.to_xi(c)
         self.contraction = c
         self._eq = eq
+        self.plant.commit(eq)
         self._grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         self._mu = self.options.initial_damping
         self.status = "running"
@@ -273,7 +267,7 @@ class Controller:
         """The next iterate by a line search from ``last``, or None (status set)."""
         found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
                             self.options, self._mu, lambda mu: self._direction(last, mu),
-                            lambda c_t: _trial(self, c_t), lambda eq: self.targets.value(eq.x))
+                            self._trial, lambda eq: self.targets.value(eq.x))
         self._mu = found.mu
         if found.kind == "accepted":
             self._accept(found.xi, found.equilibrium, last)
@@ -299,6 +293,15 @@ class Controller:
         """First-order predictor x + dx/dc (c_t - c), if it is admissible."""
         return predict(self.model, self._eq.x, self._dxdc, self.contraction, c_t)
 
+    def _trial(self, c_t) -> Equilibrium:
+        """A line-search trial's equilibrium at ``c_t``, warm-started from the
+        predictor and reached by the plant from the current iterate
+        (:meth:`Plant.trial`: on its stable branch, or along the path)."""
+        eq = self.plant.trial(c_t, self._predict(c_t), _trial_options(self.options), origin=CONTROL_ORIGIN)
+        self._solves += 1
+        self._newton += eq.iterations
+        return eq
+
     def _accept(self, xi_t, eq, last):
         grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         if self.options.direction == "gradient":
@@ -311,19 +314,25 @@ class Controller:
         self.xi = xi_t
         self.contraction = eq.contraction.copy()
         self._eq = eq
+        self.plant.commit(eq)
         self._grad = grad
 
     def result(self, eigenvalue: bool = True) -> ControlResult:
         """Run to the end (if not done yet) and collect the outcome.
 
-        The final pose is certified once more with its smallest Hessian
-        eigenvalue (from the factor the loop already holds), so callers
-        need no further solve for the result file."""
+        The final pose is certified once more by the plant as the end of the
+        path of iterates (:meth:`Plant.finish`, with its smallest Hessian
+        eigenvalue), so callers need no further solve for the result file."""
         if not self._finished:
             for _ in self.iterates():
                 pass
         last = self.history[-1]
-        eq = certify(self.model, self._eq) if eigenvalue else last.equilibrium
+        eq = self.plant.finish(self._eq, np.array([it.contraction for it in self.history]),
+                               EquilibriumOptions(eigenvalue=eigenvalue, escape_saddles=False), origin=CONTROL_ORIGIN)
+        if eq is self._eq and not eigenvalue:
+            eq = last.equilibrium            # nothing added: the last iterate as it is
+        elif eq is not self._eq:             # the path's certified end: the history ends there
+            self.history[-1], self._eq = dataclasses.replace(last, equilibrium=eq), eq
         converged = self.converged and eq.converged
         status = self.status if eq.converged else f"{self.status}; final pose: {eq.status}"
         names = self.model.winch_names
@@ -342,8 +351,7 @@ class Controller:
 
 def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,
                   options: ControlOptions | None = None) -> ControlResult:
-    """Run the gradient loop to the end (see :class:`Controller`; a friction
-    scene is refused: :func:`plush_opt.control.run_control` follows its path)."""
+    """Run the gradient loop to the end (see :class:`Controller`)."""
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 
@@ -403,21 +411,6 @@ def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list
     if rule == "iterations":
         return False, "max_iterations", f"iteration limit ({options.max_iterations}) reached" + note
     return False, "max_time", f"time limit ({options.max_time:g} s) reached" + note
-
-
-def _trial(ctl: "Controller", c_t) -> Equilibrium:
-    """A line-search trial's equilibrium at ``c_t``, warm-started from the predictor.
-
-    Without friction it stays on the current iterate's stable branch
-    (plush_opt/solve/branch.py): a trial past a limit point fails in a few
-    iterations instead of wandering after a snap-through."""
-    x0 = ctl._predict(c_t)
-    if ctl.follows_friction:
-        return ctl._solve(c_t, x0, _trial_options(ctl.options))
-    eq = solve_on_branch(ctl.model, ctl.contraction, ctl._eq.x, c_t, x0, _trial_options(ctl.options))
-    ctl._solves += 1
-    ctl._newton += eq.iterations
-    return eq
 
 
 def _trial_options(options: ControlOptions) -> EquilibriumOptions:

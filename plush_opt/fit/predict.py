@@ -8,6 +8,7 @@ marker positions y and, from the converged Newton factor,
 
     H dx/dtheta = -d2E/dx dtheta,    dy/dtheta = B dx/dtheta
 
+(:func:`~plush_opt.solve.sensitivity.implicit_derivative`)
 (B the markers' barycentric selection): one back-substitution per
 parameter and pose, never a finite difference of solves.
 """
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+from ..solve.sensitivity import implicit_derivative
 from ..base.errors import SolverError
 from ..io.measurement import Measurements
 from ..fem.mesh import Mesh
@@ -89,7 +91,7 @@ class Predictor:
             y[i] = (self.B @ eq.x).reshape(-1, 2)
             if jacobian:
                 D = mixed_columns(model, values, self.params, eq.x, c)
-                dxs[i] = np.stack([-eq.factor.solve(D[:, j]) for j in range(D.shape[1])], axis=1)
+                dxs[i] = implicit_derivative(eq.factor, D)
                 J[i] = self.B @ dxs[i]
         return Prediction(theta, values, model, y, J, tuple(eqs), tuple(dxs) if jacobian else None)
 
@@ -116,7 +118,7 @@ def _tangent(model: Model, eq: Equilibrium | None, c) -> np.ndarray | None:
     if eq is None:
         return None
     dc = np.asarray(c) - eq.contraction
-    return eq.x - eq.factor.solve(model.mixed(eq.x, eq.contraction) @ dc)
+    return eq.x + implicit_derivative(eq.factor, (model.mixed(eq.x, eq.contraction) @ dc)[:, None])[:, 0]
 
 
 def _chain(contractions: np.ndarray, start: np.ndarray) -> list[int]:

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
-from ..fem.friction import FrictionModel, friction_tendons, via_weights
+from .sensitivity import implicit_derivative
+from ..fem.friction import FrictionModel, via_weights
 from .friction_path import (SLIP_WINCH, STICK, FrictionOptions, FrictionState, capstan, capstan_residual,
                             follow, start_state)
 
@@ -63,11 +64,6 @@ class FrictionEquilibrium(Equilibrium):
     steps_done: int = 0
     origin: str = ("start state: zero contraction, segment rest lengths proportional to their "
                    "rest lengths (equal tensions), its equilibrium")
-
-
-def has_friction(model) -> bool:
-    """The scene has a tendon with friction and an interior via point."""
-    return bool(friction_tendons(model.scene))
 
 
 def straight_path(start, contraction, steps: int) -> np.ndarray:
@@ -210,25 +206,32 @@ def path_sensitivity(fm: FrictionModel, state: FrictionState, factor=None, colum
     segments' rest lengths, a slipping one moves material so as to keep its
     capstan equality. This is the derivative of a path that goes on in the
     modes of the last step; a mode change within the next step (a point
-    that starts or stops slipping) is not in it."""
+    that starts or stops slipping) is not in it.
+
+    With every point stuck it is the implicit derivative at the state's
+    rest lengths (:func:`~plush_opt.solve.sensitivity.implicit_derivative`);
+    slipping points add a bordered correction through the capstan
+    equalities' Schur complement."""
     x, r, c = state.x, state.rest, state.contraction
     if factor is None:
         factor = fm.factorizer.factor(fm.evaluate(x, c, r, 2).hessian_form)
     mode = state.mode
     active = mode != STICK
+    cols = range(fm.n_winches) if columns is None else columns
+    g_c = np.zeros((fm.n_dofs, fm.n_winches), order="F")     # each rate a contiguous column
+    h_c = {}
+    for w in cols:
+        g_c[:, w], h_c[w] = _rates(fm, state, w, active, mode)
+    held = implicit_derivative(factor, g_c, cols)        # the rest lengths held: -H^-1 dg/dc
+    if not active.any():
+        return np.ascontiguousarray(held)
+    seg = fm.segments(x, r, c)
+    Ds = fm.D[:, active].toarray()
+    _, _, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)
+    HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
+    schur = dh_dr @ Ds - dh_dx @ HB
     out = np.zeros((fm.n_dofs, fm.n_winches))
-    if active.any():
-        seg = fm.segments(x, r, c)
-        Ds = fm.D[:, active].toarray()
-        _, _, dh_dx, dh_dr, _ = capstan_residual(fm, x, r, c, active, mode, seg)
-        HB = factor.solve(fm.mixed_r(x, r, c, seg) @ Ds)
-        schur = dh_dr @ Ds - dh_dx @ HB
-    for w in range(fm.n_winches) if columns is None else columns:
-        g_c, h_c = _rates(fm, state, w, active, mode)
-        Hg = factor.solve(g_c)
-        if active.any():
-            dd = np.linalg.lstsq(schur, -h_c + dh_dx @ Hg, rcond=None)[0]
-            out[:, w] = -Hg - HB @ dd
-        else:
-            out[:, w] = -Hg
+    for w in cols:
+        dd = np.linalg.lstsq(schur, -h_c[w] - dh_dx @ held[:, w], rcond=None)[0]
+        out[:, w] = held[:, w] - HB @ dd
     return out

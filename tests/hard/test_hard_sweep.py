@@ -20,7 +20,7 @@ from hardlib import (BACKENDS, SHIPPED, assert_honest, assert_within_bounds, bac
 from plush_opt.control.gradient import ControlOptions, solve_control
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.base.errors import SceneError, SolverError
-from plush_opt.solve.friction_solve import has_friction
+from plush_opt.solve.plant import make_plant
 
 try:
     from plush_opt.control.bilevel import BilevelOptions, solve_bilevel
@@ -79,10 +79,11 @@ def test_method1_iterates_are_certified_within_bounds(name):
     _, _, model, targets = built(name)
     if not targets.n_targets:
         pytest.skip("no targets: forward problem only")
-    if has_friction(model):
-        # the frictionless loop refuses; the path-following one is tested in test_friction*.py
-        with pytest.raises(SceneError, match="tendons.friction: .*FrictionController"):
-            solve_control(model, targets)
+    if make_plant(model).path_dependent:
+        # the loop drives the path-dependent plant (its iterates are states
+        # of a path, not equilibria of the model alone): tested in test_friction*.py
+        from plush_opt.control import Controller
+        assert Controller(model, targets).plant.path_dependent
         return
     runs = [ControlOptions(equilibrium=EquilibriumOptions(eigenvalue=False)),
             ControlOptions(bounds="clip", max_iterations=10,
@@ -111,7 +112,7 @@ def test_bilevel_claims_are_certified(name):
     _, _, model, targets = built(name)
     if not targets.n_targets:
         pytest.skip("no targets: forward problem only")
-    if has_friction(model):
+    if make_plant(model).path_dependent:
         # no history in the bilevel method: it refuses, naming the key
         with pytest.raises(SceneError, match="tendons.friction"):
             solve_bilevel(model, targets, model.scene.contraction, model.scene.frozen)

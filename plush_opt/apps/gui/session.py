@@ -1,16 +1,17 @@
 """The posing session, without a window: the state the posing window shows
 and everything that changes it.
 
-It holds the contractions on screen, the frozen set, the targets, the
-anytime control loop (:meth:`PosingSession.tick` takes *one* iterate, never
-the whole solve) and the board (through a :class:`BoardPacer`). The
-matplotlib window (:mod:`.view`) calls into it; tests drive it directly,
-without matplotlib.
+It holds the pose on screen with the history it follows
+(:class:`~.pose.ShownPose`: the session's fork of the problem's plant,
+committed at every pose shown), the frozen set, the targets, the anytime control
+loop (:meth:`PosingSession.tick` takes *one* iterate, never the whole
+solve) and the board (through a :class:`BoardPacer`). The matplotlib
+window (:mod:`.view`) calls into it; tests drive it directly, without
+matplotlib.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from collections import deque
@@ -19,12 +20,12 @@ from pathlib import Path
 import numpy as np
 
 from ...board.link import BoardLink
-from ...solve.equilibrium import Equilibrium, solve_equilibrium
+from ...solve.equilibrium import Equilibrium
 from ...base.errors import SolverError
-from ...solve.friction_solve import DEFAULT_PATH_STEPS, drive, finish, segment_table, solve_forward
 from ...fem.objective import Targets
 from .options import GuiOptions
 from .pacing import BoardPacer
+from .pose import ShownPose
 
 log = logging.getLogger(__name__)
 
@@ -33,11 +34,6 @@ TIMES_KEPT = 100_000
 # iterate clock times kept for the status line's rate (more than the timer
 # can produce within GuiOptions.rate_window)
 RATE_TIMES_KEPT = 128
-# where a friction state on screen was driven from (slider moves and loop
-# iterates alike: each is reached from the pose shown before it)
-SHOWN_BEFORE = "the pose on screen before"
-
-
 class AnytimeLoop:
     """The anytime gradient loop of a session, stepped one iterate at a time.
 
@@ -45,11 +41,10 @@ class AnytimeLoop:
     step from the pose on screen; a target or frozen-set change is passed
     on to it (the loop continues from the current pose), or, once its
     history holds ``max_history`` iterates, the next step starts a fresh one.
-    With friction at via points (``friction``, the scene's
-    :class:`~plush_opt.fem.friction.FrictionModel`) it is a
-    :class:`~plush_opt.control.friction_control.FrictionController` started
-    from the robot's friction state on screen: every iterate is a state the
-    robot reaches when driven through the iterates in order.
+    The controller drives the session's ``plant`` from the state on screen
+    (its committed state) and commits every iterate: where the pose depends
+    on the path, every iterate is a state the robot reaches when driven
+    through the iterates in order.
 
     Attributes
     ----------
@@ -59,9 +54,9 @@ class AnytimeLoop:
     iterate_seconds : wall time of each iterate taken (for timing tables).
     """
 
-    def __init__(self, model, options, max_history: int, friction=None):
+    def __init__(self, model, options, max_history: int, plant=None):
         self.model = model
-        self.friction = friction
+        self.plant = plant
         self.options = options
         self.max_history = max_history
         self.controller = None
@@ -97,15 +92,14 @@ class AnytimeLoop:
 
     def step(self, targets: Targets, contraction, frozen, shown: Equilibrium):
         """Take one iterate (starting a controller if there is none at the
-        equilibrium ``shown``: its pose, with friction its friction state).
-        Returns it, or None when the loop has stopped (``finished``). Raises
-        SolverError (after dropping the controller) when the loop cannot start."""
-        from ...control.friction_control import gradient_controller
+        equilibrium ``shown``, the plant's committed state). Returns it, or
+        None when the loop has stopped (``finished``). Raises SolverError
+        (after dropping the controller) when the loop cannot start."""
+        from ...control.gradient import Controller
         try:
             if self.controller is None:
-                self.controller = gradient_controller(
-                    self.model, targets, contraction, frozen, shown.x, self.options, friction=self.friction,
-                    start=getattr(shown, "friction", None))
+                self.controller = Controller(self.model, targets, contraction, frozen, shown.x, self.options,
+                                             plant=self.plant)
             if self._iterates is None:
                 self._iterates = self.controller.iterates()
             t0 = time.perf_counter()
@@ -140,9 +134,11 @@ class PosingSession:
 
     Attributes
     ----------
-    contraction : (n_winches,) contractions on screen (length units).
-    equilibrium : the equilibrium on screen (a forward solve may not have
-        converged: see its ``converged`` and ``status``).
+    pose : the :class:`~.pose.ShownPose`, the pose on screen and the history
+        it follows; read through to it: ``equilibrium`` (a forward solve
+        may not have converged: see its ``converged`` and ``status``),
+        ``contraction`` ((n_winches,), length units), ``x``,
+        ``forward_solves``, ``solve_seconds``.
     targets : the current :class:`~plush_opt.fem.objective.Targets`.
     frozen : (n_winches,) bool.
     paused : the user paused the loop.
@@ -151,7 +147,7 @@ class PosingSession:
     message : what just happened, for the user.
     loop : the :class:`AnytimeLoop` (``controller``, ``finished``,
         ``last_iterate``, ``iterate_seconds`` read through to it).
-    forward_solves, iterates_shown : counts.
+    iterates_shown : count.
     iterate_clock : clock times of the last iterates shown (for the rate).
     """
 
@@ -173,21 +169,21 @@ class PosingSession:
         self.closed = False
         self.message = ("loop held: press space or drag a target to run it"
                         if self.held else "drag the body to pose it")
-        self.loop = AnytimeLoop(self.model, self.control_options, self.options.max_history, problem.friction)
-        self.forward_solves = 0
+        self.pose = ShownPose(problem.plant.fork(), self.equilibrium_options)
+        self.loop = AnytimeLoop(self.model, self.control_options, self.options.max_history, self.pose.plant)
         self.iterates_shown = 0
         self.iterate_clock = deque(maxlen=RATE_TIMES_KEPT)
         self._t_start = time.perf_counter()
-        self.solve_seconds = 0.0
-        self._certified = None         # (equilibrium, the same pose with its eigenvalue)
-        self._show(self._forward(problem.scene.contraction, None))
+        self._show(self.pose.forward(problem.scene.contraction, None))
 
     # ------------------------------------------------------------ state
 
-    @property
-    def x(self) -> np.ndarray:
-        """(n_dofs,) flat pose on screen."""
-        return self.equilibrium.x
+    # the pose on screen, as the window, the status line and the tests see it
+    equilibrium = property(lambda self: self.pose.equilibrium)
+    contraction = property(lambda self: self.pose.contraction)
+    x = property(lambda self: self.pose.x, doc="(n_dofs,) flat pose on screen.")
+    forward_solves = property(lambda self: self.pose.forward_solves)
+    solve_seconds = property(lambda self: self.pose.solve_seconds)
 
     @property
     def winch_names(self) -> tuple[str, ...]:
@@ -227,17 +223,9 @@ class PosingSession:
             return self.winch_names.index(name_or_index)
         return int(name_or_index)
 
-    def _forward(self, contraction, x0) -> Equilibrium:
-        t0 = time.perf_counter()
-        eq = forward_pose(self.problem, contraction, x0, vars(self).get("equilibrium"), self.equilibrium_options)
-        self.solve_seconds += time.perf_counter() - t0
-        self.forward_solves += 1
-        return eq
-
     def _show(self, eq: Equilibrium) -> None:
         """Put ``eq`` on screen and queue it for the board."""
-        self.equilibrium = eq
-        self.contraction = eq.contraction.copy()
+        self.pose.show(eq)
         if self.pacer is not None:
             self.pacer.queue(self.contraction_by_name)
         self._service_board()
@@ -258,7 +246,7 @@ class PosingSession:
         c[i] = float(np.clip(value, self.model.lower[i], self.model.upper[i]))
         if c[i] == self.contraction[i]:
             return
-        eq = self._forward(c, self.x)
+        eq = self.pose.forward(c, self.x)
         self.loop.drop()
         if self.targets.n_targets and not self.paused:
             self.held = True
@@ -343,11 +331,12 @@ class PosingSession:
 
     def reset(self) -> None:
         """Back to the scene's contractions, no targets (frozen flags stay);
-        with friction driven there from the state on screen (history stays)."""
+        driven there from the state on screen where the pose depends on the
+        path (history stays)."""
         self.loop.drop()
         self.targets = Targets.empty()
         self.held = False
-        self._show(self._forward(self.problem.scene.contraction, None))
+        self._show(self.pose.forward(self.problem.scene.contraction, None))
         self.message = "reset: scene contractions, targets cleared"
 
     # ---------------------------------------------------------- loop
@@ -369,7 +358,7 @@ class PosingSession:
             self.message = f"loop cannot start: {exc}"
             return None
         finally:
-            self.solve_seconds += time.perf_counter() - t0
+            self.pose.solve_seconds += time.perf_counter() - t0
         if it is None:
             self.message = f"loop stopped: {self.controller.status}"
             return None
@@ -388,19 +377,8 @@ class PosingSession:
     # ------------------------------------------------------ results
 
     def certified(self) -> Equilibrium:
-        """The pose on screen with its smallest Hessian eigenvalue, which a
-        saved result reports. The loop and the forward solves skip it (it
-        costs a few solves), so it is computed here, once per pose: by one
-        Newton check from the pose (:func:`certify_pose`), unless it has it."""
-        eq = self.equilibrium
-        if eq.min_eigenvalue is not None:
-            return eq
-        if self._certified is None or self._certified[0] is not eq:
-            t0 = time.perf_counter()
-            checked = certify_pose(self.model, eq, self.equilibrium_options)
-            self.solve_seconds += time.perf_counter() - t0
-            self._certified = (eq, checked)
-        return self._certified[1]
+        """The pose on screen with its smallest Hessian eigenvalue (:meth:`~.pose.ShownPose.certified`)."""
+        return self.pose.certified()
 
     def result(self) -> dict:
         """The result document (results.result_dict) of the pose on screen."""
@@ -424,17 +402,6 @@ class PosingSession:
         self.loop.close()
         if self.pacer is not None:
             self.pacer.stop()
-
-
-def certify_pose(model, eq: Equilibrium, options) -> Equilibrium:
-    """``eq`` checked by one Newton solve from its pose, with the smallest
-    Hessian eigenvalue; with friction at via points at its state's segment
-    rest lengths (the pose stays the one the robot's history reached)."""
-    options = dataclasses.replace(options, eigenvalue=True)
-    if getattr(eq, "friction", None) is None:
-        return solve_equilibrium(model, eq.contraction, eq.x, options)
-    return dataclasses.replace(finish(eq.friction_model, eq.friction, eq.path, eq.steps_done, options),
-                               origin=SHOWN_BEFORE)
 
 
 def rest_point(model, triangle: int, beta) -> np.ndarray:
@@ -527,24 +494,12 @@ def status_line(session: PosingSession) -> str:
     return "  |  ".join(parts)
 
 
-def forward_pose(problem, contraction, x0, shown: Equilibrium | None, options) -> Equilibrium:
-    """The pose at ``contraction``, warm-started from ``x0``; with friction
-    at via points the robot is driven from the pose ``shown`` on screen
-    (from the scene's start state at first)."""
-    if problem.friction is None:
-        return solve_equilibrium(problem.model, contraction, x0, options)
-    state = getattr(shown, "friction", None)
-    if state is None:
-        return solve_forward(problem.friction, contraction, DEFAULT_PATH_STEPS, equilibrium=options)
-    return drive(problem.friction, state, contraction, equilibrium=options, origin=SHOWN_BEFORE)
-
-
 def tension_text(session: PosingSession) -> str:
     """Tendon tensions for the status line, stopper end first: one number
     for a tendon whose segments all pull the same (no friction), its
     segments' tensions joined by '/' where friction at via points makes
     them differ."""
-    segments = segment_table(session.model, session.x, session.contraction, session.equilibrium)
+    segments = session.pose.plant.segment_table(session.equilibrium)
     parts = []
     for t, seg in zip(session.model.scene.tendons, segments):
         T = seg["segment_tensions"]

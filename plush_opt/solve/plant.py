@@ -1,0 +1,58 @@
+"""The plant: the forward model of one scene as one object that owns its
+history (docs/plant.md).
+
+A plant answers what the body does when its winches are driven: the pose
+(an :class:`~plush_opt.solve.equilibrium.Equilibrium`) at contractions c,
+how that pose moves with c, and the final certified pose of a path. Some
+physics carries history (friction at via points: the pose at c depends on
+how the winches got there), so a plant keeps a **committed state** and
+
+* :meth:`Plant.drive` reaches contractions c *from* the committed state
+  (following the path in steps where the physics is path-dependent), and
+  returns the equilibrium there without committing it;
+* :meth:`Plant.commit` makes an equilibrium the new committed state: a
+  caller commits only what it accepts (a control iterate, a pose shown,
+  a run step), never a trial;
+* :meth:`Plant.reset` sets (or clears) the committed state, and
+  :meth:`Plant.fork` gives a plant of the same physics with its own
+  history, so that one problem can serve several histories.
+
+:func:`make_plant` is the one place that asks whether a scene has friction
+at via points. Control and the apps ask the plant (``path_dependent``,
+:meth:`Plant.require_history_free`, ``history_note``), never the scene.
+"""
+
+from __future__ import annotations
+
+from ..fem.friction import friction_tendons
+from ..fem.model import Model
+from .elastic_plant import ElasticPlant
+from .friction_plant import FrictionPlant
+from .friction_solve import path_record, segment_table
+from .plant_base import Plant
+
+__all__ = ["ElasticPlant", "FrictionPlant", "Plant", "make_plant", "path_record", "segment_table"]
+
+
+def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
+    """The plant of ``model``'s scene: the one place that decides whether
+    the scene's physics is path-dependent.
+
+    Parameters
+    ----------
+    model : the energy :class:`~plush_opt.fem.model.Model`.
+    segmented : split every tendon with an interior via point into
+        segments, frictionless ones too (they slip freely: the same poses
+        as one spring, with the tension of every segment reported), for
+        paths that report both end tensions of every tendon (the sweep).
+
+    Returns
+    -------
+    A :class:`~plush_opt.solve.friction_plant.FrictionPlant` when a tendon
+    has friction and an interior via point (or ``segmented``), else an
+    :class:`ElasticPlant`. Nothing is committed: the plant starts at the
+    scene's start state.
+    """
+    if segmented or friction_tendons(model.scene):
+        return FrictionPlant(model, include_frictionless=segmented)
+    return ElasticPlant(model)
