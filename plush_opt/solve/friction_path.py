@@ -355,11 +355,9 @@ def _equilibrium(fm, x, r, c, options):
 def capstan_residual(fm, x, r, c, active, mode, seg=None):
     """Capstan residuals h of the slipping points (tension units) twice (the
     convergence test's and Newton's), with Newton's Jacobian in x (dense
-    rows) and r. (Known weakness: a slip that drives a segment to slack has
-    a double root in T, where this Newton converges only linearly until the
-    joint Newton sees the point slack and stops it. Newton on sqrt(T), and
-    on the stretch z_a + eps where the bounding segment is slack, were
-    tried: no fewer iterations on the gripper sweep.)"""
+    rows) and r. A slip that drives a segment to slack has a double root in
+    T, where this Newton converges only linearly until the joint Newton sees
+    the point slack and stops it (docs/model.md, "Friction at via points")."""
     f_w, f_s, seg, theta, dtheta, e = capstan(fm, x, r, c, seg)
     i = np.flatnonzero(active)
     up = mode[i] == SLIP_WINCH
