@@ -206,6 +206,11 @@ class PosingSession:
     def contraction_by_name(self) -> dict[str, float]:
         return {n: float(c) for n, c in zip(self.winch_names, self.contraction)}
 
+    @property
+    def seconds_open(self) -> float:
+        """Wall time since the session opened (s)."""
+        return time.perf_counter() - self._t_start
+
     # the loop and the board, as the window, the status line and the tests see them
     controller = property(lambda self: self.loop.controller)
     finished = property(lambda self: self.loop.finished)
@@ -460,7 +465,7 @@ def result_document(session: PosingSession) -> dict:
         "board": None if session.pacer is None else session.pacer.state(),
     }}
     return result_dict(session.model, t, eq, method=method, converged=converged, status=status,
-                       total_s=time.perf_counter() - session._t_start,
+                       total_s=session.seconds_open,
                        solve_s=session.solve_seconds, iterations=iterations, extra=extra)
 
 
