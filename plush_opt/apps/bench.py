@@ -191,7 +191,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
                 row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
                 row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
         if problem.plant.path_dependent:
-            row["inverse_bilevel_skipped"] = "the bilevel method refuses friction at via points"
+            row["inverse_bilevel_skipped"] = "the bilevel method solves for the final pose alone; this pose depends on its path"
         else:
             row.update(_bench_bilevel(model, targets, repeats, progress, label))
     return row
