@@ -25,6 +25,8 @@ Two evaluators are built from those kernels, and tests check they agree:
 
 Flat vectors interleave coordinates: ``[x0, y0, x1, y1, ...]``.
 A term the scene does not have (gravity, tendons) is not summed.
+:func:`sum_terms` is the sum for any terms and layout: the friction model
+(plush_opt/fem/friction.py) sums its terms with it too.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from .hessian_layout import FORMS, HessianLayout
 from .mesh import Mesh
 from .pins import check_pins
 from .tendons import TendonTerm
-from .terms import ElasticTerm, GravityTerm, Mapped, PinTerm, Term  # noqa: F401 (Mapped: friction.py)
+from .terms import ElasticTerm, GravityTerm, PinTerm, Term
 from ..io.scene import Scene
 
 log = logging.getLogger(__name__)
