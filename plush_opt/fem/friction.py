@@ -119,9 +119,11 @@ class FrictionModel:
     def evaluate_held(self, held: SegmentTerm, x, c, order: int = 2) -> Evaluation:
         """:meth:`evaluate` with the segment term ``held`` (a held copy of
         :attr:`segment_term`)."""
+        c = np.asarray(c, dtype=np.float64).reshape(-1)
+        if c.shape != (self.n_winches,):
+            raise ValueError(f"contraction has {c.size} entries, the scene has {self.n_winches} winches")
         return sum_terms(self.terms[:-1] + (held,), self.hessian_layout,
-                         np.asarray(x, dtype=np.float64).reshape(-1),
-                         np.asarray(c, dtype=np.float64).reshape(-1), order)
+                         np.asarray(x, dtype=np.float64).reshape(-1), c, order)
 
     def mixed(self, x, c, r) -> np.ndarray:
         """d2E/dx dc with the rest lengths held at r, dense (n_dofs, n_winches)."""
