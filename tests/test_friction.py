@@ -101,6 +101,50 @@ def test_segment_energy_derivatives_against_central_differences():
         assert err <= threshold, f"{name}: error {err:.3g} > threshold {threshold:.3g}"
 
 
+def test_the_segments_are_a_term_whose_history_is_the_rest_lengths():
+    import casadi as ca
+    from plush_opt.fem.segments import SegmentTerm
+    p = problem(arc(0.2, stiff=False))
+    fm = FrictionModel(p.model)
+    term = fm.segment_term
+    assert isinstance(term, SegmentTerm) and fm.terms == fm.base.terms + (term,)
+    assert [t.name for t in fm.terms] == ["elastic", "pins", "segments"]     # the arc's one tendon is segmented
+    rng = np.random.default_rng(4)
+    c = np.array([1.0])
+    r = fm.start_rest_lengths() * (1 + 0.01 * rng.standard_normal(fm.n_segments))
+    x = p.model.X + 0.2 * rng.standard_normal(p.model.n_dofs)
+    # the history: the start state's rest lengths until a commit; held copies leave it alone
+    assert np.array_equal(term.state, fm.start_rest_lengths())
+    held = term.held(r)
+    assert np.array_equal(held.state, r) and np.array_equal(term.state, fm.start_rest_lengths())
+    mine = copy.copy(term)
+    mine.commit(x, c, r)
+    assert np.array_equal(mine.state, r)
+    mine.commit(x, c)                                       # no rest lengths: kept
+    assert np.array_equal(mine.state, r)
+    mine.reset()
+    assert np.array_equal(mine.state, fm.start_rest_lengths())
+    # the model's evaluation is its terms', the segment term's at the held rest lengths
+    ev, part = fm.evaluate(x, c, r, 1), held.evaluate(x, c, 1)
+    assert part.energy == pytest.approx(float(fm.segments(x, r, c)["energy"].sum()), rel=1e-15)
+    assert np.array_equal(fm.fixed(r).evaluate(x, c, 1).gradient, ev.gradient)
+    # d2E/dx dc with the rest lengths held, against central differences in c
+    h = 1e-6
+    fd = (fm.evaluate(x, c + h, r, 1).gradient - fm.evaluate(x, c - h, r, 1).gradient) / (2 * h)
+    exact = fm.mixed(x, c, r)
+    assert exact.shape == (p.model.n_dofs, 1)
+    assert np.max(np.abs(fd - exact[:, 0])) <= 1e3 * np.sqrt(EPS) * max(1.0, np.abs(exact).max())
+    # the CasADi expression at the held rest lengths is the same energy
+    xs, cs = ca.MX.sym("x", p.model.n_dofs), ca.MX.sym("c", 1)
+    E = ca.Function("E", [xs, cs], [held.expression(xs, cs)])
+    assert float(E(x, c)) == pytest.approx(part.energy, rel=1e-12)
+    # a rest length <= 0 is no state: not admissible, no energy
+    bad = r.copy()
+    bad[0] = 0.0
+    assert not term.held(bad).admissible(x)
+    assert not fm.fixed(bad).evaluate(x, c, 2).admissible
+
+
 def test_equal_shares_are_the_one_spring_model():
     p = problem(arc(0.2))
     fm = FrictionModel(p.model)

@@ -49,7 +49,7 @@ class Counter:
 
     def __init__(self, fm: FrictionModel):
         self.factor = self.evaluate = 0
-        factor, evaluate = fm.factorizer.factor, fm.evaluate
+        factor, evaluate = fm.factorizer.factor, fm.evaluate_held     # every evaluation goes through it
 
         def counted_factor(*a, **k):
             self.factor += 1
@@ -59,12 +59,12 @@ class Counter:
             self.evaluate += 1
             return evaluate(*a, **k)
 
-        fm.factorizer.factor, fm.evaluate = counted_factor, counted_evaluate
+        fm.factorizer.factor, fm.evaluate_held = counted_factor, counted_evaluate
         self._fm = fm
 
     def close(self) -> None:
         """Back to the uncounted methods (the instance attributes go)."""
-        del self._fm.factorizer.factor, self._fm.evaluate
+        del self._fm.factorizer.factor, self._fm.evaluate_held
 
 
 def loop_area(problem, states) -> float:

@@ -5,7 +5,9 @@ each evaluation is a few bincounts).
 Element and pin terms sit on node dofs. Tendon terms are z-space entries
 (z = [x; attachment points], plush_opt/fem/attachments.py): those between node
 dofs go to their slot directly; those touching an attachment point spread
-over its nodes (W^T H_z W) through one sparse matrix.
+over its nodes (W^T H_z W) through one sparse matrix. The segments of
+via-point friction (:class:`ViaSegments`) sit on via points P = W x and
+land as W^T H_P W, after everything else.
 
 Three forms (Model's ``hessian`` argument):
 
@@ -29,7 +31,10 @@ Three forms (Model's ``hessian`` argument):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 
 from ..base.linalg import LowRankHessian
@@ -61,17 +66,56 @@ def pair_blocks(K: np.ndarray) -> np.ndarray:
     return M.reshape(2 * m, 2 * m)
 
 
+@dataclass(frozen=True)
+class ViaSegments:
+    """Segments whose ends are via points P = W x (the segmented tendons of
+    via-point friction, plush_opt/fem/segments.py): each one's Hessian
+    (4 x 4 in its ends' coordinates ``seg_p`` (count, 4) of P) lands as
+    W^T H W. ``split``: as the tendons' segments in the split form, its
+    coupling of its two ends joins the low-rank term (2 diag(K, K) stays)."""
+
+    W: sp.csr_matrix
+    seg_p: np.ndarray
+    split: bool
+
+    @property
+    def count(self) -> int:
+        return len(self.seg_p)
+
+    def entries(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(rows, cols, weight, entry) in node dofs: entry 16 s + 4 a + b of
+        the segments' flat Hessians lands at (rows, cols) times weight."""
+        W, rows, cols, entry, weight = self.W, [], [], [], []
+        blocks = ([(a, b) for a in (0, 1) for b in (0, 1)] + [(a, b) for a in (2, 3) for b in (2, 3)]
+                  if self.split else [(a, b) for a in range(4) for b in range(4)])
+        for s in range(self.count):
+            for a, b in blocks:
+                ra, rb = W.getrow(self.seg_p[s, a]), W.getrow(self.seg_p[s, b])
+                rows.append(np.repeat(ra.indices, len(rb.indices)))
+                cols.append(np.tile(rb.indices, len(ra.indices)))
+                weight.append(np.outer(ra.data, rb.data).ravel())
+                entry.append(np.full(len(ra.indices) * len(rb.indices), 16 * s + 4 * a + b))
+        cat = lambda a, dtype: np.concatenate(a) if a else np.zeros(0, dtype)  # noqa: E731
+        return cat(rows, np.int64), cat(cols, np.int64), cat(weight, np.float64), cat(entry, np.int64)
+
+
 class HessianLayout:
     """The Hessian's pattern and scatter slots for one model.
 
     ``elem_dofs`` (n_elems, k) and ``pin_dofs`` in node dofs; ``points``
     the model's TendonPoints; ``seg_dofs`` (n_segments, 4) and
-    ``tendon_dofs`` (n_tendons, local, padded with -1) in z-space dofs.
+    ``tendon_dofs`` (n_tendons, local, padded with -1) in z-space dofs;
+    ``via`` the segmented tendons' via segments (:class:`ViaSegments`), or
+    None. ``low_rank`` and ``split`` describe the tendons' part; via
+    segments in their split form add to the low-rank term too.
     """
 
-    def __init__(self, n_dofs: int, elem_dofs, pin_dofs, points, seg_dofs, tendon_dofs, form: str):
+    def __init__(self, n_dofs: int, elem_dofs, pin_dofs, points, seg_dofs, tendon_dofs, form: str,
+                 via: ViaSegments | None = None):
         if form not in FORMS:
             raise ValueError(f"Hessian form {form!r}: expected one of {', '.join(FORMS)}")
+        self._args = (n_dofs, elem_dofs, pin_dofs, points, seg_dofs, tendon_dofs, form)
+        self.via = via
         self.n = n = n_dofs
         self.form = form
         self.low_rank = form != "assembled" and len(seg_dofs) > 0
@@ -92,6 +136,10 @@ class HessianLayout:
                           + points.expand(zr[~direct], zc[~direct], self._A_sparse))
         rows += [x[2] for x in spread]
         cols += [x[3] for x in spread]
+        if via is not None:
+            via_rows, via_cols, via_weight, via_entry = via.entries()
+            rows.append(via_rows)
+            cols.append(via_cols)
         sizes = [len(x) for x in rows]
         keys = np.concatenate(cols) * n + np.concatenate(rows)
         unique_keys, slot = np.unique(keys, return_inverse=True)
@@ -109,11 +157,20 @@ class HessianLayout:
             offsets = np.cumsum([0] + [x[0] for x in spread])
             self._spread = sp.csr_matrix(
                 (np.concatenate([x[4] for x in spread]),
-                 (np.concatenate(parts[2 + len(kinds):]),
+                 (np.concatenate(parts[2 + len(kinds):2 + len(kinds) + len(spread)]),
                   np.concatenate([x[1] + o for x, o in zip(spread, offsets)]))),
                 shape=(self.nnz, offsets[-1]))
         if self.low_rank:
             self._build_low_rank()
+        if via is not None:
+            self._via_expand = sp.csr_matrix((via_weight, (parts[-1], via_entry)), shape=(self.nnz, 16 * via.count))
+            self._via_pairs = segment_pairs(via.seg_p, via.W) if via.split else None
+
+    def with_via(self, via: ViaSegments) -> "HessianLayout":
+        """This layout (same terms, same form) with the via segments ``via``
+        too: the pattern is the union, each contribution lands where it
+        did plus the segments' blocks."""
+        return HessianLayout(*self._args, via=via)
 
     def _standin(self) -> tuple[sp.csr_matrix, np.ndarray]:
         """A with the rows of each large disc's point moved to its heaviest
@@ -172,10 +229,12 @@ class HessianLayout:
         self._end_on = np.where(hit, pos, -1)
 
     def assemble(self, elem_hess: np.ndarray, pin_stiffness: float, seg_hess=None, length_grad=None,
-                 dtension=None):
+                 dtension=None, via_hess=None):
         """The Hessian from its terms: element Hessians (flat), the pin
         stiffness, and with tendons each segment's U' l'' (n_segments, 16),
-        each tendon's l' on its local dofs (n_tendons, local) and U''.
+        each tendon's l' on its local dofs (n_tendons, local) and U''; with
+        via segments (:class:`ViaSegments`) each one's Hessian in its ends'
+        via point coordinates (count, 4, 4), added last.
         A CSC matrix, or a LowRankHessian."""
         data = np.bincount(self._slot_elem, weights=elem_hess, minlength=self.nnz)
         data += np.bincount(self._slot_pin, weights=np.full(len(self._slot_pin), pin_stiffness),
@@ -195,10 +254,14 @@ class HessianLayout:
                     rest.append(values[~d])
             if rest:
                 data += self._spread @ np.concatenate(rest)
+        if via_hess is not None:
+            data += self._via_expand @ (2 * via_hess if self.via.split else via_hess).ravel()
         H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
-        if not self.low_rank:
-            return H
-        return LowRankHessian(H, *self._low_rank_term(K, length_grad, dtension))
+        Q, M = self._low_rank_term(K, length_grad, dtension) if self.low_rank else (None, None)
+        if via_hess is not None and self.via.split:
+            Qv, Mv = self._via_pairs, pair_blocks(via_hess[:, :2, :2])
+            Q, M = (Qv, Mv) if Q is None else (sp.vstack([Q, Qv], format="csr"), sla.block_diag(M, Mv))
+        return H if Q is None else LowRankHessian(H, Q, M)
 
     def _low_rank_term(self, K, length_grad, dtension) -> tuple[sp.csr_matrix, np.ndarray]:
         """Q and M of the terms kept apart: minus each segment's

@@ -25,6 +25,8 @@ Two evaluators are built from those kernels, and tests check they agree:
 
 Flat vectors interleave coordinates: ``[x0, y0, x1, y1, ...]``.
 A term the scene does not have (gravity, tendons) is not summed.
+:func:`sum_terms` is the sum for any terms and layout: the friction model
+(plush_opt/fem/friction.py) sums its terms with it too.
 """
 
 from __future__ import annotations
@@ -42,7 +44,7 @@ from .hessian_layout import FORMS, HessianLayout
 from .mesh import Mesh
 from .pins import check_pins
 from .tendons import TendonTerm
-from .terms import ElasticTerm, GravityTerm, Mapped, PinTerm, Term  # noqa: F401 (Mapped: friction.py)
+from .terms import ElasticTerm, GravityTerm, PinTerm, Term
 from ..io.scene import Scene
 
 log = logging.getLogger(__name__)
@@ -70,6 +72,36 @@ class Evaluation:
     @functools.cached_property
     def hessian(self) -> sp.csc_matrix | None:
         return assembled(self.hessian_form)
+
+
+def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order: int) -> Evaluation:
+    """The sum of ``terms`` at flat pose ``x`` (n_dofs,) and contractions
+    ``c`` (n_winches,): E (order 0), plus grad_x E (order 1), plus the
+    Hessian (order 2), every term's parts assembled once by ``layout``.
+    Energies and gradients are added in the order of ``terms``.
+
+    Where x is not finite or a term finds it inadmissible (or the energy is
+    not finite), E = +inf and no derivatives are returned."""
+    if not (np.all(np.isfinite(x)) and all(term.admissible(x) for term in terms)):
+        return Evaluation(np.inf, None, None, np.nan, False)
+    parts = [term.evaluate(x, c, order) for term in terms]
+    energy = 0.0
+    for part in parts:
+        energy += part.energy
+    energy = float(energy)
+    if order == 0 or not np.isfinite(energy):
+        return Evaluation(energy, None, None, np.nan, np.isfinite(energy))
+    g = np.zeros(layout.n)
+    for part in parts:
+        g += part.gradient
+    # residuals are judged against the largest term's forces
+    force_scale = float(max(part.force_scale for part in parts))
+    if order == 1:
+        return Evaluation(energy, g, None, force_scale, True)
+    hessian = {}
+    for part in parts:
+        hessian.update(part.hessian)
+    return Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
 
 
 class Model:
@@ -250,28 +282,8 @@ class Model:
         The pose is admissible when every element has J > 0; otherwise the
         energy is +inf and no derivatives are returned.
         """
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        c = self._c(c)
-        if not self.admissible(x):
-            return Evaluation(np.inf, None, None, np.nan, False)
-        parts = [term.evaluate(x, c, order) for term in self.terms]
-        energy = 0.0
-        for part in parts:
-            energy += part.energy
-        energy = float(energy)
-        if order == 0 or not np.isfinite(energy):
-            return Evaluation(energy, None, None, np.nan, np.isfinite(energy))
-        g = np.zeros(self.n_dofs)
-        for part in parts:
-            g += part.gradient
-        # residuals are judged against the largest term's forces
-        force_scale = float(max(part.force_scale for part in parts))
-        if order == 1:
-            return Evaluation(energy, g, None, force_scale, True)
-        hessian = {}
-        for part in parts:
-            hessian.update(part.hessian)
-        return Evaluation(energy, g, self.hessian_layout.assemble(**hessian), force_scale, True)
+        return sum_terms(self.terms, self.hessian_layout, np.asarray(x, dtype=np.float64).reshape(-1),
+                         self._c(c), order)
 
     def length_gradient_local(self, seg_grad: np.ndarray) -> np.ndarray:
         """dl_t/dx on each tendon's local dof list, (n_tendons, local)."""

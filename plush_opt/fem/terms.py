@@ -14,7 +14,8 @@ term gives, at a flat pose ``x`` (n_dofs,) and contractions ``c``
 * its energy as a CasADi expression of symbolic (x, c) (:meth:`Term.expression`);
 * whether a pose is admissible for it (:meth:`Term.admissible`), and
 * :meth:`Term.commit`: the history it carries, committed once a step is
-  accepted (none of these terms carries any; contact and friction will).
+  accepted (none of these terms carries any; the segment term of
+  via-point friction, plush_opt/fem/segments.py, carries its rest lengths).
 
 docs/terms.md describes the interface and how a new term plugs in.
 """
