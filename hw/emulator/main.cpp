@@ -28,6 +28,11 @@ volatile sig_atomic_t g_stop = 0;
 
 void on_signal(int) { g_stop = 1; }
 
+// SIGUSR1 closes the window of position extremes (tests measure one move's overshoot).
+volatile sig_atomic_t g_window_request = 0;
+
+void on_window(int) { g_window_request = 1; }
+
 struct Options {
   int winches = 4;
   double speed = 3000.0;   // physical top speed, ticks/s
@@ -183,6 +188,27 @@ struct Sim {
   double x[plush::kMaxAxes] = {};       // true position, raw ticks
   long min_ticks[plush::kMaxAxes] = {};  // extremes of the reported position
   long max_ticks[plush::kMaxAxes] = {};
+  long window_min[plush::kMaxAxes] = {};  // extremes since the last window was closed (SIGUSR1)
+  long window_max[plush::kMaxAxes] = {};
+  long closed_min[plush::kMaxAxes] = {};  // ... of the window closed last
+  long closed_max[plush::kMaxAxes] = {};
+  unsigned long windows = 0;              // windows closed
+
+  void track(int a, long pos) {
+    if (pos < min_ticks[a]) min_ticks[a] = pos;
+    if (pos > max_ticks[a]) max_ticks[a] = pos;
+    if (pos < window_min[a]) window_min[a] = pos;
+    if (pos > window_max[a]) window_max[a] = pos;
+  }
+
+  void close_window(const plush::ProtocolCore& core, int winches) {
+    for (int a = 0; a < winches; ++a) {
+      closed_min[a] = window_min[a];
+      closed_max[a] = window_max[a];
+      window_min[a] = window_max[a] = core.position(static_cast<uint8_t>(a));
+    }
+    ++windows;
+  }
 };
 
 void write_state(const Options& o, const plush::ProtocolCore& core, const Sim& sim, double t, bool connected,
@@ -225,6 +251,13 @@ void write_state(const Options& o, const plush::ProtocolCore& core, const Sim& s
   list("speed", [&](uint8_t a) { integer(core.speed_limit(a)); });
   list("min_ticks", [&](uint8_t a) { integer(sim.min_ticks[a]); });
   list("max_ticks", [&](uint8_t a) { integer(sim.max_ticks[a]); });
+  list("window_min", [&](uint8_t a) { integer(sim.window_min[a]); });
+  list("window_max", [&](uint8_t a) { integer(sim.window_max[a]); });
+  list("closed_min", [&](uint8_t a) { integer(sim.closed_min[a]); });
+  list("closed_max", [&](uint8_t a) { integer(sim.closed_max[a]); });
+  s += "\"windows\": ";
+  integer(static_cast<long>(sim.windows));
+  s += ", ";
   s += "\"watchdog_ms\": ";
   integer(static_cast<long>(core.watchdog_ms()));
   s += ", \"stops\": {\"command\": ";
@@ -304,6 +337,8 @@ int main(int argc, char** argv) {
   sigemptyset(&sa.sa_mask);
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGINT, &sa, nullptr);
+  sa.sa_handler = on_window;
+  sigaction(SIGUSR1, &sa, nullptr);
   signal(SIGPIPE, SIG_IGN);
   signal(SIGHUP, SIG_IGN);
 
@@ -404,11 +439,14 @@ int main(int argc, char** argv) {
         sim.x[a] += step;
       }
       core.set_position(a, static_cast<int32_t>(lround(sim.x[a])));
-      long pos = core.position(a);
-      if (pos < sim.min_ticks[a]) sim.min_ticks[a] = pos;
-      if (pos > sim.max_ticks[a]) sim.max_ticks[a] = pos;
+      sim.track(a, core.position(a));
     }
     core.update(now_ms);
+    if (g_window_request) {
+      g_window_request = 0;
+      sim.close_window(core, o.winches);
+      t_state = -1.0;  // write the state now: the host waits for the new window
+    }
 
     if (o.state_file && (t - t_state) * 1000.0 >= o.state_interval_ms) {
       t_state = t;
