@@ -186,7 +186,7 @@ def main(argv=None) -> int:
     ap.add_argument("--board", choices=("emulator", "simavr", "both"), default="both")
     args = ap.parse_args(argv)
     kinds = ("emulator", "simavr") if args.board == "both" else (args.board,)
-    print(f"| board | motor (ticks/s) | SPEED (ticks/s) | amplitude (ticks) | worst overshoot (ticks) "
+    print(f"| board | motor (ticks/s) | SPEED (ticks/s) | amplitude (ticks) | worst overshoot (ticks; < 0: short of every target) "
           f"| past a soft limit (ticks) |")
     print("|---|---:|---:|---:|---:|---:|")
     for kind in kinds:

@@ -155,6 +155,7 @@ static void usage(FILE* out) {
           "Runs the winch board firmware on a simulated ATmega2560 (simavr) with\n"
           "simulated motors and encoders. Prints the pseudo-terminal of its serial\n"
           "port on the first line of stdout, then runs until SIGTERM or SIGINT.\n"
+          "SIGUSR1 closes the window of position extremes in the state file.\n"
           "\n"
           "  --firmware ELF       the firmware (make -C hw firmware)\n"
           "  --winches N          motors connected to axes 0..N-1, 1..%d (default 4)\n"

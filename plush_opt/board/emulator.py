@@ -175,9 +175,10 @@ class Emulator:
     winches : int
         Number of axes, 1..8.
     speed : float
-        Top speed of every motor, ticks/s (the board's SPEED limits it further).
+        Speed of every motor at full PWM, ticks/s (the board's SPEED limits it further).
     tau : float
-        Time constant of the first-order position response, s.
+        Mechanical time constant of the motors, s. The motors are driven by
+        the firmware's own control law (hw/emulator/README.md).
     watchdog_ms, deadband : int, optional
         Power-up watchdog timeout (ms) and arrival deadband (ticks).
     state_file : path, optional
