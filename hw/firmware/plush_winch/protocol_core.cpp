@@ -591,13 +591,16 @@ bool AxisControl::guard(const ProtocolCore& core, uint8_t axis, int32_t raw, int
   // target, the motor is stopped first, then driven back).
   const int32_t room_up = min32(diff_sat(core.limit_hi(axis), pos), to_target > 0 ? to_target : 0);
   const int32_t room_down = min32(diff_sat(pos, core.limit_lo(axis)), to_target < 0 ? -to_target : 0);
-  // Ticks the motor may still travel before a brake holds it, at the speed
-  // of the last cycle; one tick of margin (none with a zero deadband, where
-  // the motor must end on the target itself).
-  const float coast = static_cast<float>(moved < 0 ? -moved : moved) * (control::kStopTime / dt);
-  const float margin = core.deadband() > 0 ? 1.0f : 0.0f;
-  if (moved > 0 && static_cast<float>(room_up) <= coast + margin) return true;
-  if (moved < 0 && static_cast<float>(room_down) <= coast + margin) return true;
+  // Ticks the motor may still travel before a brake holds it: kStopTime
+  // at its speed. Several ticks in the last cycle give the speed at once;
+  // below that (one tick at most per cycle) the low-passed speed is the
+  // better measure, and the motor stops on the target itself.
+  const int32_t ticks = moved < 0 ? -moved : moved;
+  float speed = speed_ < 0.0f ? -speed_ : speed_;
+  if (ticks >= 2 && static_cast<float>(ticks) / dt > speed) speed = static_cast<float>(ticks) / dt;
+  const float coast = speed * control::kStopTime;
+  if (moved > 0 && static_cast<float>(room_up) <= coast) return true;
+  if (moved < 0 && static_cast<float>(room_down) <= coast) return true;
   // Never drive towards a target it stands on or past, nor past a soft limit.
   if (pwm > 0 && room_up <= 0) return true;
   if (pwm < 0 && room_down <= 0) return true;
