@@ -6,7 +6,7 @@ firmware under simavr and on the emulator, which runs the firmware's own
 control law against the same motor model. The sweep is
 tools/board_overshoot.py's (it prints the table docs/hardware.md records).
 
-Real time: about a minute per board.
+Real time: about 20 s per board.
 """
 
 import importlib.util
