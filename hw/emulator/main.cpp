@@ -1,9 +1,11 @@
 // plush-board-emu: a winch board on a pseudo-terminal.
 //
 // Serves the protocol of hw/PROTOCOL.md with the firmware's own
-// protocol_core.cpp and simulates every motor as a speed-limited
-// first-order axis in encoder ticks. The first line on stdout is the path
-// of the pseudo-terminal to open (e.g. /dev/pts/7); see --help.
+// protocol_core.cpp, drives every motor with the firmware's own control
+// law (plush::AxisControl, every 2 ms as on the board) and simulates the
+// motors as hw/simavr does: a first-order DC motor (top speed at full PWM,
+// time constant, dead zone, instant short brake). The first line on stdout
+// is the path of the pseudo-terminal to open (e.g. /dev/pts/7); see --help.
 #include <errno.h>
 #include <fcntl.h>
 #include <math.h>
@@ -28,10 +30,16 @@ volatile sig_atomic_t g_stop = 0;
 
 void on_signal(int) { g_stop = 1; }
 
+// SIGUSR1 closes the window of position extremes (tests measure one move's overshoot).
+volatile sig_atomic_t g_window_request = 0;
+
+void on_window(int) { g_window_request = 1; }
+
 struct Options {
   int winches = 4;
-  double speed = 3000.0;   // physical top speed, ticks/s
-  double tau = 0.05;       // time constant of the first-order response, s
+  double speed = 3000.0;   // motor speed at full PWM, ticks/s
+  double tau = 0.05;       // mechanical time constant of the motor, s
+  double deadzone = 0.06;  // PWM fraction below which the motor does not turn
   double step_ms = 1.0;    // simulation step
   long watchdog_ms = 1000;
   long deadband = 1;
@@ -48,11 +56,14 @@ void usage(FILE* out) {
           "\n"
           "Emulates a plush winch board (hw/PROTOCOL.md) on a pseudo-terminal.\n"
           "Prints the terminal's path on the first line of stdout, then serves\n"
-          "the protocol until SIGTERM or SIGINT.\n"
+          "the protocol until SIGTERM or SIGINT. SIGUSR1 closes the window of\n"
+          "position extremes in the state file.\n"
           "\n"
           "  --winches N          number of winches, 1..%d (default 4)\n"
-          "  --speed TICKS_PER_S  top speed of every motor (default 3000)\n"
-          "  --tau SECONDS        time constant of the position response (default 0.05)\n"
+          "  --speed TICKS_PER_S  motor speed at full PWM (default 3000)\n"
+          "  --tau SECONDS        motor time constant (default 0.05)\n"
+          "  --deadzone FRACTION  PWM fraction that does not turn the motor (default 0.06:\n"
+          "                       the firmware's smallest PWM, 25/255, just turns it)\n"
           "  --step-ms MS         simulation step (default 1)\n"
           "  --watchdog MS        watchdog timeout at power-up (default 1000)\n"
           "  --deadband TICKS     position error that counts as arrived (default 1)\n"
@@ -113,6 +124,8 @@ int parse_args(int argc, char** argv, Options* o) {
       ok = parse_double(v, 1e-3, 1e7, &o->speed);
     } else if (a == "--tau") {
       ok = parse_double(v, 0.0, 100.0, &o->tau);
+    } else if (a == "--deadzone") {
+      ok = parse_double(v, 0.0, 0.9, &o->deadzone);
     } else if (a == "--step-ms") {
       ok = parse_double(v, 0.1, 100.0, &o->step_ms);
     } else if (a == "--watchdog") {
@@ -179,11 +192,79 @@ struct Outbox {
   }
 };
 
+const double kControlPeriod = 0.002;  // s: the firmware's control cycle (plush_winch.ino)
+const double kMotorStep = 50e-6;      // s: motor integration step, as hw/simavr's
+
 struct Sim {
   double x[plush::kMaxAxes] = {};       // true position, raw ticks
+  double v[plush::kMaxAxes] = {};       // speed, ticks/s
+  plush::Drive drive[plush::kMaxAxes] = {};  // what the control law last asked of each motor
+  plush::AxisControl control[plush::kMaxAxes];
+  double t = 0.0;                       // simulated time, s since start
+  double next_control = 0.0;
   long min_ticks[plush::kMaxAxes] = {};  // extremes of the reported position
   long max_ticks[plush::kMaxAxes] = {};
+  long window_min[plush::kMaxAxes] = {};  // extremes since the last window was closed (SIGUSR1)
+  long window_max[plush::kMaxAxes] = {};
+  long closed_min[plush::kMaxAxes] = {};  // ... of the window closed last
+  long closed_max[plush::kMaxAxes] = {};
+  unsigned long windows = 0;              // windows closed
+
+  void track(int a, long pos) {
+    if (pos < min_ticks[a]) min_ticks[a] = pos;
+    if (pos > max_ticks[a]) max_ticks[a] = pos;
+    if (pos < window_min[a]) window_min[a] = pos;
+    if (pos > window_max[a]) window_max[a] = pos;
+  }
+
+  void close_window(const plush::ProtocolCore& core, int winches) {
+    for (int a = 0; a < winches; ++a) {
+      closed_min[a] = window_min[a];
+      closed_max[a] = window_max[a];
+      window_min[a] = window_max[a] = core.position(static_cast<uint8_t>(a));
+    }
+    ++windows;
+  }
 };
+
+// One motor step of kMotorStep: a first-order DC motor (hw/simavr/board_sim.c's).
+void motor_step(const Options& o, Sim* sim, int a) {
+  const plush::Drive& d = sim->drive[a];
+  if (d.brake) {
+    sim->v[a] = 0.0;  // short brake through a high-ratio gearbox: stops at once, holds
+    return;
+  }
+  const double duty = d.pwm / 255.0;
+  double goal = 0.0;  // speed the drive sustains
+  if (fabs(duty) > o.deadzone) goal = copysign((fabs(duty) - o.deadzone) / (1.0 - o.deadzone), duty) * o.speed;
+  const double relax = o.tau > 0 ? 1.0 - exp(-kMotorStep / o.tau) : 1.0;
+  sim->v[a] += (goal - sim->v[a]) * relax;
+  sim->x[a] += sim->v[a] * kMotorStep;
+}
+
+// Advance the motors by dt s, running the firmware's control cycle every
+// kControlPeriod as the board does (positions in, watchdog, drive out).
+void advance(const Options& o, plush::ProtocolCore& core, Sim* sim, double dt, uint32_t now_ms) {
+  const double end = sim->t + dt;
+  while (sim->t < end) {
+    if (sim->t >= sim->next_control) {
+      sim->next_control += kControlPeriod;
+      if (sim->next_control <= sim->t) sim->next_control = sim->t + kControlPeriod;
+      for (uint8_t a = 0; a < o.winches; ++a) core.set_position(a, static_cast<int32_t>(lround(sim->x[a])));
+      core.update(now_ms);
+      for (uint8_t a = 0; a < o.winches; ++a)
+        sim->drive[a] = sim->control[a].step(core, a, static_cast<int32_t>(lround(sim->x[a])),
+                                              static_cast<float>(kControlPeriod));
+    }
+    for (int a = 0; a < o.winches; ++a) motor_step(o, sim, a);
+    sim->t += kMotorStep;
+    for (uint8_t a = 0; a < o.winches; ++a) {
+      core.set_position(a, static_cast<int32_t>(lround(sim->x[a])));
+      sim->track(a, core.position(a));
+    }
+  }
+  core.update(now_ms);
+}
 
 void write_state(const Options& o, const plush::ProtocolCore& core, const Sim& sim, double t, bool connected,
                  unsigned long dropped) {
@@ -225,6 +306,14 @@ void write_state(const Options& o, const plush::ProtocolCore& core, const Sim& s
   list("speed", [&](uint8_t a) { integer(core.speed_limit(a)); });
   list("min_ticks", [&](uint8_t a) { integer(sim.min_ticks[a]); });
   list("max_ticks", [&](uint8_t a) { integer(sim.max_ticks[a]); });
+  list("drive", [&](uint8_t a) { num(sim.drive[a].brake ? 0.0 : sim.drive[a].pwm / 255.0); });
+  list("window_min", [&](uint8_t a) { integer(sim.window_min[a]); });
+  list("window_max", [&](uint8_t a) { integer(sim.window_max[a]); });
+  list("closed_min", [&](uint8_t a) { integer(sim.closed_min[a]); });
+  list("closed_max", [&](uint8_t a) { integer(sim.closed_max[a]); });
+  s += "\"windows\": ";
+  integer(static_cast<long>(sim.windows));
+  s += ", ";
   s += "\"watchdog_ms\": ";
   integer(static_cast<long>(core.watchdog_ms()));
   s += ", \"stops\": {\"command\": ";
@@ -304,6 +393,8 @@ int main(int argc, char** argv) {
   sigemptyset(&sa.sa_mask);
   sigaction(SIGTERM, &sa, nullptr);
   sigaction(SIGINT, &sa, nullptr);
+  sa.sa_handler = on_window;
+  sigaction(SIGUSR1, &sa, nullptr);
   signal(SIGPIPE, SIG_IGN);
   signal(SIGHUP, SIG_IGN);
 
@@ -387,28 +478,22 @@ int main(int argc, char** argv) {
       if (o.verbose) fprintf(stderr, "plush-board-emu: host hung up, motors stopped\n");
     }
 
-    // Motors: speed-limited first-order response, integrated exactly
-    // enough that an axis never overshoots its setpoint.
+    // An axis the host just stopped (STOP, hang-up) brakes at once, not at
+    // the next control cycle: its target is the position it stops at.
+    for (uint8_t a = 0; a < o.winches; ++a)
+      if (!core.enabled(a)) sim.drive[a] = plush::Drive{true, 0};
+
+    // Motors and the control law in simulated time; after a stall
+    // (debugger, suspended process) at most 0.1 s is caught up.
     double dt = t - t_last;
     t_last = t;
-    if (dt > 0.1) dt = 0.1;  // after a stall (debugger, suspended process)
-    for (uint8_t a = 0; a < o.winches; ++a) {
-      if (core.enabled(a)) {
-        double err = static_cast<double>(core.setpoint_raw(a)) - sim.x[a];
-        double vmax = o.speed;
-        if (core.speed_limit(a) < vmax) vmax = core.speed_limit(a);
-        double step = o.tau > 0 ? err * (1.0 - exp(-dt / o.tau)) : err;
-        double cap = vmax * dt;
-        if (step > cap) step = cap;
-        if (step < -cap) step = -cap;
-        sim.x[a] += step;
-      }
-      core.set_position(a, static_cast<int32_t>(lround(sim.x[a])));
-      long pos = core.position(a);
-      if (pos < sim.min_ticks[a]) sim.min_ticks[a] = pos;
-      if (pos > sim.max_ticks[a]) sim.max_ticks[a] = pos;
+    if (dt > 0.1) dt = 0.1;
+    advance(o, core, &sim, dt, now_ms);
+    if (g_window_request) {
+      g_window_request = 0;
+      sim.close_window(core, o.winches);
+      t_state = -1.0;  // write the state now: the host waits for the new window
     }
-    core.update(now_ms);
 
     if (o.state_file && (t - t_state) * 1000.0 >= o.state_interval_ms) {
       t_state = t;

@@ -107,13 +107,22 @@ typedef struct {
   long count;     // encoder count the firmware has been shown
   double duty;    // last applied drive, -1..1
   int braked;     // IN1 = IN2 = HIGH
-  long min_count, max_count;
+  long min_count, max_count;        // extremes of the encoder count since power-up
+  long window_min, window_max;      // ... since the last window reset (SIGUSR1)
+  long closed_min, closed_max;      // ... of the window that reset closed
 } Motor;
 
 static volatile sig_atomic_t g_stop = 0;
 static void on_signal(int sig) {
   (void)sig;
   g_stop = 1;
+}
+// SIGUSR1 closes the window of extremes (tests measure one move's overshoot).
+static volatile sig_atomic_t g_window_request = 0;
+static unsigned long g_windows = 0;
+static void on_window(int sig) {
+  (void)sig;
+  g_window_request = 1;
 }
 
 static avr_t* g_avr;
@@ -146,6 +155,7 @@ static void usage(FILE* out) {
           "Runs the winch board firmware on a simulated ATmega2560 (simavr) with\n"
           "simulated motors and encoders. Prints the pseudo-terminal of its serial\n"
           "port on the first line of stdout, then runs until SIGTERM or SIGINT.\n"
+          "SIGUSR1 closes the window of position extremes in the state file.\n"
           "\n"
           "  --firmware ELF       the firmware (make -C hw firmware)\n"
           "  --winches N          motors connected to axes 0..N-1, 1..%d (default 4)\n"
@@ -306,7 +316,7 @@ static void preset_encoders(void) {
   for (int a = 0; a < g_opt.winches; ++a) {
     Motor* m = &g_motor[a];
     m->x = (double)g_opt.encoder_start;
-    m->count = m->min_count = m->max_count = g_opt.encoder_start;
+    m->count = m->min_count = m->max_count = m->window_min = m->window_max = g_opt.encoder_start;
     const uint32_t v = (uint32_t)g_opt.encoder_start;
     for (int b = 0; b < 4; ++b) g_avr->data[g_enc_addr + 4u * (uint32_t)a + (uint32_t)b] = (uint8_t)(v >> (8 * b));
   }  // a multiple of 4 (see parse_args): the lines stay as the firmware last read them
@@ -337,6 +347,8 @@ static avr_cycle_count_t motor_step(avr_t* avr, avr_cycle_count_t when, void* pa
       set_encoder(a, m->count);
       if (m->count < m->min_count) m->min_count = m->count;
       if (m->count > m->max_count) m->max_count = m->count;
+      if (m->count < m->window_min) m->window_min = m->count;
+      if (m->count > m->window_max) m->window_max = m->count;
     }
   }
   return when + MOTOR_PERIOD_CYCLES;
@@ -422,6 +434,18 @@ static void poll_pty(void) {
 
 // -------------------------------------------------------------- state --
 
+// Close the window of extremes: keep its extremes, start the next at the count now.
+static void close_window(void) {
+  g_window_request = 0;
+  for (int a = 0; a < g_opt.winches; ++a) {
+    Motor* m = &g_motor[a];
+    m->closed_min = m->window_min;
+    m->closed_max = m->window_max;
+    m->window_min = m->window_max = m->count;
+  }
+  ++g_windows;
+}
+
 static void write_state(double wall) {
   if (!g_opt.state_file) return;
   char tmp[4096];
@@ -444,7 +468,12 @@ static void write_state(double wall) {
   LIST("enabled", "%s", m->braked ? "false" : "true")
   LIST("min_ticks", "%ld", m->min_count)
   LIST("max_ticks", "%ld", m->max_count)
+  LIST("window_min", "%ld", m->window_min)
+  LIST("window_max", "%ld", m->window_max)
+  LIST("closed_min", "%ld", m->closed_min)
+  LIST("closed_max", "%ld", m->closed_max)
 #undef LIST
+  fprintf(f, ", \"windows\": %lu", g_windows);
   fprintf(f, ", \"last_rx_time\": %.4f", g_last_rx);
   fprintf(f, ", \"rx_bytes\": %lu, \"tx_bytes\": %lu, \"dropped_bytes\": %lu}\n", g_rx, g_tx, g_dropped);
   if (fclose(f) == 0) rename(tmp, g_opt.state_file);
@@ -530,6 +559,8 @@ int main(int argc, char** argv) {
   sigemptyset(&sa.sa_mask);
   sigaction(SIGTERM, &sa, NULL);
   sigaction(SIGINT, &sa, NULL);
+  sa.sa_handler = on_window;
+  sigaction(SIGUSR1, &sa, NULL);
   signal(SIGPIPE, SIG_IGN);
   signal(SIGHUP, SIG_IGN);
 
@@ -547,6 +578,10 @@ int main(int argc, char** argv) {
     next_io = g_avr->cycle + IO_PERIOD_CYCLES;
     poll_pty();
     double wall = now_s() - t0;
+    if (g_window_request) {
+      close_window();
+      t_state = -1.0;  // write the state now: the host waits for the new window
+    }
     const double lead = sim_s() - wall;
     if (lead > MAX_LEAD_S) {
       struct timespec ts = {0, (long)(lead * 1e9)};

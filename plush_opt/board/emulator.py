@@ -175,9 +175,10 @@ class Emulator:
     winches : int
         Number of axes, 1..8.
     speed : float
-        Top speed of every motor, ticks/s (the board's SPEED limits it further).
+        Speed of every motor at full PWM, ticks/s (the board's SPEED limits it further).
     tau : float
-        Time constant of the first-order position response, s.
+        Mechanical time constant of the motors, s. The motors are driven by
+        the firmware's own control law (hw/emulator/README.md).
     watchdog_ms, deadband : int, optional
         Power-up watchdog timeout (ms) and arrival deadband (ticks).
     state_file : path, optional
@@ -290,6 +291,31 @@ class Emulator:
                     return state  # an exited emulator writes no more
                 raise HardwareError(f"board emulator wrote no fresh state to {self.state_file} "
                                     f"within {timeout:.1f} s")
+            time.sleep(0.002)
+
+    def new_window(self, timeout: float = 2.0) -> dict:
+        """Close the simulator's window of position extremes and open the next.
+
+        Both simulators track, per axis, the lowest and highest position
+        (``ticks``) since the last window was closed (``window_min``/
+        ``window_max`` in the state) besides since start; ``SIGUSR1`` closes
+        the window. Returns the closed window's ``{"min": [...], "max":
+        [...]}`` (one entry per axis), which covers everything up to a
+        moment after this call; the new window starts at the position then.
+        Raises :class:`HardwareError` if the simulator does not answer within
+        ``timeout`` s.
+        """
+        if not self.running:
+            raise HardwareError("board simulator is not running: no window of extremes to close")
+        before = self.read_state(fresh=False, timeout=timeout)["windows"]
+        os.kill(self._proc.pid, signal.SIGUSR1)
+        deadline = time.monotonic() + timeout
+        while True:
+            state = self.read_state(fresh=False, timeout=timeout)
+            if state["windows"] > before:
+                return {"min": state["closed_min"], "max": state["closed_max"]}
+            if time.monotonic() >= deadline:
+                raise HardwareError(f"board simulator did not close its window of extremes within {timeout:.1f} s")
             time.sleep(0.002)
 
     def stop(self, timeout: float = 5.0) -> int | None:

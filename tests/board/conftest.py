@@ -105,11 +105,11 @@ class BoardUnderTest:
     def coast(self, speed: float) -> float:
         """Ticks the motor may run on past a target reached at ``speed`` ticks/s.
 
-        The emulator's axes never overshoot. The firmware's PID closes in on
-        the target without an integral wound up on the way, so the simulated
-        motor runs on by less than a time constant at that speed.
+        None, on both boards: the firmware's control law (which the emulator
+        runs too) brakes before the target by what the motor would still
+        travel at its measured speed (test_board_overshoot.py sweeps it).
         """
-        return 0.0 if self.kind == "emulator" else speed * self.sim.tau_s
+        return 0.0
 
     def read_state(self, fresh: bool = True) -> dict:
         return self.sim.read_state(fresh=fresh)

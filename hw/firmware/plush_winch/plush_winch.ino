@@ -5,10 +5,12 @@
 // Wiring, flashing and calibration: docs/hardware.md. Protocol:
 // hw/PROTOCOL.md.
 //
-// This file owns the motors only: encoder decoding, a position PID with a
-// speed-limited reference, and the H-bridges. Everything the host sees
-// (parsing, validation, soft limits, the watchdog, targets) is decided by
-// protocol_core.cpp, the same file the host emulator is built from.
+// This file owns the motors only: encoder decoding, the control cycle and
+// the H-bridges. Everything the host sees (parsing, validation, soft
+// limits, the watchdog, targets) is decided by protocol_core.cpp, the same
+// file the host emulator is built from; so is the control law (a
+// speed-limited reference, a PID and a guard that brakes before the
+// target or a soft limit: plush::AxisControl).
 #include "protocol_core.h"
 
 #if defined(__AVR__)
@@ -26,17 +28,9 @@ static const uint32_t SETTLE_MS = 50;      // ... and the encoder has not change
 static const uint32_t WATCHDOG_MS = 1000;  // at power-up; host sets WDOG
 static const int32_t DEFAULT_SPEED = 600;  // ticks/s at power-up; host sets SPEED
 
-// PID gains, output in PWM counts (-255..255) per tick of error. Tune per
-// motor: raise KP until the axis rings, halve it, then add KD; KI only
-// removes the last few ticks against tendon load.
-static const float KP = 2.0f;
-static const float KI = 4.0f;    // per second
-static const float KD = 0.04f;   // seconds
-static const float I_LIMIT = 80.0f;   // anti-windup clamp of the integral term, PWM counts
-static const float SPEED_FILTER_S = 0.02f;  // time constant of the measured-speed low-pass (ticks come in steps)
-static const float STILL_SPEED = 20.0f;     // ticks/s: slower than this the motor is held back by a load
-static const int16_t PWM_MIN = 25;    // below this the gearmotor does not turn: jump over it
-static const int16_t PWM_MAX = 255;
+// The control law (reference generator, PID and the guard that brakes
+// before the target or a soft limit) and its gains are in protocol_core.h
+// (plush::AxisControl), shared with the host emulator.
 
 // Pins. Encoders: channels A and B of motor i on PK(2i) and PK(2i+1),
 // i.e. A8/A9, A10/A11, A12/A13, A14/A15 - one pin-change interrupt for
@@ -56,19 +50,7 @@ static plush::ProtocolCore core(CORE_CONFIG);
 static volatile int32_t enc_count[4];
 static volatile uint8_t enc_prev;
 
-struct Pid {
-  // Speed-limited reference, raw ticks: whole ticks plus the fraction
-  // walked so far. A float alone stalls at large counts (above 2^24 a
-  // step of ~1 tick per cycle rounds away).
-  int32_t ref;
-  float ref_frac;  // 0 <= ref_frac < 1
-  float integral;  // PWM counts
-  float prev_err;
-  int32_t prev_pos;  // raw ticks, last cycle
-  float speed;       // measured, low-passed, ticks/s
-  bool active;
-};
-static Pid pid[4];
+static plush::AxisControl axis_control[4];
 static uint32_t last_control_us;
 
 // Quadrature decoding table, index (previous AB << 2) | current AB.
@@ -106,7 +88,7 @@ static void drive(uint8_t a, int16_t pwm) {
     digitalWrite(PIN_IN2[a], HIGH);
     pwm = static_cast<int16_t>(-pwm);
   }
-  analogWrite(PIN_PWM[a], pwm > PWM_MAX ? PWM_MAX : pwm);
+  analogWrite(PIN_PWM[a], pwm > plush::control::kPwmMax ? plush::control::kPwmMax : pwm);
 }
 
 static void brake(uint8_t a) {
@@ -122,70 +104,12 @@ static void control(float dt) {
   core.update(millis());
 
   for (uint8_t a = 0; a < N_AXES; ++a) {
-    const int32_t pos = read_encoder(a);
-    Pid& p = pid[a];
-    if (!core.enabled(a)) {
+    const plush::Drive d = axis_control[a].step(core, a, read_encoder(a), dt);
+    if (d.brake)
       brake(a);
-      p.active = false;
-      continue;
-    }
-    any_enabled = true;
-    if (!p.active) {  // start the reference where the motor is: no jump
-      p.ref = pos;
-      p.ref_frac = 0.0f;
-      p.integral = 0.0f;
-      p.prev_err = 0.0f;
-      p.prev_pos = pos;
-      p.speed = 0.0f;
-      p.active = true;
-    }
-    // Speed limit: the reference walks towards the setpoint at most at
-    // speed_limit ticks/s; the PID tracks the reference. Differences of
-    // raw counts are taken in integers, so they are exact at any count.
-    const int32_t goal = core.setpoint_raw(a);
-    p.ref_frac += static_cast<float>(core.speed_limit(a)) * dt;
-    const int32_t step = static_cast<int32_t>(p.ref_frac);
-    p.ref_frac -= static_cast<float>(step);
-    const int32_t to_go = goal - p.ref;
-    if (to_go > step)
-      p.ref += step;
-    else if (to_go < -step)
-      p.ref -= step;
     else
-      p.ref = goal;
-
-    const float err = static_cast<float>(p.ref - pos);
-    const float moved = static_cast<float>(pos - p.prev_pos) / dt;
-    p.prev_pos = pos;
-    p.speed += (moved - p.speed) * (dt / (SPEED_FILTER_S + dt));
-    // Within the deadband the full PID stops. The core calls an axis not
-    // moving only inside it (|target - position| <= deadband, and at rest),
-    // so an axis the watchdog ignores is never driven by the full PID.
-    if (err >= -DEADBAND && err <= DEADBAND && p.ref == goal) {
-      // Arrived: hold with the integral only, no dithering around zero.
-      p.prev_err = err;
-      drive(a, static_cast<int16_t>(p.integral));
-      continue;
-    }
-    // Integrate only against a load: once the reference has stopped and
-    // the motor stands (nearly) still short of it. The lag behind a
-    // walking reference, or a motor still closing in on its target, is
-    // not a load, and an integral wound up on it would drive the motor on
-    // past the target.
-    if (p.ref == goal && p.speed < STILL_SPEED && p.speed > -STILL_SPEED) {
-      p.integral += KI * err * dt;
-      if (p.integral > I_LIMIT) p.integral = I_LIMIT;
-      if (p.integral < -I_LIMIT) p.integral = -I_LIMIT;
-    }
-    const float deriv = (err - p.prev_err) / dt;
-    p.prev_err = err;
-    float u = KP * err + p.integral + KD * deriv;
-    if (u > PWM_MAX) u = PWM_MAX;
-    if (u < -PWM_MAX) u = -PWM_MAX;
-    int16_t pwm = static_cast<int16_t>(u);
-    if (pwm > 0 && pwm < PWM_MIN) pwm = PWM_MIN;
-    if (pwm < 0 && pwm > -PWM_MIN) pwm = static_cast<int16_t>(-PWM_MIN);
-    drive(a, pwm);
+      drive(a, d.pwm);
+    if (core.enabled(a)) any_enabled = true;
   }
   digitalWrite(PIN_LED, any_enabled ? HIGH : LOW);
 }

@@ -487,4 +487,124 @@ const char* ProtocolCore::error_noseq(int code, const char* message) {
   return finish();
 }
 
+// ------------------------------------------------------------ motion --
+
+namespace {
+
+// b - a, saturated to the int32 range (each of them may be anywhere in it).
+int32_t diff_sat(int32_t b, int32_t a) {
+  const int64_t d = static_cast<int64_t>(b) - static_cast<int64_t>(a);
+  if (d > 2147483647LL) return 2147483647L;
+  if (d < -2147483647LL) return -2147483647L;
+  return static_cast<int32_t>(d);
+}
+
+int32_t wrap_diff(int32_t b, int32_t a) {
+  return static_cast<int32_t>(static_cast<uint32_t>(b) - static_cast<uint32_t>(a));
+}
+
+int32_t min32(int32_t a, int32_t b) { return a < b ? a : b; }
+
+}  // namespace
+
+AxisControl::AxisControl()
+    : ref_(0), ref_frac_(0.0f), integral_(0.0f), prev_err_(0.0f), prev_raw_(0), speed_(0.0f), active_(false) {}
+
+Drive AxisControl::step(const ProtocolCore& core, uint8_t axis, int32_t raw, float dt) {
+  Drive out = {true, 0};
+  if (!core.enabled(axis)) {
+    active_ = false;
+    return out;
+  }
+  if (!(dt > 0.0f)) dt = 1e-3f;  // a clock that did not advance: any small step will do
+  if (!active_) {  // start the reference where the motor is: no jump
+    ref_ = raw;
+    ref_frac_ = 0.0f;
+    integral_ = 0.0f;
+    prev_err_ = 0.0f;
+    prev_raw_ = raw;
+    speed_ = 0.0f;
+    active_ = true;
+  }
+  // Speed limit: the reference walks towards the setpoint at most at
+  // speed_limit ticks/s; the PID tracks the reference. Differences of raw
+  // counts are taken in integers, so they are exact at any count.
+  const int32_t goal = core.setpoint_raw(axis);
+  ref_frac_ += static_cast<float>(core.speed_limit(axis)) * dt;
+  const int32_t step = static_cast<int32_t>(ref_frac_);
+  ref_frac_ -= static_cast<float>(step);
+  const int32_t to_go = wrap_diff(goal, ref_);
+  if (to_go > step)
+    ref_ += step;
+  else if (to_go < -step)
+    ref_ -= step;
+  else
+    ref_ = goal;
+
+  const int32_t moved = wrap_diff(raw, prev_raw_);
+  prev_raw_ = raw;
+  speed_ += (static_cast<float>(moved) / dt - speed_) * (dt / (control::kSpeedFilter + dt));
+  const int16_t pwm = pid(goal, raw, core.deadband(), dt);
+  if (guard(core, axis, raw, moved, pwm, dt)) return out;
+  out.brake = false;
+  out.pwm = pwm;
+  return out;
+}
+
+int16_t AxisControl::pid(int32_t goal, int32_t raw, int32_t deadband, float dt) {
+  const float err = static_cast<float>(wrap_diff(ref_, raw));
+  // Within the deadband the full PID stops. The core calls an axis not
+  // moving only inside it (|target - position| <= deadband, and at rest),
+  // so an axis the watchdog ignores is never driven by the full PID.
+  if (ref_ == goal && err >= static_cast<float>(-deadband) && err <= static_cast<float>(deadband)) {
+    // Arrived: hold with the integral only, no dithering around zero (the
+    // guard brakes instead if that would push past the target).
+    prev_err_ = err;
+    return static_cast<int16_t>(integral_);
+  }
+  // Integrate only against a load: once the reference has stopped and the
+  // motor stands (nearly) still short of it. The lag behind a walking
+  // reference, or a motor still closing in on its target, is not a load.
+  if (ref_ == goal && speed_ < control::kStillSpeed && speed_ > -control::kStillSpeed) {
+    integral_ += control::kKi * err * dt;
+    if (integral_ > control::kIntegralLimit) integral_ = control::kIntegralLimit;
+    if (integral_ < -control::kIntegralLimit) integral_ = -control::kIntegralLimit;
+  }
+  const float deriv = (err - prev_err_) / dt;
+  prev_err_ = err;
+  float u = control::kKp * err + integral_ + control::kKd * deriv;
+  if (u > control::kPwmMax) u = control::kPwmMax;
+  if (u < -control::kPwmMax) u = -control::kPwmMax;
+  int16_t pwm = static_cast<int16_t>(u);
+  if (pwm > 0 && pwm < control::kPwmMin) pwm = control::kPwmMin;
+  if (pwm < 0 && pwm > -control::kPwmMin) pwm = static_cast<int16_t>(-control::kPwmMin);
+  return pwm;
+}
+
+bool AxisControl::guard(const ProtocolCore& core, uint8_t axis, int32_t raw, int32_t moved, int16_t pwm,
+                        float dt) const {
+  // In the host's (zeroed) ticks, as the target and the limits are.
+  const int32_t pos = wrap_diff(raw, core.offset(axis));
+  const int32_t to_target = diff_sat(core.target(axis), pos);
+  // Room ahead, each way: up to the soft limit, and up to the target if it
+  // lies that way (none if it lies the other way: moving away from the
+  // target, the motor is stopped first, then driven back).
+  const int32_t room_up = min32(diff_sat(core.limit_hi(axis), pos), to_target > 0 ? to_target : 0);
+  const int32_t room_down = min32(diff_sat(pos, core.limit_lo(axis)), to_target < 0 ? -to_target : 0);
+  // Ticks the motor may still travel before a brake holds it: kStopTime
+  // at its speed. Several ticks in the last cycle give the speed at once;
+  // below that (one tick at most per cycle) the low-passed speed is the
+  // better measure, and the motor stops on the target itself.
+  const int32_t ticks = moved < 0 ? -moved : moved;
+  float speed = speed_ < 0.0f ? -speed_ : speed_;
+  if (ticks >= 2 && static_cast<float>(ticks) / dt > speed) speed = static_cast<float>(ticks) / dt;
+  const float coast = speed * control::kStopTime;
+  if (moved > 0 && static_cast<float>(room_up) <= coast) return true;
+  if (moved < 0 && static_cast<float>(room_down) <= coast) return true;
+  // Never drive towards a target it stands on or past, nor past a soft limit.
+  if (pwm > 0 && room_up <= 0) return true;
+  if (pwm < 0 && room_down <= 0) return true;
+  return false;
+}
+
 }  // namespace plush

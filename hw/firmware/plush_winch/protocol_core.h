@@ -2,9 +2,11 @@
 //
 // Everything the protocol decides lives here: line framing, parsing,
 // argument validation, soft limits, the host watchdog and the per-axis
-// state. It has no Arduino dependency (only <stdint.h>, <stddef.h>), no
-// heap and no floating point, so the same file is compiled into the AVR
-// firmware and into the host emulator.
+// state. It has no Arduino dependency (only <stdint.h>, <stddef.h>) and no
+// heap, so the same file is compiled into the AVR firmware and into the
+// host emulator. The protocol itself uses no floating point; the motion
+// control law (AxisControl, below) does, as the firmware runs it, so the
+// emulator drives its simulated motors with the firmware's own law.
 //
 // The caller owns the motors:
 //
@@ -14,9 +16,8 @@
 //     for each axis a: core.set_position(a, encoder_count[a]);
 //     core.update(now_ms);                       // watchdog
 //     for each axis a:
-//       if core.enabled(a): drive towards core.setpoint_raw(a)
-//                           at most at core.speed_limit(a) ticks/s
-//       else:               brake
+//       Drive d = control[a].step(core, a, encoder_count[a], dt);
+//       if d.brake: brake  else: apply d.pwm (-255..255)
 //
 // Positions given to set_position() are raw encoder counts; the core keeps
 // the offset set by ZERO, so setpoint_raw() is in the same raw counts.
@@ -103,6 +104,7 @@ class ProtocolCore {
   uint32_t watchdog_trips() const { return stops_[STOP_WATCHDOG]; }
   uint32_t stop_count(StopReason reason) const { return stops_[reason]; }
   uint32_t lines() const { return lines_; }
+  int32_t deadband() const { return config_.deadband; }
   uint32_t errors() const { return errors_; }
 
  private:
@@ -175,6 +177,67 @@ class ProtocolCore {
 
   char reply_[kReplySize];
   size_t reply_len_;
+};
+
+// ------------------------------------------------------------ motion --
+
+// The position control law of one axis, run every control cycle.
+//
+// A reference walks towards the target at most at the axis' speed limit
+// and a PID tracks it (output in PWM counts, -255..255). Over both sits a
+// guard on the measured position: the motor is short-braked (the H-bridge's
+// IN1 = IN2 = HIGH; a geared motor stops within a few ms) as soon as the
+// distance it would still travel at its measured speed reaches the target
+// or a soft limit ahead of it, or when it moves away from its target, and
+// it is never driven towards a target it stands on or past, nor past a
+// soft limit. So the motor closes in on its target in braked steps and
+// never passes it by more than the deadband, nor a soft limit at all,
+// whatever the speed limit and however fast the motor.
+//
+// Gains: tune per motor (raise kKp until the axis rings, halve it, then
+// add kKd; kKi only removes the last few ticks against tendon load).
+// kStopTime is how far ahead (in time at the measured speed) the guard
+// looks: one control cycle of travel before it can act, one for the brake
+// to take hold, and one of margin for a motor still accelerating. A motor
+// that brakes slower needs more.
+namespace control {
+const float kKp = 2.0f;             // PWM counts per tick of error
+const float kKi = 4.0f;             // per second
+const float kKd = 0.04f;            // seconds
+const float kIntegralLimit = 80.0f; // anti-windup clamp of the integral term, PWM counts
+const float kSpeedFilter = 0.02f;   // s: measured-speed low-pass (ticks come in steps)
+const float kStillSpeed = 20.0f;    // ticks/s: slower than this the motor is held back by a load
+const float kStopTime = 0.006f;     // s of travel at the measured speed the guard keeps clear
+const int16_t kPwmMin = 25;         // below this the gearmotor does not turn: jump over it
+const int16_t kPwmMax = 255;
+}  // namespace control
+
+struct Drive {
+  bool brake;   // short brake (also when the axis is not enabled)
+  int16_t pwm;  // else: signed PWM, -kPwmMax..kPwmMax (0: not driven)
+};
+
+class AxisControl {
+ public:
+  AxisControl();
+  // One control cycle of `axis`: `raw` is its encoder count now (raw, as
+  // given to set_position), `dt` the seconds since the previous cycle.
+  Drive step(const ProtocolCore& core, uint8_t axis, int32_t raw, float dt);
+
+ private:
+  int16_t pid(int32_t goal, int32_t raw, int32_t deadband, float dt);
+  bool guard(const ProtocolCore& core, uint8_t axis, int32_t raw, int32_t moved, int16_t pwm, float dt) const;
+
+  // Speed-limited reference, raw ticks: whole ticks plus the fraction
+  // walked so far. A float alone stalls at large counts (above 2^24 a
+  // step of ~1 tick per cycle rounds away).
+  int32_t ref_;
+  float ref_frac_;  // 0 <= ref_frac_ < 1
+  float integral_;  // PWM counts
+  float prev_err_;
+  int32_t prev_raw_;  // raw ticks, last cycle
+  float speed_;       // measured, low-passed, ticks/s
+  bool active_;
 };
 
 }  // namespace plush
