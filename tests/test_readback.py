@@ -187,9 +187,12 @@ def _board(tmp_path, port=None, **winch):
 
 
 @pytest.mark.parametrize("port, winch, pattern", [
-    ({}, {"max_speed": 1e308}, r"winches\[0\]\.max_speed: 1e\+308 is .* ticks/s, beyond the board's 1000000"),
-    ({}, {"max_speed": 1e6}, r"winches\[0\]\.max_speed: 1e\+06 is .* ticks/s, beyond the board's 1000000"),
+    ({}, {"max_speed": 1e308}, r"winches\[0\]\.max_speed: 1e\+308 is .* ticks/s; the board moves at 1\.\.1000000"),
+    ({}, {"max_speed": 1e6}, r"winches\[0\]\.max_speed: 1e\+06 is .* ticks/s; the board moves at 1\.\.1000000"),
+    ({}, {"max_speed": 1e-300}, r"winches\[0\]\.max_speed: 1e-300 is 3\.18e-299 ticks/s; the board moves"),
     ({}, {"spool_radius": 5e-324}, r"winches\[0\]\.spool_radius: 4\.94066e-324 gives inf ticks per length unit"),
+    ({}, {"spool_radius": 1e308}, r"winches\[0\]\.spool_radius: 1e\+308 gives 0 ticks per length unit"),
+    ({}, {"limits": [0, 1e308]}, r"winches\[0\]\.limits\[1\]: 1e\+308 is too large"),
     ({}, {"ticks_per_rev": 1e308}, r"winches\[0\]\.ticks_per_rev: must be <= 1e\+09 ticks, got 1e\+308"),
     ({}, {"gear_ratio": 1e308}, r"winches\[0\]\.gear_ratio: must be <= 1e\+06, got 1e\+308"),
     ({"boot_time": 1e308}, {}, r"port\.boot_time: must be <= 60 s, got 1e\+308"),

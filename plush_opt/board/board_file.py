@@ -47,6 +47,10 @@ MAX_TICKS_PER_REV = float(MAX_TICKS)
 """an encoder's ticks per revolution (and the gear ratio times it) stay within
 the board's position range, so one revolution is representable."""
 MAX_GEAR_RATIO = 1e6
+MAX_LIMIT = 1e12
+"""length units: contraction limits, like the problem file's lengths."""
+MIN_TICKS_PER_UNIT = 1e-6
+"""ticks per length unit at the least: fewer, and one tick is a kilometre."""
 MAX_RETRIES = 100
 """further attempts after a timeout: more only delays the error."""
 """motor revolutions per spool revolution: no gearbox reduces further."""
@@ -255,20 +259,22 @@ def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> 
     limits = w["limits"]
     if not isinstance(limits, list) or len(limits) != 2:
         c.fail(at_key(key, "limits"), f"must be [lower, upper], got {describe(limits)}")
-    lo = c.number(limits[0], at_index(at_key(key, "limits"), 0))
-    hi = c.number(limits[1], at_index(at_key(key, "limits"), 1))
+    lo, hi = (c.number(limits[k], at_index(at_key(key, "limits"), k)) for k in (0, 1))
+    for k, v in enumerate((lo, hi)):
+        if abs(v) > MAX_LIMIT:
+            c.fail(at_index(at_key(key, "limits"), k), f"{v:g} is too large (lengths are limited to "
+                   f"{MAX_LIMIT:g} in magnitude)")
     if not lo < hi:
         c.fail(at_key(key, "limits"), f"lower must be < upper, got [{lo}, {hi}]")
-    wc = WinchCalibration(
-        name=wname, axis=axis,
+    scale = dict(
         spool_radius=c.number(w["spool_radius"], at_key(key, "spool_radius"), gt=0),
         ticks_per_rev=_at_most(c, c.number(w["ticks_per_rev"], at_key(key, "ticks_per_rev"), gt=0),
                                MAX_TICKS_PER_REV, at_key(key, "ticks_per_rev"), "ticks"),
         gear_ratio=_at_most(c, c.number(w["gear_ratio"], at_key(key, "gear_ratio"), gt=0),
                             MAX_GEAR_RATIO, at_key(key, "gear_ratio"), ""),
-        direction=int(direction), limits=(lo, hi),
         max_speed=c.number(w["max_speed"], at_key(key, "max_speed"), gt=0))
-    _check_scale(c, wc, key)
+    _check_scale(c, key, **scale)
+    wc = WinchCalibration(name=wname, axis=axis, direction=int(direction), limits=(lo, hi), **scale)
     if w.get("tolerance") is not None:
         tolerance = c.number(w["tolerance"], at_key(key, "tolerance"), gt=0)
         if tolerance < wc.min_tolerance:
@@ -281,17 +287,18 @@ def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> 
     return wc
 
 
-def _check_scale(c: Checker, wc: WinchCalibration, key: str) -> None:
-    """Ticks per length unit within the board's position range, and the
-    speed limit within its speed range."""
-    per = wc.ticks_per_mm
-    if not math.isfinite(per) or per > MAX_TICKS:
-        c.fail(at_key(key, "spool_radius"), f"{wc.spool_radius:g} gives {per:.3g} ticks per length unit "
-               f"(ticks_per_rev * gear_ratio / (2 pi spool_radius)), beyond the board's {MAX_TICKS}")
-    speed = wc.max_speed * per
-    if not math.isfinite(speed) or speed > MAX_SPEED:
-        c.fail(at_key(key, "max_speed"), f"{wc.max_speed:g} is {speed:.3g} ticks/s, beyond the board's "
-               f"{MAX_SPEED} ticks/s (at most {MAX_SPEED / per:.4g} per second)")
+def _check_scale(c: Checker, key: str, spool_radius, ticks_per_rev, gear_ratio, max_speed) -> None:
+    """Ticks per length unit (:attr:`WinchCalibration.ticks_per_mm`) within
+    the board's position range, and the speed limit within its speed range."""
+    per = ticks_per_rev * gear_ratio / (2.0 * math.pi * spool_radius)
+    if not MIN_TICKS_PER_UNIT <= per <= MAX_TICKS:
+        c.fail(at_key(key, "spool_radius"), f"{spool_radius:g} gives {per:.3g} ticks per length unit "
+               f"(ticks_per_rev * gear_ratio / (2 pi spool_radius)); the board's range is "
+               f"{MIN_TICKS_PER_UNIT:g}..{MAX_TICKS}")
+    speed = max_speed * per
+    if not 1 <= speed <= MAX_SPEED:
+        c.fail(at_key(key, "max_speed"), f"{max_speed:g} is {speed:.3g} ticks/s; the board moves at "
+               f"1..{MAX_SPEED} ticks/s ({1 / per:.4g}..{MAX_SPEED / per:.4g} per second)")
 
 
 def load_calibration(path) -> BoardCalibration:
