@@ -89,6 +89,10 @@ _DROP = object()
      r"log\.jsonl: line 2: commanded\.thumb: unknown key"),
     (_edit_line(0, problem=None), r"log\.jsonl: line 1: problem: expected a string, got null"),
     (_edit_line(1, t=-1), r"log\.jsonl: line 2: t: must be >= 0, got -1"),
+    (_edit_line(1, t=10 ** 400), r"log\.jsonl: line 2: t: expected a finite number, got number 100000000000\.\.\. "
+     r"\(401 characters\)$"),
+    (_edit_line(1, commanded={"left": 0.0, "right": 0.0, "grip": 1e308}),
+     r"log\.jsonl: line 2: commanded: grip=1e\+308: outside the winch's bounds \[0, 20\]"),
 ])
 def test_a_corrupt_run_log_is_one_line(tmp_path, run_log, make, pattern):
     log = tmp_path / "log.jsonl"

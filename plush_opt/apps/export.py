@@ -134,14 +134,16 @@ def run_frames(log_path, problem):
     to command in order, from the scene's start state driven to the
     scene's contractions (where the run's planner starts)."""
     rows = read_run_log(log_path, problem.winch_names)
-    commands = [r for r in rows if r.get("event") in ("start", "command") and r.get("commanded")]
+    commands = [(n, r) for n, r in enumerate(rows, start=1)
+                if r.get("event") in ("start", "command") and r.get("commanded")]
     if not commands:
         raise SceneError(f"{log_path}: no commanded contractions (a run log from plush-opt run?)")
     plant = problem.plant.fork()
     plant.commit(problem.equilibrium())      # where the run's planner starts
     frames, eq = [], None
-    for r in commands:
-        eq = plant.drive(problem.contraction_vector(r["commanded"]), None if eq is None else eq.x,
+    for n, r in commands:
+        c = problem.contraction_vector(r["commanded"], what=f"{log_path}: line {n}: commanded:")
+        eq = plant.drive(c, None if eq is None else eq.x,
                          origin="the run's previous command")
         if not eq.converged:
             raise SolverError(f"{log_path}: t = {r['t']} s: no equilibrium at {r['commanded']}: {eq.status}")

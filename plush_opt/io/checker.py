@@ -49,7 +49,10 @@ def describe(value) -> str:
         s = value if len(value) <= MAX_SHOWN else value[:MAX_SHOWN - 3] + "..."
         return f"string {s!r}"
     if isinstance(value, numbers.Number):
-        return f"number {value!r}"
+        s = repr(value)
+        if len(s) > MAX_SHOWN:
+            s = f"{s[:12]}... ({len(s)} characters)"
+        return f"number {s}"
     if isinstance(value, dict):
         return "a mapping"
     if isinstance(value, (list, tuple, np.ndarray)):
