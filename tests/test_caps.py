@@ -155,3 +155,19 @@ def test_hessian_memory_is_linear_in_via_points():
 
 def test_few_via_points_keep_the_assembled_form():
     assert _via_model(20)[0].hessian_layout.form == "assembled"
+
+
+def test_a_disc_below_round_off_is_refused_not_split_forever():
+    """A scene built in code skips the file's floor on the radius: the disc
+    integration still stops (it used to split the cut triangles forever)."""
+    import dataclasses
+    from plush_opt.base.errors import SceneError
+    from plush_opt.fem.attachments import TendonPoints
+    from plush_opt.fem.mesh import build_mesh
+    from plush_opt.io.problem_file import scene_from_dict
+    data = yaml.safe_load(FINGER.read_text())
+    data["targets"][0]["to"] = [55, 20]
+    scene = scene_from_dict(data, "finger.yaml")
+    tendons = [dataclasses.replace(t, attachment_radius=1e-15) for t in scene.tendons]
+    with pytest.raises(SceneError, match=r"attachment radius 1e-15: too small to integrate over this mesh"):
+        TendonPoints(build_mesh(scene), tendons)
