@@ -197,6 +197,7 @@ def _board(tmp_path, port=None, **winch):
     ({}, {"spool_radius": 5e-324}, r"winches\[0\]\.spool_radius: 4\.94066e-324 gives inf ticks per length unit"),
     ({}, {"spool_radius": 1e308}, r"winches\[0\]\.spool_radius: 1e\+308 gives 0 ticks per length unit"),
     ({}, {"limits": [0, 1e308]}, r"winches\[0\]\.limits\[1\]: 1e\+308 is too large"),
+    ({}, {"tolerance": 1e308}, r"winches\[0\]\.tolerance: must be <= the span of the limits \(25\), got 1e\+308"),
     ({}, {"ticks_per_rev": 1e308}, r"winches\[0\]\.ticks_per_rev: must be <= 1e\+09 ticks, got 1e\+308"),
     ({}, {"gear_ratio": 1e308}, r"winches\[0\]\.gear_ratio: must be <= 1e\+06, got 1e\+308"),
     ({"boot_time": 1e308}, {}, r"port\.boot_time: must be <= 60 s, got 1e\+308"),

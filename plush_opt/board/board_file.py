@@ -280,6 +280,9 @@ def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> 
         if tolerance < wc.min_tolerance:
             c.fail(at_key(key, "tolerance"), f"must be >= {wc.min_tolerance:.4g} mm (the board's {DEADBAND_TICKS}-tick "
                                              f"deadband plus half a tick of rounding), got {tolerance}")
+        if tolerance > hi - lo:
+            c.fail(at_key(key, "tolerance"), f"must be <= the span of the limits ({hi - lo:g}), got {tolerance:g}: "
+                   "every position would count as arrived")
         wc = replace(wc, tolerance=tolerance)
     t_lo, t_hi = wc.tick_limits
     if max(abs(t_lo), abs(t_hi)) > MAX_TICKS:
