@@ -111,6 +111,9 @@ def _script(tmp_path, **top):
      r"run\.yaml: steps\[0\]\.pose\.max_time: must be <= 3600 s, got 1e\+308"),
     ({"steps": [{"pose": {"targets": [{"at": [0, 150], "to": [-30, 140], "weight": 1e308}]}}]},
      r"run\.yaml: steps\[0\]\.pose\.targets\[0\]\.weight: must be <= 1e\+12"),
+    ({"steps": [{"hold": 3600} for _ in range(25)]}, r"run\.yaml: steps: holds and pose max_times add up to 90000 s; "
+     r"at most 86400 s"),
+    ({"steps": ["release"] * 10_001}, r"run\.yaml: steps: 10001 steps; at most 10000"),
 ])
 def test_run_script_caps(tmp_path, top, pattern):
     p = cli("run", _script(tmp_path, **top), "--dry-run", "--log", tmp_path / "log.jsonl")

@@ -31,6 +31,8 @@ STEP_KINDS = ("set", "pose", "hold", "release")
 MAX_RATE = 1000.0          # Hz
 MIN_RATE = 0.1             # Hz: slower, a run would wait minutes between commands (a typo, not a plan)
 MAX_STEP_TIME = 3600.0     # s, a pose's max_time or a hold: an hour on the bench is a long run
+MAX_STEPS = 10_000         # steps of one script: a day of one-second moves needs fewer
+MAX_RUN_TIME = 86400.0     # s, the holds and pose max_times of one script together: a day
 DEFAULT_MAX_TIME = 10.0    # s, pose steps
 
 _TOP_KEYS = ("format", "description", "problem", "board", "rate", "steps")
@@ -86,10 +88,15 @@ def load_run_script(path) -> RunScript:
     if not MIN_RATE <= rate <= MAX_RATE:
         ck.fail("rate", f"must be in {MIN_RATE:g}..{MAX_RATE:g} Hz, got {rate:g}")
     steps = ck.seq(top["steps"], "steps", min_len=1, what="list of steps")
+    if len(steps) > MAX_STEPS:
+        ck.fail("steps", f"{len(steps)} steps; at most {MAX_STEPS}")
     description = top.get("description")
     description = "" if description is None else ck.string(description, "description")
-    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate,
-                     steps=tuple(_parse_step(ck, s, i) for i, s in enumerate(steps)),
+    parsed = tuple(_parse_step(ck, s, i) for i, s in enumerate(steps))
+    total = sum(s.seconds + (s.max_time if s.kind == "pose" else 0.0) for s in parsed)
+    if total > MAX_RUN_TIME:
+        ck.fail("steps", f"holds and pose max_times add up to {total:g} s; at most {MAX_RUN_TIME:g} s (a day)")
+    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate, steps=parsed,
                      description=description)
 
 
