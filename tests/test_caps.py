@@ -87,6 +87,14 @@ def test_via_points_per_file(tmp_path):
                      r"\(this makes 5406\)", one_error_line(p)), p.stderr
 
 
+def test_tendons_per_file(tmp_path):
+    def edit(data):
+        data["tendons"]["list"] = [{"name": f"t{k}", "winch": "curl", "path": [[58, 2], [2, 2]]}
+                                   for k in range(201)]
+    p = cli("solve", finger(tmp_path, edit), "--out", tmp_path / "r.json", timeout=60)
+    assert re.search(r"finger\.yaml: tendons\.list: 201 tendons; at most 200", one_error_line(p)), p.stderr
+
+
 def test_a_small_radius_still_loads_and_builds(tmp_path):
     """At the floor the disc integration is quick (it used to split forever)."""
     from plush_opt.problem import load

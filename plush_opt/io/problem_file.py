@@ -31,6 +31,8 @@ FLAT_TRIANGLE = 1e-12
 #: via points of one tendon, and of a whole file: a tendon's Hessian block and
 #: its path's mesh nodes grow with them; sewn robots have tens
 MAX_VIA_POINTS, MAX_VIA_POINTS_TOTAL = 1000, 5000
+#: tendons of a file: each is a dense row and column of the Hessian's low-rank term
+MAX_TENDONS = 200
 #: a nonzero attachment radius is at least this fraction of the body's diameter
 #: (and of its largest coordinate): smaller discs are below the resolution the
 #: disc integration can split triangles to (use 0, a point attachment)
@@ -452,7 +454,10 @@ def _tendons_section(ck: Checker, raw, winches):
     winch_index = {w.name: i for i, w in enumerate(winches)}
     used = set()
     tendons, seen, n_via = [], {}, 0
-    for i, t in enumerate(ck.seq(raw["list"], "tendons.list", min_len=1, what="list of tendons")):
+    items = ck.seq(raw["list"], "tendons.list", min_len=1, what="list of tendons")
+    if len(items) > MAX_TENDONS:
+        ck.fail("tendons.list", f"{len(items)} tendons; at most {MAX_TENDONS}")
+    for i, t in enumerate(items):
         path = at_index("tendons.list", i)
         ck.mapping(t, path, _TENDON_KEYS, required=("name", "winch", "path"))
         name = ck.name(t["name"], at_key(path, "name"))
