@@ -131,7 +131,7 @@ def test_run_script_caps(tmp_path, top, pattern):
 def test_sweep_steps_cap(tmp_path):
     p = cli("sweep", ROOT / "problems" / "gripper_friction.yaml", "--winch", "grip", "--to", "5",
             "--steps", "1000000000", "--out", tmp_path / "s.csv")
-    assert re.search(r"--steps: expected 1\.\.100000, got 1000000000", one_error_line(p)), p.stderr
+    assert re.search(r"--steps: expected 1\.\.10000, got 1000000000", one_error_line(p)), p.stderr
 
 
 def _via_model(n: int, hessian="auto"):

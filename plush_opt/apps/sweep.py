@@ -20,8 +20,8 @@ from ..solve.plant import make_plant
 from ..base.files import atomic_path
 
 # steps of one leg: each is an equilibrium solve, so a million would run for
-# hours (and its path alone fill memory); a hysteresis loop needs hundreds
-MAX_STEPS = 100_000
+# hours (and its states fill memory); a hysteresis loop needs hundreds
+MAX_STEPS = 10_000
 
 
 def add_sweep_parser(sub, contraction_arg):
