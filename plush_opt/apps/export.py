@@ -34,7 +34,6 @@ Which of these a scene needs is the plant's business
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -42,6 +41,7 @@ import numpy as np
 
 from ..base.errors import SceneError, SolverError
 from ..solve.plant import segment_table
+from .run_log import read_run_log
 
 NO_VALUE = np.nan   # a field that does not apply to a cell (J of a tendon segment)
 # The recorded rest nodes must be the problem's mesh: JSON keeps doubles
@@ -133,20 +133,17 @@ def run_frames(log_path, problem):
     pose; where the pose depends on the path the robot driven from command
     to command in order, from the scene's start state driven to the
     scene's contractions (where the run's planner starts)."""
-    rows = []
-    for i, line in enumerate(Path(log_path).read_text().splitlines()):
-        try:
-            rows.append(json.loads(line))
-        except ValueError:
-            raise SceneError(f"{log_path}: line {i + 1}: not a JSON object (a run log from plush-opt run?)") from None
-    commands = [r for r in rows if r.get("event") in ("start", "command") and r.get("commanded")]
+    rows = read_run_log(log_path, problem.winch_names)
+    commands = [(n, r) for n, r in enumerate(rows, start=1)
+                if r.get("event") in ("start", "command") and r.get("commanded")]
     if not commands:
         raise SceneError(f"{log_path}: no commanded contractions (a run log from plush-opt run?)")
     plant = problem.plant.fork()
     plant.commit(problem.equilibrium())      # where the run's planner starts
     frames, eq = [], None
-    for r in commands:
-        eq = plant.drive(problem.contraction_vector(r["commanded"]), None if eq is None else eq.x,
+    for n, r in commands:
+        c = problem.contraction_vector(r["commanded"], what=f"{log_path}: line {n}: commanded:")
+        eq = plant.drive(c, None if eq is None else eq.x,
                          origin="the run's previous command")
         if not eq.converged:
             raise SolverError(f"{log_path}: t = {r['t']} s: no equilibrium at {r['commanded']}: {eq.status}")
@@ -163,24 +160,15 @@ def write_run(folder, log_path, problem) -> Path:
 def export_run(folder: Path, log_path: Path) -> Path:
     """A run log replayed (the pose at each command) as folder/run.pvd."""
     from ..problem import load
-    first = json.loads(Path(log_path).read_text().splitlines()[0])
-    if first.get("kind") != "start" or not first.get("problem"):
-        raise SceneError(f"{log_path}: line 1: not the start line of a run log (no problem named)")
-    return write_run(folder, log_path, load(first["problem"]))
+    return write_run(folder, log_path, load(read_run_log(log_path)[0]["problem"]))
 
 
 def _read_result(result_path, scene) -> dict:
-    """The document of a result file, checked to be a plush-opt result of
-    ``scene`` (its format and problem name)."""
-    from ..solve.result_file import FORMAT
+    """The document of a result file, checked to be a plush-opt result
+    (:func:`~plush_opt.solve.result_file.read_result`) of ``scene``."""
+    from ..solve.result_file import read_result
     where = str(result_path)
-    try:
-        doc = json.loads(Path(result_path).read_text())
-        fmt = doc.get("format")
-    except (OSError, ValueError, AttributeError) as exc:
-        raise SceneError(f"{where}: not a result file of plush-opt solve ({exc})") from None
-    if fmt != FORMAT:
-        raise SceneError(f"{where}: format: expected {FORMAT!r}, got {fmt!r}")
+    doc = read_result(result_path)
     if doc.get("problem") != scene.name:
         raise SceneError(f"{where}: problem: {doc.get('problem')!r}, but {scene.source} is {scene.name!r}")
     return doc

@@ -13,6 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..base.errors import SceneError
+from ..io.checker import Checker, at_index, parse_json
+
+MAX_LOG_BYTES = 1 << 30   # a run log read back: a day at 1 kHz is well under; larger is not a log
 PROGRESS_INTERVAL = 0.1   # s between progress line updates: readable, and cheap on a slow terminal
 
 
@@ -94,6 +98,55 @@ class RunLog:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def read_run_log(path, winches=None) -> list[dict]:
+    """The lines of a run log, each checked as export reads them: a JSON
+    object with a time ``t`` (a finite number >= 0), ``event`` and ``kind``
+    (strings) and ``commanded`` (null, or ``winches`` mapped to finite
+    numbers); the first line the start line, naming its problem file and
+    its winches (the default ``winches``). Anything else is one
+    :class:`SceneError` line naming the file, the line and the key; nothing
+    is repaired."""
+    path = Path(path)
+    try:
+        if path.stat().st_size > MAX_LOG_BYTES:
+            raise SceneError(f"{path}: larger than {MAX_LOG_BYTES} bytes: not a run log of plush-opt run")
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read the run log: {exc.strerror or exc}") from None
+    lines = raw.splitlines()
+    if not lines:
+        raise SceneError(f"{path}: empty: not a run log of plush-opt run")
+    rows = []
+    for n, line in enumerate(lines, start=1):
+        ck = Checker(f"{path}: line {n}")
+        row = parse_json(line, ck)
+        if not isinstance(row, dict):
+            ck.fail("", f"expected a JSON object (a line of a run log of plush-opt run), got "
+                    f"{'a list' if isinstance(row, list) else type(row).__name__}")
+        if n == 1:
+            winches = _start_line(ck, row, winches)
+        ck.mapping(row, "", tuple(row), required=("t", "event", "kind"))
+        ck.number(row["t"], "t", ge=0)
+        ck.string(row["event"], "event")
+        ck.string(row["kind"], "kind")
+        if row.get("commanded") is not None:
+            ck.numbers(row["commanded"], "commanded", winches)
+        rows.append(row)
+    return rows
+
+
+def _start_line(ck: Checker, row: dict, winches) -> tuple[str, ...]:
+    """The winches a run log's start line names (and its problem file
+    checked), or ``winches`` if given."""
+    if row.get("kind") != "start":
+        ck.fail("kind", "not the start line of a run log (plush-opt run writes it first)")
+    if winches is not None:
+        return tuple(winches)
+    ck.name(row.get("problem"), "problem")
+    names = ck.seq(row.get("winches"), "winches", min_len=1, what="list of winch names")
+    return tuple(ck.name(w, at_index("winches", i)) for i, w in enumerate(names))
 
 
 class ProgressLine:

@@ -19,6 +19,10 @@ from ..problem import load
 from ..solve.plant import make_plant
 from ..base.files import atomic_path
 
+# steps of one leg: each is an equilibrium solve, so a million would run for
+# hours (and its states fill memory); a hysteresis loop needs hundreds
+MAX_STEPS = 10_000
+
 
 def add_sweep_parser(sub, contraction_arg):
     p = sub.add_parser("sweep", help="follow a winch's contraction in steps (friction: with history)",
@@ -38,11 +42,16 @@ def add_sweep_parser(sub, contraction_arg):
     p.set_defaults(func=cmd_sweep)
 
 
+def check_steps(steps: int) -> None:
+    """Refuse a step count outside 1..:data:`MAX_STEPS` (SceneError)."""
+    if not 1 <= steps <= MAX_STEPS:
+        raise SceneError(f"--steps: expected 1..{MAX_STEPS}, got {steps}")
+
+
 def sweep_path(problem, winch: str, to: float, back: float | None, steps: int,
                fixed: dict[str, float]) -> np.ndarray:
     """(n_steps, n_winches) contractions of the sweep."""
-    if steps < 1:
-        raise SceneError(f"--steps: expected >= 1, got {steps}")
+    check_steps(steps)
     if winch not in problem.winch_names:
         raise SceneError(f"--winch {winch}: no winch named {winch!r} "
                          f"(winches: {', '.join(problem.winch_names)})")
@@ -89,6 +98,7 @@ def write_csv(problem, plant, states, out: Path) -> None:
 
 def cmd_sweep(args) -> int:
     t0 = time.perf_counter()
+    check_steps(args.steps)
     problem = load(args.problem, max_area=args.max_area)
     path = sweep_path(problem, args.winch, args.to, args.back, args.steps, dict(args.contraction))
     plant, states = run_sweep(problem, path)

@@ -17,8 +17,28 @@ _UMASK_LOCK = threading.Lock()
 
 
 def write_json_atomic(path, doc: dict) -> Path:
-    """Write ``doc`` as JSON to ``path`` atomically (see :func:`write_text_atomic`)."""
-    return write_text_atomic(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    """Write ``doc`` as JSON to ``path`` atomically (see :func:`write_text_atomic`).
+    A value that is not a finite number (strict JSON has none) is a
+    :class:`SceneError` naming the file and its key; nothing is written."""
+    try:
+        text = json.dumps(doc, indent=1, allow_nan=False)
+    except ValueError:
+        key, value = _non_finite(doc)
+        raise SceneError(f"{path}: {key}: {value!r} is not a finite number: an input beyond the "
+                         "model's range? (nothing written)") from None
+    return write_text_atomic(path, text + "\n")
+
+
+def _non_finite(doc, key: str = ""):
+    """(key path, value) of the first non-finite float in ``doc``, or ("", None)."""
+    if isinstance(doc, float):
+        return ("", None) if doc == doc and abs(doc) != float("inf") else (key, doc)
+    items = doc.items() if isinstance(doc, dict) else enumerate(doc) if isinstance(doc, (list, tuple)) else ()
+    for k, v in items:
+        found = _non_finite(v, f"{key}[{k}]" if isinstance(k, int) else f"{key}.{k}" if key else str(k))
+        if found[1] is not None:
+            return found
+    return "", None
 
 
 def _umask() -> int:
@@ -45,7 +65,7 @@ def _remove_stale_temps(path: Path) -> None:
             continue
         try:
             os.kill(int(pid), 0)
-        except ProcessLookupError:
+        except (ProcessLookupError, OverflowError):      # no such process (nor pid)
             try:
                 tmp.unlink()
             except OSError:

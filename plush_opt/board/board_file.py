@@ -26,7 +26,8 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
-from plush_opt.board.protocol import DEFAULT_BAUDRATE, MAX_AXES, MAX_TICKS, MIN_WATCHDOG_MS, MAX_WATCHDOG_MS
+from plush_opt.board.protocol import (DEFAULT_BAUDRATE, MAX_AXES, MAX_SPEED, MAX_TICKS, MIN_WATCHDOG_MS,
+                                      MAX_WATCHDOG_MS)
 from plush_opt.io import Checker, read_yaml
 from plush_opt.io.checker import at_index, at_key, describe
 
@@ -37,6 +38,22 @@ target (the firmware's DEADBAND, hw/firmware/plush_winch/plush_winch.ino)."""
 ROUNDING_TICKS = 0.5
 """ticks: a contraction is sent as the nearest whole tick."""
 _NAME = re.compile(r"^[A-Za-z0-9_-]+$")
+MAX_WAIT = 60.0
+"""s: the longest port ``timeout`` and ``boot_time``: a board silent for a
+minute is gone, and longer waits overflow the serial library's timers."""
+MAX_BAUDRATE = 12_000_000
+"""baud: the fastest USB serial adapters; beyond it the port cannot be opened."""
+MAX_TICKS_PER_REV = float(MAX_TICKS)
+"""an encoder's ticks per revolution (and the gear ratio times it) stay within
+the board's position range, so one revolution is representable."""
+MAX_GEAR_RATIO = 1e6
+MAX_LIMIT = 1e12
+"""length units: contraction limits, like the problem file's lengths."""
+MIN_TICKS_PER_UNIT = 1e-6
+"""ticks per length unit at the least: fewer, and one tick is a kilometre."""
+MAX_RETRIES = 100
+"""further attempts after a timeout: more only delays the error."""
+"""motor revolutions per spool revolution: no gearbox reduces further."""
 
 
 def _round(x: float) -> int:
@@ -188,6 +205,17 @@ def calibration_from_dict(data, source: str = "<memory>") -> BoardCalibration:
     return BoardCalibration(name=name, winches=tuple(winches), port=port, description=description, source=source)
 
 
+def _shown_int(n: int) -> str:
+    """An integer for a message, long ones shortened."""
+    return str(n) if abs(n) < 10 ** 12 else f"{float(n):.3g}"
+
+
+def _at_most(c: Checker, x: float, limit: float, key: str, unit: str) -> float:
+    if x > limit:
+        c.fail(key, f"must be <= {limit:g}{' ' + unit if unit else ''}, got {x:g}")
+    return x
+
+
 def _port_section(c: Checker, raw) -> PortSettings:
     p = c.mapping(raw, "port", _PORT_KEYS)
     default = PortSettings()
@@ -195,16 +223,20 @@ def _port_section(c: Checker, raw) -> PortSettings:
     if device is not None and (not isinstance(device, str) or not device):
         c.fail("port.device", f"must be a device path or null, got {describe(device)}")
     baud = c.integer(_get(p, "baudrate", default.baudrate), "port.baudrate")
-    if baud <= 0:
-        c.fail("port.baudrate", f"must be > 0, got {baud}")
-    timeout = c.number(_get(p, "timeout", default.timeout), "port.timeout", gt=0)
+    if not 0 < baud <= MAX_BAUDRATE:
+        c.fail("port.baudrate", f"must be in 1..{MAX_BAUDRATE}, got {_shown_int(baud)}")
+    timeout = _at_most(c, c.number(_get(p, "timeout", default.timeout), "port.timeout", gt=0), MAX_WAIT,
+                       "port.timeout", "s")
     retries = c.integer(_get(p, "retries", default.retries), "port.retries")
     if retries < 0:
         c.fail("port.retries", f"must be >= 0, got {retries}")
+    if retries > MAX_RETRIES:
+        c.fail("port.retries", f"must be <= {MAX_RETRIES}, got {_shown_int(retries)}")
     wd = c.integer(_get(p, "watchdog_ms", default.watchdog_ms), "port.watchdog_ms")
     if not MIN_WATCHDOG_MS <= wd <= MAX_WATCHDOG_MS:
         c.fail("port.watchdog_ms", f"must be in {MIN_WATCHDOG_MS}..{MAX_WATCHDOG_MS}, got {wd}")
-    boot = c.number(_get(p, "boot_time", default.boot_time), "port.boot_time", ge=0)
+    boot = _at_most(c, c.number(_get(p, "boot_time", default.boot_time), "port.boot_time", ge=0), MAX_WAIT,
+                    "port.boot_time", "s")
     return PortSettings(device=device, baudrate=baud, timeout=timeout, retries=retries, watchdog_ms=wd,
                         boot_time=boot)
 
@@ -227,27 +259,49 @@ def _winch_section(c: Checker, item, i: int, before: list[WinchCalibration]) -> 
     limits = w["limits"]
     if not isinstance(limits, list) or len(limits) != 2:
         c.fail(at_key(key, "limits"), f"must be [lower, upper], got {describe(limits)}")
-    lo = c.number(limits[0], at_index(at_key(key, "limits"), 0))
-    hi = c.number(limits[1], at_index(at_key(key, "limits"), 1))
+    lo, hi = (c.number(limits[k], at_index(at_key(key, "limits"), k)) for k in (0, 1))
+    for k, v in enumerate((lo, hi)):
+        if abs(v) > MAX_LIMIT:
+            c.fail(at_index(at_key(key, "limits"), k), f"{v:g} is too large (lengths are limited to "
+                   f"{MAX_LIMIT:g} in magnitude)")
     if not lo < hi:
         c.fail(at_key(key, "limits"), f"lower must be < upper, got [{lo}, {hi}]")
-    wc = WinchCalibration(
-        name=wname, axis=axis,
+    scale = dict(
         spool_radius=c.number(w["spool_radius"], at_key(key, "spool_radius"), gt=0),
-        ticks_per_rev=c.number(w["ticks_per_rev"], at_key(key, "ticks_per_rev"), gt=0),
-        gear_ratio=c.number(w["gear_ratio"], at_key(key, "gear_ratio"), gt=0),
-        direction=int(direction), limits=(lo, hi),
+        ticks_per_rev=_at_most(c, c.number(w["ticks_per_rev"], at_key(key, "ticks_per_rev"), gt=0),
+                               MAX_TICKS_PER_REV, at_key(key, "ticks_per_rev"), "ticks"),
+        gear_ratio=_at_most(c, c.number(w["gear_ratio"], at_key(key, "gear_ratio"), gt=0),
+                            MAX_GEAR_RATIO, at_key(key, "gear_ratio"), ""),
         max_speed=c.number(w["max_speed"], at_key(key, "max_speed"), gt=0))
+    _check_scale(c, key, **scale)
+    wc = WinchCalibration(name=wname, axis=axis, direction=int(direction), limits=(lo, hi), **scale)
     if w.get("tolerance") is not None:
         tolerance = c.number(w["tolerance"], at_key(key, "tolerance"), gt=0)
         if tolerance < wc.min_tolerance:
             c.fail(at_key(key, "tolerance"), f"must be >= {wc.min_tolerance:.4g} mm (the board's {DEADBAND_TICKS}-tick "
                                              f"deadband plus half a tick of rounding), got {tolerance}")
+        if tolerance > hi - lo:
+            c.fail(at_key(key, "tolerance"), f"must be <= the span of the limits ({hi - lo:g}), got {tolerance:g}: "
+                   "every position would count as arrived")
         wc = replace(wc, tolerance=tolerance)
     t_lo, t_hi = wc.tick_limits
     if max(abs(t_lo), abs(t_hi)) > MAX_TICKS:
         c.fail(at_key(key, "limits"), f"[{lo}, {hi}] is [{t_lo}, {t_hi}] ticks, beyond the board's +-{MAX_TICKS}")
     return wc
+
+
+def _check_scale(c: Checker, key: str, spool_radius, ticks_per_rev, gear_ratio, max_speed) -> None:
+    """Ticks per length unit (:attr:`WinchCalibration.ticks_per_mm`) within
+    the board's position range, and the speed limit within its speed range."""
+    per = ticks_per_rev * gear_ratio / (2.0 * math.pi * spool_radius)
+    if not MIN_TICKS_PER_UNIT <= per <= MAX_TICKS:
+        c.fail(at_key(key, "spool_radius"), f"{spool_radius:g} gives {per:.3g} ticks per length unit "
+               f"(ticks_per_rev * gear_ratio / (2 pi spool_radius)); the board's range is "
+               f"{MIN_TICKS_PER_UNIT:g}..{MAX_TICKS}")
+    speed = max_speed * per
+    if not 1 <= speed <= MAX_SPEED:
+        c.fail(at_key(key, "max_speed"), f"{max_speed:g} is {speed:.3g} ticks/s; the board moves at "
+               f"1..{MAX_SPEED} ticks/s ({1 / per:.4g}..{MAX_SPEED / per:.4g} per second)")
 
 
 def load_calibration(path) -> BoardCalibration:

@@ -34,6 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from ..base.errors import SceneError
 from ..base.geometry import triangle_areas
 from .mesh import Mesh
 
@@ -43,6 +44,10 @@ LEAF_FRACTION = 1.0 / 16
 # A weight smaller than this (relative to 1) is round-off of an integral that
 # is exactly zero (a P2 corner function over a whole triangle): dropped.
 WEIGHT_DROP = 1e-13
+# Halvings of a cut triangle before a leaf is LEAF_FRACTION r wide: a
+# triangle 2^44 times wider than the disc (far below the problem file's floor
+# on r) or a disc below the round-off of its coordinates would never get there.
+MAX_SPLIT_DEPTH = 48
 # The degree-2 exact rule on a triangle: three interior points, weight A/3 each.
 _RULE = np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
 
@@ -168,7 +173,12 @@ class AttachmentWeights:
         V, owner = self.corners[cand], np.arange(len(cand))
         pieces, owners = [], []                  # pieces inside D (whole or clipped)
         extra_pts, extra_w, extra_owner = [], [], []    # sliver corrections
+        depth = 0
         while len(V):
+            depth += 1
+            if depth > MAX_SPLIT_DEPTH:
+                raise SceneError(f"attachment radius {float(np.min(R)):.3g}: too small to integrate over "
+                                 "this mesh (the problem file refuses radii below 1e-6 of the body's size)")
             p, r = P[point[owner]], R[point[owner]]
             inside = np.all(np.linalg.norm(V - p[:, None], axis=2) <= r[:, None], axis=1)
             pieces.append(V[inside])

@@ -196,15 +196,17 @@ class HessianLayout:
     def _tendon_kinds(self) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """The z-space (row, col) entries of each kind of tendon term."""
         s, L = self._seg_dofs, self._tendon_dofs
-        r = np.repeat(L, L.shape[1], axis=1).ravel()
-        c = np.tile(L, (1, L.shape[1])).ravel()
-        self._outer_valid = (r >= 0) & (c >= 0)
         if self.split:
             ends = np.concatenate([s[:, :2], s[:, 2:]], axis=0)
             kinds = [("ends", np.repeat(ends, 2, axis=1).ravel(), np.tile(ends, (1, 2)).ravel())]
         else:
             kinds = [("seg", np.repeat(s, 4, axis=1).ravel(), np.tile(s, (1, 4)).ravel())]
         if not self.low_rank:
+            # each tendon's dense l' l'^T block (the low-rank forms keep it
+            # apart: their memory stays linear in the via points)
+            r = np.repeat(L, L.shape[1], axis=1).ravel()
+            c = np.tile(L, (1, L.shape[1])).ravel()
+            self._outer_valid = (r >= 0) & (c >= 0)
             kinds.append(("outer", r[self._outer_valid], c[self._outer_valid]))
         return kinds
 

@@ -140,7 +140,8 @@ class Model:
         U'' l' l'^T apart: with attachment discs it couples every disc of
         the tendon with every other, densely); "split" (also each segment's
         coupling of its two ends' discs); "auto": "assembled" where the
-        attachment discs are small (:data:`SPLIT_MIN_DISC_NODES`), else
+        attachment discs are small (:data:`SPLIT_MIN_DISC_NODES`) and the
+        tendons' dense blocks too (:data:`DENSE_TENDON_MAX`), else
         "split", or "rank_one" where splitting would make the update's rank
         larger than :data:`SPLIT_MAX_RANK`."""
         if hessian not in HESSIAN_FORMS:
@@ -203,6 +204,8 @@ class Model:
     def _auto_form(self, hessian: str) -> str:
         if hessian != "auto":
             return hessian
+        if sum((2 * len(p)) ** 2 for p in self.tendon_paths) > DENSE_TENDON_MAX:
+            return "rank_one"
         if self.tendon_points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES:
             return "assembled"
         return "split" if 2 * self.n_segments + self.n_tendons <= SPLIT_MAX_RANK else "rank_one"
@@ -346,6 +349,10 @@ SPLIT_MIN_DISC_NODES = 10
 # above which its solves cost more than the segments' fill: "rank_one" then
 # (same table)
 SPLIT_MAX_RANK = 48
+# "auto" keeps the tendons' dense l' l'^T blocks (2 dofs per via point
+# squared, summed over tendons) apart above this many entries: assembled,
+# they would make the Hessian's memory grow with the square of the via points
+DENSE_TENDON_MAX = 40_000
 
 
 def build_model(scene: Scene, mesh: Mesh) -> Model:

@@ -14,6 +14,7 @@ strings; YAML's ``1e1`` is a number (see :mod:`plush_opt.io.yaml_reader`).
 from __future__ import annotations
 
 import difflib
+import json
 import math
 import numbers
 
@@ -22,6 +23,8 @@ import numpy as np
 from ..base.errors import SceneError, format_number
 
 MAX_COORD = 1e12                  # keeps squared lengths and areas far from overflow
+#: target weights: a weight times a squared distance (both within MAX_COORD) stays finite
+MAX_WEIGHT = 1e12
 #: strings longer than this are cut in messages, so a message stays one short line
 MAX_SHOWN = 40
 
@@ -46,12 +49,32 @@ def describe(value) -> str:
         s = value if len(value) <= MAX_SHOWN else value[:MAX_SHOWN - 3] + "..."
         return f"string {s!r}"
     if isinstance(value, numbers.Number):
-        return f"number {value!r}"
+        s = repr(value)
+        if len(s) > MAX_SHOWN:
+            s = f"{s[:12]}... ({len(s)} characters)"
+        return f"number {s}"
     if isinstance(value, dict):
         return "a mapping"
     if isinstance(value, (list, tuple, np.ndarray)):
         return f"a list of {len(value)}"
     return f"a {type(value).__name__}"
+
+
+def parse_json(raw: bytes, ck: "Checker", path: str = ""):
+    """JSON of ``raw`` bytes: the parsed value,
+    or one :class:`SceneError` line (``ck`` names the file, ``path`` the part)
+    for bytes that are not UTF-8, text that is not JSON, or nesting too deep
+    for the parser."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        ck.fail(path, f"not UTF-8 text (byte {exc.start})")
+    try:
+        return json.loads(text)     # NaN, Infinity: refused where read, under their key
+    except RecursionError:
+        ck.fail(path, "not JSON of plush-opt: nested too deeply")
+    except ValueError as exc:
+        ck.fail(path, f"not JSON: {exc}")
 
 
 def _as_list(value):
@@ -140,6 +163,10 @@ class Checker:
         if lt is not None and not x < lt:
             self.fail(path, f"must be < {lt:g}, got {format_number(x)}")
         return x
+
+    def numbers(self, value, path: str, names) -> dict[str, float]:
+        """A mapping of some of ``names`` to finite numbers (contractions by winch)."""
+        return {k: self.number(v, at_key(path, k)) for k, v in self.mapping(value, path, names).items()}
 
     def integer(self, value, path: str) -> int:
         """An integer written without a fraction (not a boolean)."""

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..base.errors import format_point
+from ..base.errors import format_number, format_point
 from ..base.geometry import classify_points, locate_in_triangles
 from .scene import Scene
 from .checker import Checker, at_index, at_key
@@ -24,6 +24,12 @@ from .yaml_reader import read_yaml
 
 FORMAT = "plush-opt-measurements/1"
 DEFAULT_SIGMA = 1.0               # the spec's default measurement noise (length units)
+# sigma below this fraction of the body's diameter: the coincidence tolerance
+# of points; residuals over it would overflow the fit's sums of squares
+MIN_SIGMA = 1e-9
+# a seen marker this many body diameters from its rest place is a typo (and
+# would overflow the fit): no soft robot travels that far
+MAX_TRAVEL = 10.0
 
 _TOP_KEYS = ("format", "problem", "markers", "poses", "sigma")
 _POSE_KEYS = ("contractions", "positions")
@@ -90,6 +96,9 @@ def load_measurements(path) -> Measurements:
     scene = load_scene(problem_path)
     sigma = data.get("sigma")
     sigma = DEFAULT_SIGMA if sigma is None else ck.number(sigma, "sigma", gt=0)
+    if sigma < MIN_SIGMA * scene.diameter:
+        ck.fail("sigma", f"{format_number(sigma)} is below {MIN_SIGMA:g} of the body's diameter "
+                f"({format_number(scene.diameter)}): no camera resolves that")
     markers = ck.points(data["markers"], "markers", min_len=1)
     _check_markers_on_body(ck, scene, markers)
     poses = ck.seq(data["poses"], "poses", min_len=1, what="list of poses")
@@ -100,6 +109,7 @@ def load_measurements(path) -> Measurements:
         ck.mapping(pose, where, _POSE_KEYS, required=_POSE_KEYS)
         contractions[i] = _contractions(ck, scene, pose["contractions"], at_key(where, "contractions"))
         positions[i] = _positions(ck, pose["positions"], at_key(where, "positions"), len(markers))
+        _check_positions_near(ck, scene, markers, positions[i], at_key(where, "positions"))
     seen = np.all(np.isfinite(positions), axis=2)
     if not seen.any():
         ck.fail("poses", "no marker is seen in any pose (every position is null)")
@@ -130,6 +140,16 @@ def _positions(ck: Checker, raw, where: str, n_markers: int) -> np.ndarray:
         if p is not None:
             out[k] = ck.point(p, at_index(where, k))
     return out
+
+
+def _check_positions_near(ck: Checker, scene: Scene, markers, positions, where: str):
+    """A seen marker within :data:`MAX_TRAVEL` body diameters of its rest place."""
+    far = np.linalg.norm(positions - markers, axis=1) > MAX_TRAVEL * scene.diameter
+    bad = np.flatnonzero(far)          # NaN (unseen) compares False
+    if bad.size:
+        k = int(bad[0])
+        ck.fail(at_index(where, k), f"point {format_point(positions[k])} is more than {MAX_TRAVEL:g} body "
+                f"diameters ({MAX_TRAVEL * scene.diameter:.4g}) from its marker's rest place")
 
 
 def _check_markers_on_body(ck: Checker, scene: Scene, markers: np.ndarray):

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 from ..base.errors import format_number, format_point
 from ..base.geometry import classify_points, diameter, find_crossing, locate_in_triangles, ring_area
 from .scene import ELEMENTS, FORMAT, NODES_PER_TRIANGLE, POINT_TOL, Material, Scene, Target, Tendon, Winch
-from .checker import MAX_COORD, Checker, at_index, at_key, describe
+from .checker import MAX_COORD, MAX_WEIGHT, Checker, at_index, at_key, describe
 from .yaml_reader import read_yaml
 
 MAX_MIN_ANGLE = 34.0              # Triangle may not terminate above about 34 degrees
@@ -28,6 +28,15 @@ MAX_MIN_ANGLE = 34.0              # Triangle may not terminate above about 34 de
 ZERO_AREA = 1e-12
 #: a triangle whose cross product is below this fraction of its longest squared edge is flat
 FLAT_TRIANGLE = 1e-12
+#: via points of one tendon, and of a whole file: a tendon's Hessian block and
+#: its path's mesh nodes grow with them; sewn robots have tens
+MAX_VIA_POINTS, MAX_VIA_POINTS_TOTAL = 1000, 5000
+#: tendons of a file: each is a dense row and column of the Hessian's low-rank term
+MAX_TENDONS = 200
+#: a nonzero attachment radius is at least this fraction of the body's diameter
+#: (and of its largest coordinate): smaller discs are below the resolution the
+#: disc integration can split triangles to (use 0, a point attachment)
+MIN_RADIUS, MIN_RADIUS_OF_COORD = 1e-6, 1e-9
 
 _NAME = re.compile(r"[A-Za-z0-9_-]+")
 
@@ -109,6 +118,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
     raw_points = _opt(data, "points")
     points = np.zeros((0, 2)) if raw_points is None else ck.points(raw_points, "points", min_len=0)
     _check_points_in_body(ck, geo, pin_points, tendons, targets, points)
+    _check_tendon_sizes(ck, geo, tendons, data["tendons"], t_smoothing)
 
     return Scene(
         name=name, description=description, source=source, material=material,
@@ -142,9 +152,28 @@ def _targets_section(ck: Checker, raw) -> list[Target]:
         ck.mapping(t, path, _TARGET_KEYS, required=("at", "to"))
         weight = _opt(t, "weight")
         weight = 1.0 if weight is None else ck.number(weight, at_key(path, "weight"), gt=0)
+        if weight > MAX_WEIGHT:
+            ck.fail(at_key(path, "weight"), f"must be <= {MAX_WEIGHT:g}, got {format_number(weight)}")
         targets.append(Target(at=ck.point(t["at"], at_key(path, "at")),
                               to=ck.point(t["to"], at_key(path, "to")), weight=weight))
     return targets
+
+
+def _check_tendon_sizes(ck: Checker, geo: dict, tendons, raw, smoothing: float) -> None:
+    """The smoothing a length (within MAX_COORD), each nonzero attachment
+    radius at least MIN_RADIUS of the body's size."""
+    if smoothing > MAX_COORD:
+        ck.fail("tendons.smoothing", f"{format_number(smoothing)} is too large (lengths are limited to "
+                f"{MAX_COORD:g} in magnitude)")
+    body = geo["outline"] if geo["outline"] is not None else geo["nodes"]
+    floor = max(MIN_RADIUS * geo["diameter"], MIN_RADIUS_OF_COORD * float(np.max(np.abs(body))))
+    for i, t in enumerate(tendons):
+        if 0 < t.attachment_radius < floor:
+            own = raw["list"][i].get("attachment_radius") is not None
+            ck.fail(at_key(at_index("tendons.list", i), "attachment_radius") if own
+                    else "tendons.attachment_radius",
+                    f"{format_number(t.attachment_radius)} is below {floor:.3g}, {MIN_RADIUS:g} of "
+                    "the body's size: give 0 for a point attachment")
 
 
 def _check_points_in_body(ck: Checker, geo: dict, pin_points, tendons, targets, points):
@@ -251,6 +280,13 @@ def _mesh_section(ck: Checker, mesh) -> dict:
         _check_midside_nodes(ck, nodes, tris)
     out.update(nodes=nodes, triangles=tris, diameter=diameter(nodes))
     return out
+
+
+def explicit_mesh(ck: Checker, element, nodes, triangles) -> tuple[np.ndarray, np.ndarray]:
+    """``element``, ``nodes`` and ``triangles`` checked as a problem file's
+    explicit mesh (``ck`` names the keys): (nodes (n, 2), triangles (m, 3 or 6))."""
+    geo = _mesh_section(ck, {"element": element, "nodes": nodes, "triangles": triangles})
+    return geo["nodes"], geo["triangles"]
 
 
 def _check_explicit_mesh(ck: Checker, nodes: np.ndarray, tris: np.ndarray):
@@ -417,8 +453,11 @@ def _tendons_section(ck: Checker, raw, winches):
     friction = 0.0 if friction is None else ck.number(friction, "tendons.friction", ge=0)
     winch_index = {w.name: i for i, w in enumerate(winches)}
     used = set()
-    tendons, seen = [], {}
-    for i, t in enumerate(ck.seq(raw["list"], "tendons.list", min_len=1, what="list of tendons")):
+    tendons, seen, n_via = [], {}, 0
+    items = ck.seq(raw["list"], "tendons.list", min_len=1, what="list of tendons")
+    if len(items) > MAX_TENDONS:
+        ck.fail("tendons.list", f"{len(items)} tendons; at most {MAX_TENDONS}")
+    for i, t in enumerate(items):
         path = at_index("tendons.list", i)
         ck.mapping(t, path, _TENDON_KEYS, required=("name", "winch", "path"))
         name = ck.name(t["name"], at_key(path, "name"))
@@ -432,6 +471,10 @@ def _tendons_section(ck: Checker, raw, winches):
                     f"{', '.join(repr(w.name) for w in winches)})")
         used.add(winch)
         via = ck.points(t["path"], at_key(path, "path"), min_len=2)
+        n_via += len(via)
+        if len(via) > MAX_VIA_POINTS or n_via > MAX_VIA_POINTS_TOTAL:
+            ck.fail(at_key(path, "path"), f"{len(via)} via points; at most {MAX_VIA_POINTS} per tendon and "
+                    f"{MAX_VIA_POINTS_TOTAL} in a file (this makes {n_via})")
         offset = _opt(t, "assembly_offset")
         offset = 0.0 if offset is None else ck.number(offset, at_key(path, "assembly_offset"))
         if abs(offset) > MAX_COORD:

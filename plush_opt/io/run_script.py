@@ -23,12 +23,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .checker import Checker, at_index, at_key, describe
+from .checker import MAX_WEIGHT, Checker, at_index, at_key, describe
 from .yaml_reader import read_yaml
 
 FORMAT = "plush-opt-run/1"
 STEP_KINDS = ("set", "pose", "hold", "release")
 MAX_RATE = 1000.0          # Hz
+MIN_RATE = 0.1             # Hz: slower, a run would wait minutes between commands (a typo, not a plan)
+MAX_STEP_TIME = 3600.0     # s, a pose's max_time or a hold: an hour on the bench is a long run
+MAX_STEPS = 10_000         # steps of one script: a day of one-second moves needs fewer
+MAX_RUN_TIME = 86400.0     # s, the holds and pose max_times of one script together: a day
 DEFAULT_MAX_TIME = 10.0    # s, pose steps
 
 _TOP_KEYS = ("format", "description", "problem", "board", "rate", "steps")
@@ -81,13 +85,18 @@ def load_run_script(path) -> RunScript:
         if not files[key].is_file():
             ck.fail(key, f"{top[key]!r} (relative to the script) does not exist: {files[key]}")
     rate = ck.number(top["rate"], "rate", gt=0)
-    if rate > MAX_RATE:
-        ck.fail("rate", f"must be <= {MAX_RATE:g} Hz, got {rate:g}")
+    if not MIN_RATE <= rate <= MAX_RATE:
+        ck.fail("rate", f"must be in {MIN_RATE:g}..{MAX_RATE:g} Hz, got {rate:g}")
     steps = ck.seq(top["steps"], "steps", min_len=1, what="list of steps")
+    if len(steps) > MAX_STEPS:
+        ck.fail("steps", f"{len(steps)} steps; at most {MAX_STEPS}")
     description = top.get("description")
     description = "" if description is None else ck.string(description, "description")
-    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate,
-                     steps=tuple(_parse_step(ck, s, i) for i, s in enumerate(steps)),
+    parsed = tuple(_parse_step(ck, s, i) for i, s in enumerate(steps))
+    total = sum(s.seconds + (s.max_time if s.kind == "pose" else 0.0) for s in parsed)
+    if total > MAX_RUN_TIME:
+        ck.fail("steps", f"holds and pose max_times add up to {total:g} s; at most {MAX_RUN_TIME:g} s (a day)")
+    return RunScript(path=path, problem=files["problem"], board=files["board"], rate=rate, steps=parsed,
                      description=description)
 
 
@@ -107,13 +116,28 @@ def _parse_step(ck: Checker, item, i: int) -> Step:
             ck.fail(key, f"takes no value, got {describe(body)}")
         return Step(kind="release")
     if kind == "hold":
-        return Step(kind="hold", seconds=ck.number(body, key, ge=0))
+        return Step(kind="hold", seconds=_seconds(ck, ck.number(body, key, ge=0), key))
     if kind == "set":
         if not isinstance(body, dict) or not body:
             ck.fail(key, f"must map winch names to contractions, got {describe(body)}")
         return Step(kind="set", contraction={str(name): ck.number(v, at_key(key, name))
                                              for name, v in body.items()})
     return _parse_pose(ck, body, key)
+
+
+def _weight(ck: Checker, value, key: str) -> float:
+    """A target weight in (0, :data:`MAX_WEIGHT`]."""
+    w = ck.number(value, key, gt=0)
+    if w > MAX_WEIGHT:
+        ck.fail(key, f"must be <= {MAX_WEIGHT:g}, got {w:g}")
+    return w
+
+
+def _seconds(ck: Checker, t: float, key: str) -> float:
+    """A step's duration, at most :data:`MAX_STEP_TIME`."""
+    if t > MAX_STEP_TIME:
+        ck.fail(key, f"must be <= {MAX_STEP_TIME:g} s, got {t:g}")
+    return t
 
 
 def _parse_pose(ck: Checker, body, key: str) -> Step:
@@ -126,13 +150,12 @@ def _parse_pose(ck: Checker, body, key: str) -> Step:
         weight = t.get("weight")
         targets.append({"at": list(ck.point(t["at"], at_key(tkey, "at"))),
                         "to": list(ck.point(t["to"], at_key(tkey, "to"))),
-                        "weight": 1.0 if weight is None else ck.number(weight, at_key(tkey, "weight"),
-                                                                       gt=0)})
+                        "weight": 1.0 if weight is None else _weight(ck, weight, at_key(tkey, "weight"))})
     freeze = body.get("freeze")
     freeze = [] if freeze is None else ck.seq(freeze, at_key(key, "freeze"),
                                               what="list of winch names")
     freeze = [ck.name(n, at_index(at_key(key, "freeze"), k)) for k, n in enumerate(freeze)]
     max_time = body.get("max_time")
     max_time = (DEFAULT_MAX_TIME if max_time is None
-                else ck.number(max_time, at_key(key, "max_time"), gt=0))
+                else _seconds(ck, ck.number(max_time, at_key(key, "max_time"), gt=0), at_key(key, "max_time")))
     return Step(kind="pose", targets=tuple(targets), freeze=tuple(freeze), max_time=max_time)

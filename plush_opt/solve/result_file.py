@@ -17,11 +17,13 @@ from ..base.errors import SceneError, one_line
 from ..base.files import write_json_atomic
 from ..fem.model import Model
 from ..fem.objective import Targets
+from ..io.checker import Checker, at_index, at_key, describe, parse_json
 
 FORMAT = "plush-opt-result/1"
 # The spec names forward, reparam and bilevel; clip (the gradient loop with
 # clipped bounds, the baseline) is recorded as itself (docs/problem-format.md).
 METHODS = ("forward", "reparam", "clip", "bilevel")
+MAX_RESULT_BYTES = 1 << 30     # a result of the largest mesh (4M triangles) is well under
 
 
 def _tendon_entry(tendon, path, assembly_length, weights) -> dict:
@@ -136,3 +138,69 @@ def control_result_dict(result, *, total_s: float | None = None, extra: dict | N
                        total_s=stats.t_wall if total_s is None else total_s, solve_s=stats.t_wall,
                        iterations=stats.iterations,
                        extra={"reason": result.reason, **details, **(extra or {})})
+
+
+class _ModelChecker(Checker):
+    """The problem file's mesh checks, their keys renamed to a result file's."""
+
+    RENAME = (("mesh.nodes", "model.rest_nodes"), ("mesh.triangles", "model.triangles"),
+              ("mesh.element", "model.element"), ("mesh", "model"))
+
+    def fail(self, path: str, message: str):
+        for old, new in self.RENAME:
+            if path == old or path.startswith((old + "[", old + ".")):
+                path = new + path[len(old):]
+                break
+        super().fail(path, message.replace("mesh.triangles[", "model.triangles["))
+
+
+def read_result(path) -> dict:
+    """The document of a result file, checked where the package reads it
+    back (``plush-opt export --result``): ``format``, ``problem``,
+    ``contractions`` (winch -> finite number), ``nodes`` (finite points, one
+    per rest node), ``model.element``, ``model.rest_nodes`` and
+    ``model.triangles`` (a valid mesh, as a problem file's explicit mesh),
+    ``model.tendons.list`` (mappings with a ``name``, and finite
+    ``segment_rest_lengths`` where given). Anything else is one
+    :class:`SceneError` line naming the file and the key; nothing is repaired."""
+    from ..io.problem_file import explicit_mesh
+    ck = Checker(path)
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_RESULT_BYTES + 1)
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read the result file: {exc.strerror or exc}") from None
+    if len(raw) > MAX_RESULT_BYTES:
+        ck.fail("", f"larger than {MAX_RESULT_BYTES} bytes: not a result file of plush-opt solve")
+    doc = parse_json(raw, ck)
+    if not isinstance(doc, dict):
+        ck.fail("", f"expected a JSON object (a result file of plush-opt solve), got {describe(doc)}")
+    ck.mapping(doc, "", tuple(doc), required=("format", "problem", "contractions", "nodes", "model"))
+    if doc["format"] != FORMAT:
+        ck.fail("format", f"expected {FORMAT!r}, got {describe(doc['format'])}")
+    ck.name(doc["problem"], "problem")
+    c = doc["contractions"]
+    ck.numbers(c, "contractions", tuple(c) if isinstance(c, dict) else ())
+    model = ck.mapping(doc["model"], "model", tuple(doc["model"]) if isinstance(doc["model"], dict) else (),
+                       required=("element", "rest_nodes", "triangles", "tendons"))
+    explicit_mesh(_ModelChecker(path), ck.string(model["element"], "model.element"), model["rest_nodes"],
+                  model["triangles"])
+    nodes = ck.points(doc["nodes"], "nodes", min_len=1)
+    if len(nodes) != len(model["rest_nodes"]):
+        ck.fail("nodes", f"{len(nodes)} points, but model.rest_nodes has {len(model['rest_nodes'])}")
+    _check_tendon_entries(ck, model["tendons"])
+    return doc
+
+
+def _check_tendon_entries(ck: Checker, tendons) -> None:
+    ck.mapping(tendons, "model.tendons", tuple(tendons) if isinstance(tendons, dict) else (), required=("list",))
+    for i, entry in enumerate(ck.seq(tendons["list"], "model.tendons.list", what="list of tendons")):
+        key = at_index("model.tendons.list", i)
+        ck.mapping(entry, key, tuple(entry) if isinstance(entry, dict) else (), required=("name",))
+        ck.name(entry["name"], at_key(key, "name"))
+        if entry.get("friction") is not None:
+            ck.number(entry["friction"], at_key(key, "friction"), ge=0)
+        if "segment_rest_lengths" in entry:
+            rest = ck.seq(entry["segment_rest_lengths"], at_key(key, "segment_rest_lengths"), min_len=1)
+            for j, r in enumerate(rest):
+                ck.number(r, at_index(at_key(key, "segment_rest_lengths"), j), gt=0)
