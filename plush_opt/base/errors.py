@@ -79,3 +79,33 @@ def interrupt_status(exc: BaseException) -> tuple[str, int]:
     if isinstance(exc, Interrupted):
         return exc.name, 128 + exc.signum
     return "SIGINT", 130
+
+
+# The interruption a signal handler noted. A handler's exception is lost
+# where it is raised inside a C++ solver's callback (IPOPT turns it into a
+# failed step or a stop on request); the solver's caller re-raises the noted
+# one (:func:`raise_if_interrupted`), and IPOPT's iteration callback stops
+# the solve when one is noted (:func:`interrupt_noted`).
+_noted: list[KeyboardInterrupt] = []
+
+
+def note_interrupt(exc: KeyboardInterrupt) -> None:
+    """Remember ``exc`` (an :class:`Interrupted` or a Ctrl-C) until cleared; the first one wins."""
+    if not _noted:
+        _noted.append(exc)
+
+
+def interrupt_noted() -> bool:
+    """Whether a signal has been noted since the last :func:`clear_interrupt`."""
+    return bool(_noted)
+
+
+def clear_interrupt() -> None:
+    """Forget a noted signal (a command's start; a test's)."""
+    _noted.clear()
+
+
+def raise_if_interrupted() -> None:
+    """Raise the noted interruption again, if any (after a solver returns)."""
+    if _noted:
+        raise _noted[0].with_traceback(None)
