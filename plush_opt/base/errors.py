@@ -23,6 +23,12 @@ class SolverError(PlushError, RuntimeError):
     which is reported by a result's ``converged``/``status``)."""
 
 
+class SettingError(SolverError):
+    """A setting outside the files is invalid (an environment variable such
+    as ``PLUSH_OPT_LINALG``): bad input, exit 2, the message names it. A
+    :class:`SolverError` too, for callers that caught a bad backend as one."""
+
+
 class HardwareError(PlushError, RuntimeError):
     """The winch board misbehaved: timeout, bad reply, refused command."""
 
