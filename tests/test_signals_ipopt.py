@@ -118,3 +118,36 @@ def test_signal_during_cli_bilevel(tmp_path, name):
     assert code == EXPECTED[name], err
     assert "User_Requested_Stop" not in err and "Traceback" not in err
     assert not out.exists()
+
+
+# the full-space bilevel NLP with tolerances out of reach: IPOPT never stops by itself
+ENDLESS_BILEVEL = textwrap.dedent("""
+    import sys
+    from plush_opt.apps.signals import handle_signals
+    from plush_opt.base.errors import interrupt_status
+    from plush_opt.control import BilevelOptions
+    from plush_opt.problem import load
+    handle_signals()
+    p = load("problems/gripper.yaml")
+    never = {k: 1e-300 for k in ("tol", "dual_inf_tol", "constr_viol_tol", "compl_inf_tol", "acceptable_tol",
+                                 "acceptable_dual_inf_tol", "acceptable_constr_viol_tol",
+                                 "acceptable_compl_inf_tol")}
+    o = BilevelOptions(formulation="full", max_iter=10**7,
+                       ipopt={"print_level": 5, "acceptable_iter": 0, "acceptable_obj_change_tol": 0.0, **never})
+    try:
+        r = p.control("bilevel", options=o)
+    except KeyboardInterrupt as exc:
+        name, code = interrupt_status(exc)
+        print("interrupted", name, file=sys.stderr)
+        sys.exit(code)
+    print("returned", r.converged, file=sys.stderr)
+    sys.exit(0)
+""")
+
+
+@pytest.mark.parametrize("name", ["SIGINT", "SIGTERM", "SIGHUP"])
+def test_signal_stops_the_full_bilevel_ipopt(name):
+    proc = _start([sys.executable, "-c", ENDLESS_BILEVEL], "iter    objective")
+    code, err = _interrupt(proc, name)
+    assert code == EXPECTED[name], err
+    assert f"interrupted {name}" in err
