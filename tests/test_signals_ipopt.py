@@ -103,8 +103,7 @@ def test_signal_during_cli_ipopt_equilibrium(tmp_path, name):
     proc = _start(args, "iter    objective")
     code, err = _interrupt(proc, name)
     assert code == EXPECTED[name], err
-    assert f"interrupted ({name})" in err
-    assert "Traceback" not in err
+    assert err.strip() == f"plush-opt: interrupted ({name})"      # one line: no solver noise either
     assert not out.exists()          # no result, rather than one that claims an answer
 
 

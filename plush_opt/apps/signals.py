@@ -23,7 +23,7 @@ def handle_signals() -> dict:
     loops would swallow the exception: a second signal during the cleanup is ignored, so the
     cleanup (stop the board, end the log) is not cut short. Returns the
     previous handlers."""
-    from ..base.errors import Interrupted, clear_interrupt, note_interrupt
+    from ..base.errors import Interrupted, clear_interrupt, note_interrupt, signals_only_noted
     clear_interrupt()
     if threading.current_thread() is not threading.main_thread():
         return {}
@@ -44,13 +44,15 @@ def handle_signals() -> dict:
         if not again(signum):
             exc = Interrupted(signum, signal.Signals(signum).name)
             note_interrupt(exc)
-            raise exc
+            if not signals_only_noted():
+                raise exc
 
     def sigint(signum, frame):
         if not again(signum):
             exc = KeyboardInterrupt()
             note_interrupt(exc)
-            raise exc
+            if not signals_only_noted():
+                raise exc
 
     previous = {}
     for name in TERMINATING_SIGNALS:

@@ -4,6 +4,8 @@ Every error a user can cause is a :class:`PlushError`; the command line
 prints its message on one line and exits non-zero.
 """
 
+import contextlib
+
 
 class PlushError(Exception):
     """Base class of every error raised on purpose by plush_opt."""
@@ -93,6 +95,7 @@ def interrupt_status(exc: BaseException) -> tuple[str, int]:
 # one (:func:`raise_if_interrupted`), and IPOPT's iteration callback stops
 # the solve when one is noted (:func:`interrupt_noted`).
 _noted: list[KeyboardInterrupt] = []
+_only_noted = [0]     # > 0: inside a loop that stops itself on a noted signal (see only_note_signals)
 
 
 def note_interrupt(exc: KeyboardInterrupt) -> None:
@@ -104,6 +107,23 @@ def note_interrupt(exc: KeyboardInterrupt) -> None:
 def interrupt_noted() -> bool:
     """Whether a signal has been noted since the last :func:`clear_interrupt`."""
     return bool(_noted)
+
+
+@contextlib.contextmanager
+def only_note_signals():
+    """Inside: a signal is noted, not raised (for a C++ loop that checks
+    :func:`interrupt_noted` itself and stops cleanly, rather than seeing the
+    exception as a failed evaluation)."""
+    _only_noted[0] += 1
+    try:
+        yield
+    finally:
+        _only_noted[0] -= 1
+
+
+def signals_only_noted() -> bool:
+    """Whether a signal handler should only note the signal (see :func:`only_note_signals`)."""
+    return _only_noted[0] > 0
 
 
 def clear_interrupt() -> None:

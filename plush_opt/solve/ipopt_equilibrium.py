@@ -4,13 +4,14 @@ is certified by the same test as Newton's."""
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 
 import casadi as ca
 import numpy as np
 
-from ..base.errors import interrupt_noted, raise_if_interrupted
+from ..base.errors import interrupt_noted, only_note_signals, raise_if_interrupted
 from ..fem.model import Model
 from .certificate import Equilibrium, EquilibriumOptions, certified, try_factor
 from .newton import escape_saddle
@@ -74,12 +75,15 @@ def stop_on_signal_options(callback: StopOnSignal) -> dict:
     return {"iteration_callback": callback, **STOP_ON_SIGNAL}
 
 
-def call_ipopt(solver: ca.Function, **kwargs) -> dict:
+def call_ipopt(solver: ca.Function, stops_itself: bool = False, **kwargs) -> dict:
     """``solver(**kwargs)``, re-raising a signal noted during the solve
     (IPOPT ends such a solve with User_Requested_Stop, or with an error where
-    the handler's exception reached one of its callbacks)."""
+    the handler's exception reached one of its callbacks). ``stops_itself``:
+    the solver has a :class:`StopOnSignal` callback, so a signal is only
+    noted during the solve, which then ends cleanly at its next iteration."""
     try:
-        sol = solver(**kwargs)
+        with only_note_signals() if stops_itself else contextlib.nullcontext():
+            sol = solver(**kwargs)
     except Exception:
         raise_if_interrupted()
         raise
@@ -168,7 +172,7 @@ class IpoptEquilibrium:
         extra = {}
         while True:
             solver = self.solver(options, extra)
-            sol = call_ipopt(solver, x0=x, p=c)
+            sol = call_ipopt(solver, stops_itself=True, x0=x, p=c)
             stats = solver.stats()
             iterations += int(stats.get("iter_count", 0))
             xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
