@@ -64,11 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    configure_output(args)
-    previous = handle_signals()
+    previous = handle_signals()      # first: a signal during start-up (imports, parsing) ends quietly too
+    args = None
     try:
+        args = build_parser().parse_args(argv)
+        configure_output(args)
         _check_output_folders(args)
         return args.func(args)
     except KeyboardInterrupt as exc:
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
         print(f"plush-opt: interrupted ({name})", file=sys.stderr)
         return code
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
-        if args.debug:
+        if args is None or args.debug:
             raise
         message, code = describe_error(exc)
         print(f"plush-opt: {one_line(message)}", file=sys.stderr)

@@ -13,7 +13,7 @@ import logging
 import os
 import sys
 
-from ..base.errors import HardwareError, PlushError, SceneError, SolverError
+from ..base.errors import HardwareError, PlushError, SceneError, SettingError, SolverError
 
 EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERNAL, EXIT_INTERRUPT = 0, 2, 3, 4, 70, 130
 LENGTH_UNIT = "mm"     # the shipped problems' unit; summary lines carry it
@@ -56,7 +56,7 @@ def configure_output(args) -> None:
 
 def describe_error(exc: Exception) -> tuple[str, int]:
     """One line and an exit status for an error that ends a command."""
-    if isinstance(exc, (SceneError, argparse.ArgumentTypeError)):
+    if isinstance(exc, (SceneError, SettingError, argparse.ArgumentTypeError)):
         return f"error: {exc}", EXIT_INPUT
     if isinstance(exc, HardwareError):
         return f"hardware error: {exc}", EXIT_HARDWARE

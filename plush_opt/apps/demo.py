@@ -8,7 +8,6 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
-from ..base.errors import SolverError
 from .arguments import check_tension_max
 from .console import EXIT_OK, EXIT_SOLVER, LENGTH_UNIT, is_quiet, say, target_summary, use_agg
 from .run_command import cmd_run
@@ -74,12 +73,16 @@ def cmd_demo(args) -> int:
         f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
     say(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
     if not args.no_board:
-        _demo_run(args.script or data_file("examples", "gripper_run.yaml"), out)
+        code = _demo_run(args.script or data_file("examples", "gripper_run.yaml"), out)
+        if code != EXIT_OK:
+            return code
     return EXIT_OK if doc["converged"] else EXIT_SOLVER
 
 
-def _demo_run(script: Path, out: Path) -> None:
-    """Play a run script on the board emulator; write its log and a plot."""
+def _demo_run(script: Path, out: Path) -> int:
+    """Play a run script on the board emulator; write its log and a plot.
+    Returns the run's exit status: 0, or 128 + the signal that interrupted
+    it (the board stopped, the log ended), which the demo exits with."""
     from .plot import plot_run_log
     say(f"demo: playing {script.name} on the board emulator")
     log_path = out / "run.jsonl"
@@ -87,9 +90,10 @@ def _demo_run(script: Path, out: Path) -> None:
                            quiet=is_quiet(), plot=None, vtk=None, progress=False)
     code = cmd_run(args)
     if code != EXIT_OK:
-        raise SolverError(f"the demo run ended with status {code}")
+        return code
     rows = [json.loads(line) for line in log_path.read_text().splitlines()]
     plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions")
     end = rows[-1]
     say(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
         f"wrote {log_path}, {out / 'run.png'}")
+    return EXIT_OK

@@ -18,10 +18,13 @@ CLEANUP_GRACE = 10.0    # s after a first signal during which a repeated one doe
 
 def handle_signals() -> dict:
     """SIGTERM and SIGHUP raise :class:`~plush_opt.base.errors.Interrupted` in the
-    main thread, once: a second signal during the cleanup is ignored, so the
+    main thread (Ctrl-C its KeyboardInterrupt), once, and note it
+    (:func:`~plush_opt.base.errors.note_interrupt`) for the solvers whose C++
+    loops would swallow the exception: a second signal during the cleanup is ignored, so the
     cleanup (stop the board, end the log) is not cut short. Returns the
     previous handlers."""
-    from ..base.errors import Interrupted
+    from ..base.errors import Interrupted, clear_interrupt, note_interrupt, signals_only_noted
+    clear_interrupt()
     if threading.current_thread() is not threading.main_thread():
         return {}
     fired = []
@@ -39,11 +42,17 @@ def handle_signals() -> dict:
 
     def handler(signum, frame):
         if not again(signum):
-            raise Interrupted(signum, signal.Signals(signum).name)
+            exc = Interrupted(signum, signal.Signals(signum).name)
+            note_interrupt(exc)
+            if not signals_only_noted():
+                raise exc
 
     def sigint(signum, frame):
         if not again(signum):
-            raise KeyboardInterrupt
+            exc = KeyboardInterrupt()
+            note_interrupt(exc)
+            if not signals_only_noted():
+                raise exc
 
     previous = {}
     for name in TERMINATING_SIGNALS:

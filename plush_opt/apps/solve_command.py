@@ -14,11 +14,16 @@ import sys
 import time
 from pathlib import Path
 
-from ..base.errors import SceneError, SolverError
+import numpy as np
+
+from ..base.errors import SceneError, SettingError, SolverError, one_line
 from .arguments import add_picture_flags, check_tension_max, contraction_arg, pairs
 from .console import EXIT_OK, EXIT_SOLVER, say, summary_line, use_agg
 
 log = logging.getLogger("plush_opt")
+
+#: The status of a result whose solve a solver error ended (its ``reason`` says which).
+SOLVER_ERROR_STATUS = "solver_error"
 
 
 def add_solve_parser(sub) -> None:
@@ -80,10 +85,7 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
 
     The shared path of ``solve`` and ``demo``.
     """
-    from ..control import BilevelOptions, ControlOptions
-    from ..solve.equilibrium import EquilibriumOptions
     from ..problem import load
-    from ..solve.result_file import control_result_dict, result_dict
 
     t0 = time.perf_counter()
     if max_iterations is not None and max_iterations < 0:
@@ -102,6 +104,21 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     if method != "forward" and not p.targets.n_targets:
         raise SceneError(f"{p.source}: targets: --method {method} needs targets; the file has none")
     extra = {} if p.mesh_report is None else accuracy_record(p.mesh_report)
+    try:
+        return _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
+                             ipopt_print_level, t0, extra)
+    except SolverError as exc:
+        if isinstance(exc, SettingError):      # bad input (exit 2), not a solve that failed
+            raise
+        return _solver_failed(p, contraction, method, equilibrium, exc, t0, extra)
+
+
+def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
+                  ipopt_print_level, t0, extra):
+    """:func:`solve_problem` once the problem is loaded and its names checked."""
+    from ..control import BilevelOptions, ControlOptions
+    from ..solve.equilibrium import EquilibriumOptions
+    from ..solve.result_file import control_result_dict, result_dict
     # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
     eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
     log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
@@ -167,6 +184,37 @@ def _start_failed(p, contraction, method, equilibrium, exc, t0, extra):
     return p, eq, doc, ()
 
 
+def _solver_failed(p, contraction, method, equilibrium, exc, t0, extra):
+    """The result of a solve a :class:`SolverError` ended (no Hessian shift
+    found, a factorisation that failed): ``converged: false``, status
+    ``solver_error``, the error as its ``reason``, and the pose the solve
+    started from (the rest pose), which is all that is known."""
+    from ..solve.certificate import Equilibrium
+    from ..solve.result_file import result_dict
+    c = p.contraction_vector(contraction, what="--contraction")
+    eq = Equilibrium(p.model.X.copy(), c, False, f"solver error: {exc}", np.nan, np.inf, np.nan, False, None,
+                     0, 0.0, equilibrium)
+    t_end = time.perf_counter()
+    with np.errstate(all="ignore"):     # the numbers that come out non-finite are written as null
+        doc = result_dict(p.model, p.targets, eq, method=method, converged=False, status=SOLVER_ERROR_STATUS,
+                          total_s=t_end - t0, solve_s=t_end - t0, iterations=0,
+                          extra={"reason": f"solver error: {exc}", **extra})
+    return p, eq, _null_non_finite(doc), ()
+
+
+def _null_non_finite(value):
+    """``value`` (a JSON document) with every non-finite number as null, as the
+    result file writes a missing number (the pose of a failed solve may have
+    degenerate tendon segments: 0/0 rest lengths)."""
+    if isinstance(value, dict):
+        return {k: _null_non_finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_null_non_finite(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
 def _check_solve_outputs(args) -> None:
     """Every output path of ``solve`` refused before the solve, not after it."""
     from ..base.files import check_output_path
@@ -209,6 +257,9 @@ def cmd_solve(args) -> int:
         from .export import write_control
         write_control(args.vtk, p.model, eq, history)
     say(summary_line(doc))
+    if doc["status"] == SOLVER_ERROR_STATUS:
+        print(f"plush-opt: {one_line(doc['reason'])}", file=sys.stderr)
+        return EXIT_SOLVER
     if not doc["converged"]:
         print(f"plush-opt: not converged: {doc['status']}", file=sys.stderr)
         return EXIT_SOLVER

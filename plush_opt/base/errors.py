@@ -4,6 +4,8 @@ Every error a user can cause is a :class:`PlushError`; the command line
 prints its message on one line and exits non-zero.
 """
 
+import contextlib
+
 
 class PlushError(Exception):
     """Base class of every error raised on purpose by plush_opt."""
@@ -21,6 +23,12 @@ class SceneError(PlushError, ValueError):
 class SolverError(PlushError, RuntimeError):
     """A solver could not be run (as opposed to running and not converging,
     which is reported by a result's ``converged``/``status``)."""
+
+
+class SettingError(SolverError):
+    """A setting outside the files is invalid (an environment variable such
+    as ``PLUSH_OPT_LINALG``): bad input, exit 2, the message names it. A
+    :class:`SolverError` too, for callers that caught a bad backend as one."""
 
 
 class HardwareError(PlushError, RuntimeError):
@@ -79,3 +87,51 @@ def interrupt_status(exc: BaseException) -> tuple[str, int]:
     if isinstance(exc, Interrupted):
         return exc.name, 128 + exc.signum
     return "SIGINT", 130
+
+
+# The interruption a signal handler noted. A handler's exception is lost
+# where it is raised inside a C++ solver's callback (IPOPT turns it into a
+# failed step or a stop on request); the solver's caller re-raises the noted
+# one (:func:`raise_if_interrupted`), and IPOPT's iteration callback stops
+# the solve when one is noted (:func:`interrupt_noted`).
+_noted: list[KeyboardInterrupt] = []
+_only_noted = [0]     # > 0: inside a loop that stops itself on a noted signal (see only_note_signals)
+
+
+def note_interrupt(exc: KeyboardInterrupt) -> None:
+    """Remember ``exc`` (an :class:`Interrupted` or a Ctrl-C) until cleared; the first one wins."""
+    if not _noted:
+        _noted.append(exc)
+
+
+def interrupt_noted() -> bool:
+    """Whether a signal has been noted since the last :func:`clear_interrupt`."""
+    return bool(_noted)
+
+
+@contextlib.contextmanager
+def only_note_signals():
+    """Inside: a signal is noted, not raised (for a C++ loop that checks
+    :func:`interrupt_noted` itself and stops cleanly, rather than seeing the
+    exception as a failed evaluation)."""
+    _only_noted[0] += 1
+    try:
+        yield
+    finally:
+        _only_noted[0] -= 1
+
+
+def signals_only_noted() -> bool:
+    """Whether a signal handler should only note the signal (see :func:`only_note_signals`)."""
+    return _only_noted[0] > 0
+
+
+def clear_interrupt() -> None:
+    """Forget a noted signal (a command's start; a test's)."""
+    _noted.clear()
+
+
+def raise_if_interrupted() -> None:
+    """Raise the noted interruption again, if any (after a solver returns)."""
+    if _noted:
+        raise _noted[0].with_traceback(None)

@@ -27,7 +27,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .errors import SolverError
+from .errors import SettingError, SolverError
 
 log = logging.getLogger(__name__)
 
@@ -89,9 +89,9 @@ class NotPositiveDefinite(Exception):
 
 def _checked_backend(name: str) -> str:
     if name not in BACKENDS:
-        raise SolverError(f"{ENV_VAR}={name!r}: expected one of {', '.join(BACKENDS)}")
+        raise SettingError(f"{ENV_VAR}={name!r}: expected one of {', '.join(BACKENDS)}")
     if name == "cholmod" and not _cholmod_installed():
-        raise SolverError(f"{ENV_VAR}=cholmod: scikit-sparse (CHOLMOD) is not installed; install "
+        raise SettingError(f"{ENV_VAR}=cholmod: scikit-sparse (CHOLMOD) is not installed; install "
                           "libsuitesparse-dev, then `pip install 'plush_opt[cholmod]'`")
     if name == "qdldl":
         try:

@@ -29,6 +29,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..solve.equilibrium import certify, solve_equilibrium
+from ..solve.ipopt_equilibrium import build_interruptibly
 from ..base.errors import SolverError
 from ..fem.model import Model
 from ..fem.objective import Targets
@@ -67,7 +68,8 @@ class BilevelSolver:
         key = (tuple(bool(f) for f in frozen), targets.nodes.tobytes(), targets.n_targets,
                repr(sorted(options.ipopt_options().items())), options.min_jacobian, options.expand)
         if key not in self._entries:
-            self._entries[key] = build_nlp(self.model, frozen, targets.nodes, options, self._store)
+            self._entries[key] = build_interruptibly(build_nlp, self.model, frozen, targets.nodes, options,
+                                                     self._store)
             return self._entries[key], True
         return self._entries[key], False
 

@@ -33,6 +33,7 @@ import time
 import numpy as np
 
 from ..solve.equilibrium import solve_equilibrium
+from ..solve.ipopt_equilibrium import call_ipopt
 from .bilevel_nlp import (NlpEntry, describe_pose as _describe_pose, force_reference,
                           jsonable as _jsonable, kkt as _kkt, parameters as _parameters, pose_check as _pose_check)
 from .bilevel_options import BilevelStats
@@ -80,7 +81,7 @@ class FullRun:
                               "free": free, "c_fixed": c0.copy(), "max_time": options.max_time})
         t_ipopt = time.perf_counter()
         try:
-            self.sol = entry.solver(x0=z0, p=self.p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
+            self.sol = call_ipopt(entry.solver, x0=z0, p=self.p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
         finally:
             self.t_ipopt = time.perf_counter() - t_ipopt
             self.history = tuple(entry.recorder.points)

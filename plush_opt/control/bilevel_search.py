@@ -22,8 +22,10 @@ import time
 
 import numpy as np
 
+from ..base.errors import raise_if_interrupted
 from ..fem.model import Model
 from ..fem.objective import Targets
+from ..solve.ipopt_equilibrium import build_interruptibly
 from .bilevel_nlp import jsonable
 from .bilevel_options import BilevelStats
 from .bilevel_reduced import Evaluator, Point, build_solver, history_point
@@ -120,8 +122,8 @@ class ReducedRun:
         n = len(self.free)
         m = self.ev.B.shape[0] + n
         t0 = time.perf_counter()
-        solver, self._residual, self._recorder = build_solver(
-            self.ev, n, m, self.options.reduced_ipopt_options(), self._rules)
+        solver, self._residual, self._recorder = build_interruptibly(
+            build_solver, self.ev, n, m, self.options.reduced_ipopt_options(), self._rules)
         self.t_build = time.perf_counter() - t0
         lbx, ubx = self.model.lower[self.free], self.model.upper[self.free]
         point, tried = self.start, {}
@@ -145,11 +147,13 @@ class ReducedRun:
         try:
             sol = solver(x0=point.c[self.free], lbx=lbx, ubx=ubx)
         except RuntimeError:
+            raise_if_interrupted()         # a signal that reached a callback
             self.ev.raise_error()          # the callback's own error, if it was one
             raise
         finally:
             self.t_ipopt += time.perf_counter() - t0
         # an exception inside a callback stopped IPOPT: it is the real error
+        raise_if_interrupted()
         self.ev.raise_error()
         stats = solver.stats()
         self.calls["ipopt_rounds"] += 1

@@ -11,6 +11,7 @@ inside the body or on nodes of an explicit mesh) use
 from __future__ import annotations
 
 import math
+import numbers
 import os
 import re
 
@@ -114,6 +115,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
     pin_stiffness, pin_points, pin_box = _pins_section(ck, data["pins"])
     winches = _winches_section(ck, data["winches"])
     t_stiffness, t_smoothing, tendons = _tendons_section(ck, data["tendons"], winches)
+    _check_physics_ranges(ck, data, material, gravity, pin_stiffness, t_stiffness)
     targets = _targets_section(ck, _opt(data, "targets"))
     raw_points = _opt(data, "points")
     points = np.zeros((0, 2)) if raw_points is None else ck.points(raw_points, "points", min_len=0)
@@ -583,3 +585,28 @@ def _check_ring_layout(ck: Checker, outline: np.ndarray, holes: list, tol: float
                 ck.fail(at_index("mesh.holes", i), f"{what} mesh.holes[{int(j)}]")
 
 
+# Moduli and stiffnesses (any unit system: steel is 2e5 MPa, 2e11 Pa; diamond
+# about 6 times that) and the body force density rho |g| (steel under Earth's
+# gravity: 8e-5 N/mm^3, 8e4 N/m^3) are limited far above any material, so that
+# forces and their squares (the residual's norm) stay far from float64 overflow.
+MAX_MODULUS = 1e20
+MAX_BODY_FORCE = 1e20
+
+
+def _check_physics_ranges(ck: Checker, data: dict, material: Material, gravity, pin_stiffness: float,
+                          t_stiffness: float) -> None:
+    """Moduli, stiffnesses and the gravity load within the limits above: beyond
+    them a solve overflows (a residual of inf certifies nothing) or no Hessian
+    shift is found; one line naming the key and the limit."""
+    mat = data["material"]
+    named = [(at_key("material", k), mat.get(k)) for k in ("youngs_modulus", "mu", "lambda")]
+    named += [("pins.stiffness", pin_stiffness), ("tendons.stiffness", t_stiffness)]
+    for key, value in named:
+        if isinstance(value, numbers.Real) and not isinstance(value, bool) and float(value) > MAX_MODULUS:
+            ck.fail(key, f"{format_number(value)} is above the limit {MAX_MODULUS:g} "
+                    "(far above any material; forces would overflow)")
+    if gravity is not None and material.density is not None:
+        load = material.density * math.hypot(float(gravity[0]), float(gravity[1]))
+        if not load <= MAX_BODY_FORCE:
+            ck.fail("material.density", f"density x |gravity| = {load:g} is above the limit "
+                    f"{MAX_BODY_FORCE:g} (the gravity load would overflow; check material.density and gravity)")

@@ -22,6 +22,9 @@ from ..fem.model import Evaluation, Model
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
 
+#: The status of a pose whose residual, force scale or energy is not finite: never converged.
+NOT_FINITE = "residual or energy not finite (forces overflow float64)"
+
 BACKENDS = ("newton", "ipopt")
 
 # the status of a solve that met an indefinite Hessian with ``regularise=False``
@@ -158,6 +161,13 @@ class Equilibrium:
     backend: str
     saddle_escapes: int = 0
     factor: Factor | None = field(default=None, repr=False, compare=False)
+
+    def __post_init__(self):
+        # inf <= gtol * inf holds: a residual, force scale or energy that is
+        # not finite (physics overflowing float64) can never certify a pose
+        if self.converged and not all(np.isfinite(v) for v in (self.residual_norm, self.force_scale, self.energy)):
+            object.__setattr__(self, "converged", False)
+            object.__setattr__(self, "status", f"{NOT_FINITE} (the solver said: {self.status})")
 
     @property
     def nodes(self) -> np.ndarray:

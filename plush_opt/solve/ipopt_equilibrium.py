@@ -4,11 +4,14 @@ is certified by the same test as Newton's."""
 
 from __future__ import annotations
 
+import contextlib
+import threading
 import time
 
 import casadi as ca
 import numpy as np
 
+from ..base.errors import interrupt_noted, only_note_signals, raise_if_interrupted
 from ..fem.model import Model
 from .certificate import Equilibrium, EquilibriumOptions, certified, try_factor
 from .newton import escape_saddle
@@ -30,6 +33,91 @@ _IPOPT_DEFAULTS = {
 POLISH_MARGIN = 0.5
 
 
+class StopOnSignal(ca.Callback):
+    """An IPOPT iteration callback that stops the solve (returns 1) once a
+    signal has been noted (:func:`~plush_opt.base.errors.note_interrupt`):
+    IPOPT's loop runs in C++, where the handler's exception cannot reach.
+    The solver's caller then re-raises it (:func:`call_ipopt`)."""
+
+    def __init__(self, name: str = "stop_on_signal"):
+        ca.Callback.__init__(self)
+        self.construct(name, {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        try:
+            return [1 if interrupt_noted() else 0]
+        except KeyboardInterrupt:    # the handler ran here: it noted the signal
+            return [1]
+
+
+#: nlpsol options that make an IPOPT solve stop at its next iteration after a signal.
+STOP_ON_SIGNAL = {"iteration_callback_step": 1, "iteration_callback_ignore_errors": False}
+
+
+def stop_on_signal_options(callback: StopOnSignal) -> dict:
+    """nlpsol options adding ``callback`` as the iteration callback (the
+    caller keeps it alive as long as the solver: CasADi holds no reference)."""
+    return {"iteration_callback": callback, **STOP_ON_SIGNAL}
+
+
+def call_ipopt(solver: ca.Function, stops_itself: bool = False, **kwargs) -> dict:
+    """``solver(**kwargs)``, re-raising a signal noted during the solve
+    (IPOPT ends such a solve with User_Requested_Stop, or with an error where
+    the handler's exception reached one of its callbacks). ``stops_itself``:
+    the solver has a :class:`StopOnSignal` callback, so a signal is only
+    noted during the solve, which then ends cleanly at its next iteration."""
+    try:
+        with only_note_signals() if stops_itself else contextlib.nullcontext():
+            sol = solver(**kwargs)
+    except Exception:
+        raise_if_interrupted()
+        raise
+    raise_if_interrupted()
+    return sol
+
+
+BUILD_POLL = 0.1     # s between the main thread's looks at a build running in a worker thread
+
+
+def build_interruptibly(build, *args):
+    """``build(*args)`` in a worker thread while the main thread waits, so
+    that a signal ends the command during a long NLP build (CasADi releases
+    the interpreter while it builds; its C++ would otherwise hold the signal
+    until the build ends). The abandoned worker is a daemon thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return build(*args)
+    box: dict = {}
+
+    def work():
+        try:
+            box["value"] = build(*args)
+        except BaseException as exc:   # noqa: BLE001 - re-raised in the main thread
+            box["error"] = exc
+
+    worker = threading.Thread(target=work, name="nlp-build", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(BUILD_POLL)
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
 class IpoptEquilibrium:
     """IPOPT minimising one model's energy E(x; c) over x (c a parameter),
     certified afterwards by the Newton backend's test.
@@ -43,6 +131,7 @@ class IpoptEquilibrium:
     def __init__(self, model: Model):
         self.model = model
         self._solvers: dict[str, ca.Function] = {}
+        self._stop = StopOnSignal()
 
     def solver(self, options: EquilibriumOptions, extra: dict | None = None) -> ca.Function:
         """The NLP solver for these options (``extra``: IPOPT options of a
@@ -54,7 +143,11 @@ class IpoptEquilibrium:
         key = repr(sorted(opts.items()))
         if key not in self._solvers:
             m = self.model
-            self._solvers[key] = ca.nlpsol("equilibrium", "ipopt", {"x": m.x_sym, "p": m.c_sym, "f": m.E_sym}, opts)
+            opts.update(stop_on_signal_options(self._stop))
+
+            def build():      # the model's symbolic energy too (built on first use: long on a fine mesh)
+                return ca.nlpsol("equilibrium", "ipopt", {"x": m.x_sym, "p": m.c_sym, "f": m.E_sym}, opts)
+            self._solvers[key] = build_interruptibly(build)
         return self._solvers[key]
 
     def solve(self, c: np.ndarray, x: np.ndarray, options: EquilibriumOptions) -> Equilibrium:
@@ -79,7 +172,7 @@ class IpoptEquilibrium:
         extra = {}
         while True:
             solver = self.solver(options, extra)
-            sol = solver(x0=x, p=c)
+            sol = call_ipopt(solver, stops_itself=True, x0=x, p=c)
             stats = solver.stats()
             iterations += int(stats.get("iter_count", 0))
             xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
