@@ -8,13 +8,11 @@ with numpy alone (tests/spec_checker.py does exactly that).
 
 from __future__ import annotations
 
-import json
 import math
 
 from .equilibrium import Equilibrium
 from .friction_solve import path_record, segment_table
-from ..base.errors import SceneError, one_line
-from ..base.files import write_json_atomic
+from ..base.errors import SceneError
 from ..fem.model import Model
 from ..fem.objective import Targets
 from ..io.checker import Checker, at_index, at_key, describe, parse_json
@@ -163,7 +161,7 @@ def read_result(path) -> dict:
     ``model.tendons.list`` (mappings with a ``name``, and finite
     ``segment_rest_lengths`` where given). Anything else is one
     :class:`SceneError` line naming the file and the key; nothing is repaired."""
-    from ..io.problem_file import explicit_mesh
+    from ..io.mesh_input import explicit_mesh
     ck = Checker(path)
     try:
         with open(path, "rb") as fh:
