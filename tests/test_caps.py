@@ -6,29 +6,15 @@ from __future__ import annotations
 
 import re
 import tracemalloc
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from cli_helpers import cli, one_error_line
 ROOT = Path(__file__).resolve().parents[1]
 FINGER = ROOT / "problems" / "hard" / "invalid" / "huge_coordinate.yaml"
-
-
-def cli(*args, timeout=120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "plush_opt", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def one_error_line(p, code=2) -> str:
-    assert p.returncode == code, (p.returncode, p.stderr[-2000:])
-    assert "Traceback" not in p.stderr, p.stderr
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1, p.stderr
-    return lines[0]
 
 
 def finger(tmp_path: Path, edit=None) -> Path:

@@ -19,15 +19,11 @@ import numpy as np
 import pytest
 import yaml
 
+from cli_helpers import cli, one_error_line
 from plush_opt.base.errors import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER = ROOT / "problems" / "hard" / "invalid" / "huge_coordinate.yaml"
-
-
-def cli(*args, cwd=None, timeout=120, env=None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "plush_opt", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd, timeout=timeout, env=env)
 
 
 def finger(tmp_path: Path, name="finger.yaml", **replace) -> Path:
@@ -40,14 +36,6 @@ def finger(tmp_path: Path, name="finger.yaml", **replace) -> Path:
     path = tmp_path / name
     path.write_text(text)
     return path
-
-
-def one_error_line(p, code=2) -> str:
-    assert p.returncode == code, (p.returncode, p.stderr)
-    assert "Traceback" not in p.stderr, p.stderr
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1, p.stderr
-    return lines[0]
 
 
 # 1. the mesh cap holds for the real mesh -------------------------------------

@@ -10,31 +10,17 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import yaml
 
+from cli_helpers import cli, one_error_line
 from plush_opt.base.errors import SceneError
 
 ROOT = Path(__file__).resolve().parents[1]
 FINGER = ROOT / "problems" / "hard" / "invalid" / "huge_coordinate.yaml"
 DEEP = "[" * 100_000 + "]" * 100_000
-
-
-def cli(*args, timeout=120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "plush_opt", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def one_error_line(p, code=2) -> str:
-    assert p.returncode == code, (p.returncode, p.stderr[-2000:])
-    assert "Traceback" not in p.stderr, p.stderr
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1, p.stderr
-    return lines[0]
 
 
 # -- run logs given to export ---------------------------------------------

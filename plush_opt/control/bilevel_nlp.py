@@ -16,34 +16,12 @@ import numpy as np
 
 from ..base.linalg import NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Model
+from ..solve.ipopt_equilibrium import IterationCallback
 from .result import ControlIterate
 
 # A pose whose relative residual is this small is an equilibrium in all but
 # stability: an indefinite Hessian there is reported as a saddle.
 SADDLE_RESIDUAL = 1e-6
-
-class IterationCallback(ca.Callback):
-    """An IPOPT iteration callback: nlpsol's outputs in (those named in
-    ``sizes``, the others empty), one flag out (1 stops IPOPT)."""
-
-    sizes: dict = {}
-
-    def get_n_in(self):
-        return ca.nlpsol_n_out()
-
-    def get_n_out(self):
-        return 1
-
-    def get_name_in(self, i):
-        return ca.nlpsol_out(i)
-
-    def get_name_out(self, i):
-        return "ret"
-
-    def get_sparsity_in(self, i):
-        n = self.sizes.get(ca.nlpsol_out(i), 0)
-        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
-
 
 class Recorder(IterationCallback):
     """IPOPT iteration callback: records (t, O, violation, c) and stops

@@ -43,8 +43,8 @@ from ..solve.branch import follow_branch
 from ..solve.equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..fem.model import Model
 from ..fem.objective import Targets
+from ..solve.ipopt_equilibrium import IterationCallback
 from ..solve.sensitivity import state_sensitivity
-from .bilevel_nlp import IterationCallback
 from .policy import LEVENBERG_MARQUARDT, predict
 from .result import ControlIterate
 

@@ -33,15 +33,11 @@ _IPOPT_DEFAULTS = {
 POLISH_MARGIN = 0.5
 
 
-class StopOnSignal(ca.Callback):
-    """An IPOPT iteration callback that stops the solve (returns 1) once a
-    signal has been noted (:func:`~plush_opt.base.errors.note_interrupt`):
-    IPOPT's loop runs in C++, where the handler's exception cannot reach.
-    The solver's caller then re-raises it (:func:`call_ipopt`)."""
+class IterationCallback(ca.Callback):
+    """An IPOPT iteration callback: nlpsol's outputs in (those named in
+    ``sizes``, the others empty), one flag out (1 stops IPOPT)."""
 
-    def __init__(self, name: str = "stop_on_signal"):
-        ca.Callback.__init__(self)
-        self.construct(name, {})
+    sizes: dict = {}
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -56,7 +52,19 @@ class StopOnSignal(ca.Callback):
         return "ret"
 
     def get_sparsity_in(self, i):
-        return ca.Sparsity(0, 0)
+        n = self.sizes.get(ca.nlpsol_out(i), 0)
+        return ca.Sparsity.dense(n, 1) if n else ca.Sparsity(0, 0)
+
+
+class StopOnSignal(IterationCallback):
+    """An IPOPT iteration callback that stops the solve (returns 1) once a
+    signal has been noted (:func:`~plush_opt.base.errors.note_interrupt`):
+    IPOPT's loop runs in C++, where the handler's exception cannot reach.
+    The solver's caller then re-raises it (:func:`call_ipopt`)."""
+
+    def __init__(self, name: str = "stop_on_signal"):
+        ca.Callback.__init__(self)
+        self.construct(name, {})
 
     def eval(self, arg):
         try:
