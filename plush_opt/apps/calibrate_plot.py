@@ -12,6 +12,7 @@ import numpy as np
 from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
+from ..base.files import atomic_path
 from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 
 MEASURED = "#222222"
@@ -64,6 +65,7 @@ def plot_poses(directory, meas, result) -> list[Path]:
         fig.suptitle(f"{meas.scene.name}: pose {i}{held}: {cs}")
         fig.tight_layout()
         path = directory / f"pose_{i:02d}.png"
-        fig.savefig(path, dpi=110)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110)
         paths.append(path)
     return paths

@@ -40,6 +40,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from ..base.errors import SceneError, SolverError
+from ..base.files import atomic_path, write_text_atomic
 from ..solve.plant import segment_table
 from .run_log import read_run_log
 
@@ -95,8 +96,9 @@ def pose_mesh(model, x, contraction, eq=None):
 def write_pose(path, model, x, contraction, eq=None) -> Path:
     """Write one pose as ``.vtu`` (``eq`` as in :func:`pose_mesh`); returns its path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pose_mesh(model, x, contraction, eq).write(path, file_format="vtu")
+    mesh = pose_mesh(model, x, contraction, eq)
+    with atomic_path(path) as tmp:
+        mesh.write(tmp, file_format="vtu")
     return path
 
 
@@ -111,7 +113,7 @@ def write_series(folder, name: str, model, frames) -> Path:
         vtu = write_pose(folder / f"{name}_{k:04d}.vtu", model, x, c, *eq)
         entries.append(f'    <DataSet timestep="{float(t)!r}" part="0" file={quoteattr(vtu.name)}/>')
     pvd = folder / f"{name}.pvd"
-    pvd.write_text('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+    write_text_atomic(pvd, '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
                    + "\n".join(entries) + "\n  </Collection>\n</VTKFile>\n")
     return pvd
 

@@ -8,6 +8,8 @@ from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from ..base.files import atomic_path
+
 REST_COLOR = "#b0b0b0"
 BODY_COLOR = "#f3d9b1"   # felt
 EDGE_COLOR = "#8a6d4b"
@@ -137,6 +139,16 @@ def contraction_label(model, contraction) -> str:
     return ", ".join(f"{n} = {c:.2f} mm" for n, c in zip(model.winch_names, contraction))
 
 
+def save_figure(fig, path, **savefig_kwargs) -> None:
+    """Write ``fig`` to ``path`` atomically (a full disk leaves no partial
+    file; the error names ``path``) and close it."""
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, **savefig_kwargs)
+    finally:
+        plt.close(fig)
+
+
 def plot_pose(path, model, x, contraction, targets=None, title=None, tension_max=None):
     """Write a PNG of one pose, with its legend, names and target errors.
 
@@ -149,8 +161,7 @@ def plot_pose(path, model, x, contraction, targets=None, title=None, tension_max
             title += f"\nRMS target error {targets.rms_error(np.asarray(x).reshape(-1)):.3g} {LENGTH_UNIT}"
     draw_pose(ax, model, x, contraction, targets, title=title, tension_max=tension_max, labels=True)
     fig.tight_layout()
-    fig.savefig(path, bbox_inches="tight")
-    plt.close(fig)
+    save_figure(fig, path, bbox_inches="tight")
 
 
 def plot_trace(path, history, title=None):
@@ -170,8 +181,7 @@ def plot_trace(path, history, title=None):
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_run_log(path, log_lines, title=None):
@@ -207,5 +217,4 @@ def plot_run_log(path, log_lines, title=None):
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_figure(fig, path)

@@ -244,13 +244,12 @@ def cmd_solve(args) -> int:
     if args.out:
         write_json_atomic(args.out, doc)
     if args.plot:
-        from ..base.files import atomic_path, check_output_path
+        from ..base.files import check_output_path
         from .plot import plot_pose
         use_agg()
         check_output_path(args.plot, "--plot")     # still writable after the solve
-        with atomic_path(args.plot) as tmp:
-            plot_pose(tmp, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
-                      tension_max=args.tension_max)
+        plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
+                  tension_max=args.tension_max)     # atomic itself
     if args.trace and history:
         write_trace(args.trace, p.model, p.targets, history)
     if args.vtk:

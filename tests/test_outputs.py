@@ -1,0 +1,109 @@
+"""Every output file goes through the same atomic path: on a full disk a
+VTK pose, a time series or a picture leaves no partial file, and the error
+names the file that could not be written."""
+
+import errno
+import os
+from types import SimpleNamespace
+
+import matplotlib
+
+matplotlib.use("Agg")
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from plush_opt.base import files  # noqa: E402
+from shipped import ROOT  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def gripper():
+    import plush_opt
+    p = plush_opt.load(ROOT / "problems" / "gripper.yaml")
+    return p, p.equilibrium({"left": 10.0, "grip": 5.0})
+
+
+@pytest.fixture
+def full_disk(monkeypatch):
+    """Every fsync fails as on a full disk."""
+    def fsync(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(files.os, "fsync", fsync)
+
+
+def _fails_naming(path, write):
+    with pytest.raises(OSError) as info:
+        write()
+    assert info.value.filename == str(path) and info.value.errno == errno.ENOSPC
+    assert "No space left" in info.value.strerror
+
+
+def test_a_vtk_pose_on_a_full_disk_leaves_nothing(tmp_path, gripper, full_disk):
+    from plush_opt.apps.export import write_pose
+    p, eq = gripper
+    out = tmp_path / "pose.vtu"
+    _fails_naming(out, lambda: write_pose(out, p.model, eq.x, eq.contraction, eq))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_vtk_series_on_a_full_disk_leaves_nothing(tmp_path, gripper, full_disk):
+    from plush_opt.apps.export import write_series
+    p, eq = gripper
+    frames = [(0.0, eq.x, eq.contraction), (1.0, eq.x, eq.contraction)]
+    _fails_naming(tmp_path / "vtk" / "run_0000.vtu", lambda: write_series(tmp_path / "vtk", "run", p.model, frames))
+    assert list((tmp_path / "vtk").iterdir()) == []
+
+
+def test_the_series_index_on_a_full_disk_leaves_nothing(tmp_path, gripper, monkeypatch):
+    from plush_opt.apps import export
+    p, eq = gripper
+    monkeypatch.setattr(export, "write_pose", lambda path, *a: path)     # the frames are fine
+    real = files.os.fsync
+
+    def fsync(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    monkeypatch.setattr(files.os, "fsync", fsync)
+    pvd = tmp_path / "run.pvd"
+    _fails_naming(pvd, lambda: export.write_series(tmp_path, "run", p.model, [(0.0, eq.x, eq.contraction)]))
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(files.os, "fsync", real)
+
+
+@pytest.mark.parametrize("which", ["pose", "trace", "run"])
+def test_a_picture_on_a_full_disk_leaves_nothing(tmp_path, gripper, full_disk, which):
+    from plush_opt.apps import plot
+    p, eq = gripper
+    out = tmp_path / f"{which}.png"
+    if which == "pose":
+        write = lambda: plot.plot_pose(out, p.model, eq.x, eq.contraction)         # noqa: E731
+    elif which == "trace":
+        history = [SimpleNamespace(iteration=k, objective=1.0 / (k + 1), t_wall=0.1 * k) for k in range(3)]
+        write = lambda: plot.plot_trace(out, history)                                 # noqa: E731
+    else:
+        rows = [{"t": t, "commanded": {"a": t}, "measured": {"a": t}, "step": 0, "kind": "move"}
+                for t in (0.0, 1.0)]
+        write = lambda: plot.plot_run_log(out, rows)                                  # noqa: E731
+    _fails_naming(out, write)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_calibration_picture_on_a_full_disk_leaves_nothing(tmp_path, full_disk, monkeypatch):
+    from plush_opt.apps import calibrate_plot
+    monkeypatch.setattr(calibrate_plot, "_panel", lambda ax, *a: ax.plot([0, 1], [0, 1]))
+    meas = SimpleNamespace(n_poses=1, seen=[np.ones(1, bool)], positions=[np.zeros((1, 2))],
+                           scene=SimpleNamespace(name="s", winch_names=["a"]), contractions=[[1.0]])
+    result = SimpleNamespace(before=None, after=None, fitted_poses=[True])
+    _fails_naming(tmp_path / "plots" / "pose_00.png", lambda: calibrate_plot.plot_poses(tmp_path / "plots", meas, result))
+    assert list((tmp_path / "plots").iterdir()) == []
+
+
+def test_an_unwritable_vtk_folder_is_one_line_naming_the_file(tmp_path, gripper, full_disk, capsys):
+    """The command's message names the file (in-process, so the disk can be full)."""
+    from plush_opt.apps import cli
+    p, _ = gripper
+    code = cli.main(["solve", str(ROOT / "problems" / "gripper.yaml"), "--method", "forward",
+                     "--vtk", str(tmp_path / "vtk")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert f"{tmp_path / 'vtk' / 'pose.vtu'}: cannot write: No space left on device" in err[0]
+    assert list((tmp_path / "vtk").iterdir()) == []
