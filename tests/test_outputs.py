@@ -4,6 +4,8 @@ names the file that could not be written."""
 
 import errno
 import os
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import matplotlib
@@ -107,3 +109,48 @@ def test_an_unwritable_vtk_folder_is_one_line_naming_the_file(tmp_path, gripper,
     assert code == 2 and len(err) == 1, err
     assert f"{tmp_path / 'vtk' / 'pose.vtu'}: cannot write: No space left on device" in err[0]
     assert list((tmp_path / "vtk").iterdir()) == []
+
+
+# -- a run log in use by another run is refused ------------------------------
+
+def test_a_run_log_in_use_is_refused_and_left_alone(tmp_path):
+    import fcntl
+
+    from plush_opt.apps.run_log import RunLog
+    from plush_opt.base.errors import SceneError
+    path = tmp_path / "run.jsonl"
+    first = RunLog(path)
+    first.write({"t": 0, "event": "start"})
+    with pytest.raises(SceneError) as info:
+        RunLog(path)
+    assert str(path) in str(info.value) and "in use by another run" in str(info.value)
+    first.write({"t": 1, "event": "end"})
+    first.close()
+    assert [line[:6] for line in path.read_text().splitlines()] == ['{"t":0', '{"t":1']
+    with RunLog(path) as again:        # free again once the first run has ended
+        again.write({"t": 0})
+    assert path.read_text() == '{"t":0}\n'
+    with open(path, "rb") as held:     # another process's lock, taken with flock(1) or a run
+        fcntl.flock(held.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(SceneError):
+            RunLog(path)
+    assert path.read_text() == '{"t":0}\n'
+
+
+def test_two_runs_on_one_log_the_second_is_refused(tmp_path):
+    from cli_helpers import cli, one_error_line
+    log = tmp_path / "run.jsonl"
+    log.write_text('{"t":0,"event":"start"}\n')
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, sys, time\n"
+                               "f = open(sys.argv[1], 'rb'); fcntl.flock(f, fcntl.LOCK_EX)\n"
+                               "print('held', flush=True); time.sleep(120)", str(log)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        p = cli("run", ROOT / "examples" / "gripper_run.yaml", "--dry-run", "--log", log, timeout=300)
+        line = one_error_line(p)
+        assert str(log) in line and "in use by another run" in line, line
+        assert log.read_text() == '{"t":0,"event":"start"}\n'
+    finally:
+        holder.kill()
+        holder.wait()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import errno
+import fcntl
 import json
 import math
 import os
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..base.errors import SceneError
+from ..base.errors import SceneError, one_line
 from ..io.checker import Checker, at_index, parse_json
 
 MAX_LOG_BYTES = 1 << 30   # a run log read back: a day at 1 kHz is well under; larger is not a log
@@ -50,13 +51,31 @@ class RunLog:
         self.path = Path(path)
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._f = open(self.path, "wb", buffering=0)
+            # not truncated before it is locked: a log in use stays whole
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+            self._f = os.fdopen(fd, "wb", buffering=0)
         except OSError as exc:
             raise OSError(exc.errno, f"cannot write the run log: {exc.strerror or exc}", str(self.path)) from None
         # A pipe or /dev/null cannot be fsync'ed (nor truncated), and needs not be.
         self._sync = stat.S_ISREG(os.fstat(self._f.fileno()).st_mode)
+        if self._sync:
+            self._lock()
         self._end = 0            # bytes of complete lines
         self.lines = 0
+
+    def _lock(self) -> None:
+        """Hold the log for this run (a lock released when it is closed, or
+        when the process dies), then empty it: a log another run holds is a
+        :class:`SceneError`, and that run's log is left whole."""
+        try:
+            fcntl.flock(self._f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            self._f.close()
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise SceneError(f"{one_line(self.path)}: the run log is in use by another run "
+                                 "(give this run another --log)") from None
+            raise OSError(exc.errno, f"cannot lock the run log: {exc.strerror or exc}", str(self.path)) from None
+        os.ftruncate(self._f.fileno(), 0)
 
     def write(self, obj: dict) -> None:
         data = memoryview((json.dumps(_jsonable(obj), allow_nan=False, separators=(",", ":"))
