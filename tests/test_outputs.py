@@ -154,3 +154,12 @@ def test_two_runs_on_one_log_the_second_is_refused(tmp_path):
     finally:
         holder.kill()
         holder.wait()
+
+
+@pytest.mark.skipif(not os.path.exists("/dev/full"), reason="needs /dev/full")
+def test_a_log_on_a_full_device_is_one_line(tmp_path):
+    """The run fails writing its first line; the end line fails the same way and adds nothing."""
+    from cli_helpers import cli, one_error_line
+    line = one_error_line(cli("run", ROOT / "examples" / "gripper_run.yaml", "--dry-run", "--log", "/dev/full",
+                              timeout=300))
+    assert "/dev/full: cannot write the run log: No space left on device" in line, line

@@ -451,14 +451,17 @@ def _end_line(runner: _Runner | None, calibration: BoardCalibration, t0: float, 
             "commands": runner.commands if runner is not None else 0}
 
 
-def _write_end(runlog: RunLog, line: dict, failing: bool) -> None:
+def _write_end(runlog: RunLog, line: dict, failing: bool, cause: BaseException | None = None) -> None:
     """The log's last line. If it cannot be written (a full disk) while
-    another error ends the run, that error is the one reported."""
+    another error ends the run, that error is the one reported (alone when
+    it is this log's own write error: the same trouble, said once)."""
     try:
         runlog.write(line)
     except OSError as e:
         if not failing:
             raise
+        if isinstance(cause, OSError) and cause.filename == e.filename:
+            return
         log.error("%s", one_line(f"{e.filename}: could not write the run's end line: {e.strerror or e}"))
 
 
@@ -513,7 +516,7 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
     if progress is None:
         progress = sys.stderr.isatty()
     path = Path(log_path) if log_path is not None else _default_log_path(script)
-    status, runner, t0, ended_by = "error", None, time.monotonic(), {}
+    status, runner, t0, ended_by, cause = "error", None, time.monotonic(), {}, None
     with RunLog(path) as runlog:
         try:
             link = open_board(calibration, bounds=allowed, **choice) if own else board
@@ -525,14 +528,14 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
             status, ended_by = "interrupted", {"signal": interrupt_status(e)[0]}
             raise
         except BaseException as e:
-            status = one_line(f"error: {e}")
+            status, cause = one_line(f"error: {e}"), e
             raise
         finally:
             # The board is stopped by now.
             if runner is not None:
                 runner.progress.finish()
             _write_end(runlog, {**_end_line(runner, calibration, t0, status), **ended_by},
-                       failing=status != "completed")
+                       failing=status != "completed", cause=cause)
     return RunResult(script=str(script.path), log_path=str(path), dry_run=runner.dry, steps=runner.steps_done,
                      commands=runner.commands, contraction=dict(runner.commanded),
                      pose_errors=tuple(runner.pose_errors), far_poses=tuple(runner.far_poses))
