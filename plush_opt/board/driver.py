@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 _READ_SLICE = 0.02   # s: pyserial read timeout; deadlines are kept by us
 _MAX_PENDING = 4096  # bytes without a newline: noise, dropped
 _RECENT = 64         # abandoned sequence numbers remembered: far more than retries within one wait
+_WARNING_INTERVAL = 1.0  # s: the same board warning at most this often; a babbling board stays readable
 
 
 @contextlib.contextmanager
@@ -181,6 +182,7 @@ class Driver:
 
     def _close_port(self):
         ser, self._io.ser = self._io.ser, None
+        self._io._warnings.flush()
         self.info = None
         if ser is not None:
             try:
@@ -312,6 +314,36 @@ class Driver:
         return self._io.transact(command, *args, patience=patience)
 
 
+class _LimitedWarnings:
+    """Board warnings, each kind (its format) at most once per
+    ``_WARNING_INTERVAL``; the next one printed says how many like it
+    were held back."""
+
+    def __init__(self, clock=time.monotonic):
+        self.clock = clock
+        self._last: dict[str, float] = {}
+        self._held: dict[str, tuple[int, tuple]] = {}     # format -> (count, the last one's args)
+
+    def warn(self, fmt: str, *args) -> None:
+        now = self.clock()
+        last = self._last.get(fmt)
+        if last is not None and now - last < _WARNING_INTERVAL:
+            self._held[fmt] = (self._held.get(fmt, (0, ()))[0] + 1, args)
+            return
+        self._last[fmt] = now
+        held = self._held.pop(fmt, (0, ()))[0]
+        if held:
+            log.warning(fmt + " (%d more like it held back)", *args, held)
+        else:
+            log.warning(fmt, *args)
+
+    def flush(self) -> None:
+        """Say what is still held back (the port closes): the last one, with the count."""
+        for fmt, (held, args) in self._held.items():
+            log.warning(fmt + " (the last of %d held back)", *args, held)
+        self._held.clear()
+
+
 class _Transport:
     """Command/reply exchanges on one serial line (hw/PROTOCOL.md).
 
@@ -326,6 +358,7 @@ class _Transport:
         self._rx = bytearray()
         self._seq = 0
         self._recent = collections.deque(maxlen=_RECENT)  # sequence numbers given up on
+        self._warnings = _LimitedWarnings()
 
     def attach(self, ser) -> None:
         """Use this freshly opened port; replies a previous session never read are dropped."""
@@ -352,7 +385,7 @@ class _Transport:
                 del self._rx[:i + 1]
                 return line
             if len(self._rx) > _MAX_PENDING:
-                log.warning("%s: dropping %d bytes of line noise", self.port, len(self._rx))
+                self._warnings.warn("%s: dropping %d bytes of line noise", self.port, len(self._rx))
                 self._rx.clear()
             if time.monotonic() >= deadline:
                 return None
@@ -393,7 +426,7 @@ class _Transport:
                 try:
                     reply = P.parse_reply(raw)
                 except P.ProtocolError as e:
-                    log.warning("%s: ignoring garbled line from board: %s", self.port, e)
+                    self._warnings.warn("%s: ignoring garbled line from board: %s", self.port, e)
                     continue
                 if reply.seq == seq:
                     if reply.ok:
@@ -403,7 +436,7 @@ class _Transport:
                         f"{reply.error_name} ({reply.message})")
                 if reply.seq is None:
                     # Some line reached the board garbled; ours may still be answered.
-                    log.warning("%s: board could not read a line: ERR %s %s", self.port, reply.code, reply.message)
+                    self._warnings.warn("%s: board could not read a line: ERR %s %s", self.port, reply.code, reply.message)
                     continue
                 if reply.seq in self._recent:
                     log.debug("%s: dropping late reply to abandoned command %d", self.port, reply.seq)
