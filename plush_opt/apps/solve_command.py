@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..base.errors import SceneError, SettingError, SolverError, one_line
+from ..base.errors import SceneError, SettingError, SolverError, interrupt_status, one_line
 from .arguments import add_picture_flags, check_tension_max, contraction_arg, pairs
 from .console import EXIT_OK, EXIT_SOLVER, say, summary_line, use_agg
 
@@ -144,6 +144,13 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
         options = dataclasses.replace(options, max_time=max_time)
     try:
         res = p.control(method, contraction, freeze, options=options)
+    except KeyboardInterrupt as exc:
+        # a signal: the run so far (the loop's last accepted iterate), for --out
+        partial = getattr(exc, "partial_result", None)
+        if partial is not None:
+            exc.result_document = control_result_dict(partial, total_s=time.perf_counter() - t0,
+                                                      extra={"signal": interrupt_status(exc)[0], **extra})
+        raise
     except SolverError as exc:
         # Control cannot start (the starting equilibrium is not certified):
         # the result still says where the robot is, honestly not converged.
@@ -225,13 +232,27 @@ def _check_solve_outputs(args) -> None:
         raise SceneError("--trace: only a control run has an iterate history (not --method forward)")
 
 
+def _write_interrupted(out, exc: KeyboardInterrupt) -> None:
+    """``--out``, atomically, with the result of a control run a signal
+    ended (``status: interrupted``), if the run left one; the signal then
+    ends the command with its status."""
+    doc = getattr(exc, "result_document", None)
+    if out is not None and doc is not None:
+        from ..base.files import write_json_atomic
+        write_json_atomic(out, doc)
+
+
 def cmd_solve(args) -> int:
     from ..base.files import write_json_atomic
     check_tension_max(args.tension_max)
     _check_solve_outputs(args)
-    p, eq, doc, history = solve_problem(
-        args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
-        args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
+    try:
+        p, eq, doc, history = solve_problem(
+            args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
+            args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
+    except KeyboardInterrupt as exc:
+        _write_interrupted(args.out, exc)
+        raise
     if "accuracy" in doc:
         acc = doc["accuracy"]
         if acc["reached"]:

@@ -45,6 +45,21 @@ def format_point(p) -> str:
     return f"({format_number(p[0])}, {format_number(p[1])})"
 
 
+#: an echoed value (a name, a string from a file) is cut to this many characters in a message
+MAX_ECHOED = 80
+
+
+def shown(value) -> str:
+    """``repr`` of a value a message echoes, at most :data:`MAX_ECHOED`
+    characters: a longer one keeps its start, an ellipsis and its length
+    (``'nnnn...' (4000 characters)``)."""
+    text = repr(value)
+    if len(text) <= MAX_ECHOED:
+        return text
+    size = len(value) if isinstance(value, str) else len(text)
+    return f"{text[:MAX_ECHOED - 4]}... ({size} characters)"
+
+
 MESSAGE_MAX_CHARS = 2000     # a message is one terminal-readable line, not an echo of a hostile input
 MESSAGE_KEEP_TAIL = 200      # a cut message keeps its end too: it usually says what went wrong
 

@@ -46,6 +46,8 @@ from .step import line_search, search_direction
 log = logging.getLogger(__name__)
 
 # where a path-dependent plant's iterates were driven from (recorded on them)
+#: the reason of a run a signal ended (as a run log's end line says it)
+INTERRUPTED = "interrupted"
 CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
 
 
@@ -324,8 +326,13 @@ class Controller:
         path of iterates (:meth:`Plant.finish`, with its smallest Hessian
         eigenvalue), so callers need no further solve for the result file."""
         if not self._finished:
-            for _ in self.iterates():
-                pass
+            try:
+                for _ in self.iterates():
+                    pass
+            except KeyboardInterrupt as exc:      # Ctrl-C, or SIGTERM/SIGHUP as Interrupted
+                # the caller may still report where the run got to
+                exc.partial_result = interrupted_result(self, exc) if self.history else None
+                raise
         last = self.history[-1]
         eq = self.plant.finish(self._eq, np.array([it.contraction for it in self.history]),
                                EquilibriumOptions(eigenvalue=eigenvalue, escape_saddles=False), origin=CONTROL_ORIGIN)
@@ -347,6 +354,25 @@ class Controller:
             active_bounds=last.active_bounds,
             frozen=tuple(n for n, f in zip(names, self.frozen) if f),
             history=tuple(self.history), stats=stats, model=self.model, targets=self.targets)
+
+
+def interrupted_result(ctrl: Controller, exc: BaseException) -> ControlResult:
+    """The run of ``ctrl`` so far, ended by a signal: its last accepted
+    iterate (a certified equilibrium, not certified again), ``converged``
+    false, reason :data:`INTERRUPTED`, the signal's name in ``status``
+    (``interrupted by SIGTERM``)."""
+    from ..base.errors import interrupt_status
+    last = ctrl.history[-1]
+    names = ctrl.model.winch_names
+    stats = ControlStats(solver="gradient-loop", iterations=len(ctrl.history) - 1,
+                         equilibrium_solves=ctrl._solves, newton_iterations=ctrl._newton,
+                         t_wall=time.perf_counter() - ctrl._t0)
+    return ControlResult(
+        method=ctrl.options.bounds, converged=False, reason=INTERRUPTED,
+        status=f"{INTERRUPTED} by {interrupt_status(exc)[0]}", equilibrium=last.equilibrium,
+        objective=float(last.objective), active_bounds=last.active_bounds,
+        frozen=tuple(n for n, f in zip(names, ctrl.frozen) if f),
+        history=tuple(ctrl.history), stats=stats, model=ctrl.model, targets=ctrl.targets)
 
 
 def solve_control(model: Model, targets: Targets, contraction=None, frozen=None, x0=None,

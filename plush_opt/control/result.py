@@ -31,6 +31,7 @@ REASONS = (
     "max_time",             # the time budget ran out
     "not_certified",        # the solver's end point is not a certified stable equilibrium
     "solver_failed",        # the solver gave up (IPOPT's own failure statuses)
+    "interrupted",          # a signal (Ctrl-C, SIGTERM, SIGHUP) ended the run at its last accepted iterate
 )
 CONVERGED_REASONS = ("targets_reached", "stationary")
 

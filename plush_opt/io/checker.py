@@ -46,8 +46,9 @@ def describe(value) -> str:
     if isinstance(value, (bool, np.bool_)):
         return f"boolean {str(bool(value)).lower()}"
     if isinstance(value, str):
-        s = value if len(value) <= MAX_SHOWN else value[:MAX_SHOWN - 3] + "..."
-        return f"string {s!r}"
+        if len(value) <= MAX_SHOWN:
+            return f"string {value!r}"
+        return f"string {value[:MAX_SHOWN - 3] + '...'!r} ({len(value)} characters)"
     if isinstance(value, numbers.Number):
         s = repr(value)
         if len(s) > MAX_SHOWN:

@@ -17,7 +17,7 @@ import re
 
 import numpy as np
 
-from ..base.errors import format_number, format_point
+from ..base.errors import format_number, format_point, shown
 from ..base.geometry import classify_points, locate_in_triangles
 from .scene import FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, MAX_WEIGHT, Checker, at_index, at_key, describe
@@ -130,10 +130,10 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
 def _header_section(ck: Checker, data: dict) -> tuple[str, str]:
     fmt = ck.string(data["format"], "format")
     if fmt != FORMAT:
-        ck.fail("format", f"expected exactly '{FORMAT}', got {fmt!r}")
+        ck.fail("format", f"expected exactly '{FORMAT}', got {shown(fmt)}")
     name = ck.string(data["name"], "name")
     if not _NAME.fullmatch(name):
-        ck.fail("name", f"{name!r} must match [A-Za-z0-9_-]+")
+        ck.fail("name", f"{shown(name)} must match [A-Za-z0-9_-]+")
     description = _opt(data, "description")
     description = "" if description is None else ck.string(description, "description")
     return name, description
@@ -212,7 +212,7 @@ def _material_section(ck: Checker, mat) -> Material:
     ck.mapping(mat, "material", _MATERIAL_KEYS, required=("model", "thickness"))
     model = ck.string(mat["model"], "material.model")
     if model != "neo_hookean":
-        ck.fail("material.model", f"unknown model {model!r}; version 1 has only 'neo_hookean'")
+        ck.fail("material.model", f"unknown model {shown(model)}; version 1 has only 'neo_hookean'")
     has = {k for k in _MATERIAL_KEYS if mat.get(k) is not None}
     e_form = has & {"youngs_modulus", "poisson_ratio"}
     l_form = has & {"mu", "lambda"}
@@ -274,6 +274,16 @@ def _pins_section(ck: Checker, pins):
     return stiffness, at, box
 
 
+#: a message lists at most this many names (the winches a tendon may name)
+MAX_LISTED = 10
+
+
+def _listed(names) -> str:
+    """Names for a message, each capped, at most :data:`MAX_LISTED` of them."""
+    more = f", ... ({len(names)} in all)" if len(names) > MAX_LISTED else ""
+    return ", ".join(shown(n) for n in names[:MAX_LISTED]) + more
+
+
 def _winches_section(ck: Checker, raw) -> list[Winch]:
     winches, seen = [], {}
     for i, w in enumerate(ck.seq(raw, "winches", min_len=1, what="list of winches")):
@@ -281,7 +291,7 @@ def _winches_section(ck: Checker, raw) -> list[Winch]:
         ck.mapping(w, path, _WINCH_KEYS, required=("name", "bounds"))
         name = ck.name(w["name"], at_key(path, "name"))
         if name in seen:
-            ck.fail(at_key(path, "name"), f"duplicate name {name!r} (also winches[{seen[name]}])")
+            ck.fail(at_key(path, "name"), f"duplicate name {shown(name)} (also winches[{seen[name]}])")
         seen[name] = i
         b = w["bounds"]
         if isinstance(b, np.ndarray):
@@ -325,12 +335,12 @@ def _tendons_section(ck: Checker, raw, winches):
         name = ck.name(t["name"], at_key(path, "name"))
         if name in seen:
             ck.fail(at_key(path, "name"),
-                    f"duplicate name {name!r} (also tendons.list[{seen[name]}])")
+                    f"duplicate name {shown(name)} (also tendons.list[{seen[name]}])")
         seen[name] = i
         winch = ck.name(t["winch"], at_key(path, "winch"))
         if winch not in winch_index:
-            ck.fail(at_key(path, "winch"), f"no winch named {winch!r} (winches: "
-                    f"{', '.join(repr(w.name) for w in winches)})")
+            ck.fail(at_key(path, "winch"), f"no winch named {shown(winch)} (winches: "
+                    f"{_listed([w.name for w in winches])})")
         used.add(winch)
         via = ck.points(t["path"], at_key(path, "path"), min_len=2)
         n_via += len(via)
@@ -354,7 +364,7 @@ def _tendons_section(ck: Checker, raw, winches):
                               attachment_radius=own, friction=mu))
     for i, w in enumerate(winches):
         if w.name not in used:
-            ck.fail(at_index("winches", i), f"winch {w.name!r} has no tendons")
+            ck.fail(at_index("winches", i), f"winch {shown(w.name)} has no tendons")
     return stiffness, smoothing, tendons
 
 
