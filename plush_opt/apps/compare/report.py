@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...base.files import write_text_atomic
+from ...base.files import atomic_path, write_text_atomic
 from .settings import METHODS, TOLERANCES, CompareSettings
 
 CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "element", "mesh_factor", "max_area", "n_nodes",
@@ -125,7 +125,8 @@ def plot_anytime(path: Path, problems, runs) -> Path:
                         frameon=False)
     fig.tight_layout()
     # The legend hangs below the axes; the tight box takes it in, however narrow the figure.
-    fig.savefig(path, bbox_inches="tight", bbox_extra_artists=[legend])
+    with atomic_path(path) as tmp:      # a full disk leaves no partial picture
+        fig.savefig(tmp, bbox_inches="tight", bbox_extra_artists=[legend])
     return path
 
 
@@ -164,7 +165,8 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
     legend = fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=4, fontsize=8,
                         frameon=False)
     fig.tight_layout()
-    fig.savefig(path, bbox_inches="tight", bbox_extra_artists=[legend])
+    with atomic_path(path) as tmp:      # a full disk leaves no partial picture
+        fig.savefig(tmp, bbox_inches="tight", bbox_extra_artists=[legend])
     return path
 
 

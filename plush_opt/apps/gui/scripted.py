@@ -5,11 +5,11 @@ docs/ and the callback timings, and drive the tests."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 from matplotlib.backend_bases import KeyEvent, MouseEvent
 
+from ...base.files import atomic_path
 from ...solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from .view import PosingWindow
 
@@ -116,9 +116,9 @@ def scripted_session(window: PosingWindow, *, ticks: int = 80, screenshot=None,
     for f in DEMO_CAUGHT:
         mouse(window, "motion", start + f * (np.asarray(to) - start))
     if screenshot is not None:
-        Path(screenshot).parent.mkdir(parents=True, exist_ok=True)
         window.fig.canvas.draw()
-        window.fig.savefig(screenshot, dpi=100)
+        with atomic_path(screenshot) as tmp:
+            window.fig.savefig(tmp, dpi=100)
     mouse(window, "release", start + DEMO_CAUGHT[-1] * (np.asarray(to) - start))
     run_ticks(window, ticks)
     if full:

@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.backend_bases import key_press_handler
 
+from ...base.files import atomic_path
 from . import figure as F
 from .session import TIMES_KEPT, PosingSession, status_line
 
@@ -272,8 +273,8 @@ class PosingWindow:
         png = path.with_suffix(".png")
         self.session.message = f"saved {path} and {png.name}"
         self.redraw()
-        png.parent.mkdir(parents=True, exist_ok=True)
-        self.fig.savefig(png, dpi=100)
+        with atomic_path(png) as tmp:       # a full disk leaves no partial picture
+            self.fig.savefig(tmp, dpi=100)
         self.blitter.backgrounds = None       # redraw everything after saving
         self.fig.canvas.draw_idle()
         return path, png
