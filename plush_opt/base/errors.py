@@ -50,14 +50,16 @@ MAX_ECHOED = 80
 
 
 def shown(value) -> str:
-    """``repr`` of a value a message echoes, at most :data:`MAX_ECHOED`
-    characters: a longer one keeps its start, an ellipsis and its length
-    (``'nnnn...' (4000 characters)``)."""
+    """``repr`` of a value a message echoes, at most about :data:`MAX_ECHOED`
+    characters: a longer one keeps its start, an ellipsis and how much was
+    left out (``'nnnn... (3925 of 4000 characters left out)``)."""
     text = repr(value)
     if len(text) <= MAX_ECHOED:
         return text
+    kept = MAX_ECHOED - 4
     size = len(value) if isinstance(value, str) else len(text)
-    return f"{text[:MAX_ECHOED - 4]}... ({size} characters)"
+    left = size - (kept - 1 if isinstance(value, str) else kept)     # a string's repr starts with its quote
+    return f"{text[:kept]}... ({left} of {size} characters left out)"
 
 
 MESSAGE_MAX_CHARS = 2000     # a message is one terminal-readable line, not an echo of a hostile input
