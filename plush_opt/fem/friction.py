@@ -153,3 +153,8 @@ class FixedRest:
 
     def evaluate(self, x, c, order: int = 2) -> Evaluation:
         return self.fm.evaluate_held(self.held, x, c, order)
+
+    def max_step(self, x, dx) -> float:
+        """The base model's :meth:`~plush_opt.fem.model.Model.max_step` (the
+        segment term forbids no pose)."""
+        return self.fm.base.max_step(x, dx)

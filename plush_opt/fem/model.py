@@ -268,6 +268,15 @@ class Model:
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         return bool(np.all(np.isfinite(x)) and all(term.admissible(x) for term in self.terms))
 
+    def max_step(self, x, dx) -> float:
+        """The largest fraction in (0, 1] of the step ``dx`` from the
+        admissible pose ``x`` that no term forbids (the smallest over the
+        terms' :meth:`~plush_opt.fem.terms.Term.max_step`): a line search
+        starts there, so that it never steps through anything."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        dx = np.asarray(dx, dtype=np.float64).reshape(-1)
+        return float(min((term.max_step(x, dx) for term in self.terms), default=1.0))
+
     def tendon_state(self, x, c) -> dict[str, np.ndarray]:
         """Per tendon: ``length`` l_t, ``stretch`` G = l_t - (a_t - c_w),
         ``tension`` U'(G), ``dtension`` U''(G), and per segment the length

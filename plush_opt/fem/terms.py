@@ -112,6 +112,13 @@ class Term:
         """The term's energy as a CasADi expression of (x, c)."""
         raise NotImplementedError
 
+    def max_step(self, x: np.ndarray, dx: np.ndarray) -> float:
+        """The largest fraction t in (0, 1] of the step ``dx`` from the
+        admissible pose ``x`` along which the term stays admissible
+        (continuous collision detection for contact); 1 for a term whose
+        admissibility the line search's checks at the trial poses suffice for."""
+        return 1.0
+
     def commit(self, x: np.ndarray, c: np.ndarray) -> None:
         """Take (x, c) as the accepted state: a term with history (stick and
         slip, contact) updates it here, once a step has converged. These

@@ -116,11 +116,13 @@ def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
 def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions):
     """Backtracking from the full step ``dx``: the accepted (x, evaluation
     with its Hessian) and the step length, or (None, 0.0). A step is never
-    accepted at a non-admissible pose or a non-finite energy."""
+    accepted at a non-admissible pose or a non-finite energy, and never
+    starts beyond the fraction of ``dx`` the model allows (contact: the
+    first time of impact)."""
     g = ev.gradient
     slope = float(g @ dx)
     slack = _energy_slack(model, ev.energy, x)
-    alpha = 1.0
+    alpha = model.max_step(x, dx)
     for k in range(options.max_backtracks):
         xt = x + alpha * dx
         et = model.evaluate(xt, c, order=2 if k == 0 else 0)
