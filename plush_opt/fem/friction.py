@@ -148,6 +148,7 @@ class FixedRest:
         self.fm, self.held, self.r = fm, held, held.rest
         self.n_dofs, self.n_winches, self.X = fm.n_dofs, fm.n_winches, fm.X
         self.factorizer = fm.factorizer
+        self.unpinned = False          # (pinned bodies only: no gauge of free motions here)
         self.energy_roundoff_scale = fm.energy_roundoff_scale
         self.has_gravity, self.f_gravity, self.rest_area = fm.has_gravity, fm.f_gravity, fm.rest_area
 

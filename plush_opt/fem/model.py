@@ -40,6 +40,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..base.linalg import Factorizer, LowRankHessian, assembled
+from . import free_motion
+from .contact import ContactTerm
 from .hessian_layout import FORMS, HessianLayout
 from .mesh import Mesh
 from .pins import check_pins
@@ -112,7 +114,9 @@ class Model:
     ----------
     scene, mesh : what it was built from.
     terms : the energy terms summed, in this order: elastic, pins, gravity
-        (when the scene has it), tendons (when it has any).
+        (when the scene has it), tendons (when it has any), contact (when
+        it has a contact section).
+    contact : the :class:`~plush_opt.fem.contact.ContactTerm`, or None.
     elastic, pins, tendons : the elastic, pin and tendon terms
         (``tendons`` exists without tendons too, empty, for its routing).
     element : the mesh's element type (``str(model.element)`` is "P1"/"P2").
@@ -166,10 +170,14 @@ class Model:
         self.has_tendons = self.tendons.count > 0
         gravity = GravityTerm(scene, mesh, self.elastic.elem_weight) if self.has_gravity else None
         self.f_gravity = gravity.force if gravity else None
+        self.contact = ContactTerm(scene, mesh, self.X) if scene.contact is not None else None
         self.terms: tuple[Term, ...] = tuple(t for t in (self.elastic, self.pins, gravity,
-                                                         self.tendons if self.has_tendons else None)
+                                                         self.tendons if self.has_tendons else None,
+                                                         self.contact)
                                              if t is not None)
+        # a body only contact holds may keep rigid motions free: its Hessians get a gauge
         self._describe_terms(scene)
+        self.unpinned = self.contact is not None and len(self.pin_nodes) == 0
         self.hessian_layout = HessianLayout(
             self.n_dofs, self.elem_dofs, self.pin_dofs, self.tendon_points, self.tendons.seg_dofs,
             self.tendons.local_dofs, self._auto_form(hessian))
@@ -291,11 +299,42 @@ class Model:
         """E (order 0), plus grad_x E (order 1), plus the Hessian (order 2):
         the sums of the terms' (in the order of :attr:`terms`).
 
-        The pose is admissible when every element has J > 0; otherwise the
-        energy is +inf and no derivatives are returned.
+        The pose is admissible when every element has J > 0 (and, with
+        contact, every gap is positive); otherwise the energy is +inf and
+        no derivatives are returned. A body without pins gets the gauge of
+        :mod:`~plush_opt.fem.free_motion` on the rigid motions the contact
+        leaves free (``hessian_form``; ``hessian`` too).
         """
-        return sum_terms(self.terms, self.hessian_layout, np.asarray(x, dtype=np.float64).reshape(-1),
-                         self._c(c), order)
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), order)
+        if order < 2 or not self.unpinned or ev.hessian_form is None:
+            return ev
+        R = free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale)
+        if R.shape[1] == 0:
+            return ev
+        return Evaluation(ev.energy, ev.gradient, free_motion.gauge(ev.hessian, R), ev.force_scale, True)
+
+    def free_motions(self, x, c) -> list[str]:
+        """The rigid motions the contact leaves free at flat pose ``x`` (an
+        unpinned body), in words; [] for a held body."""
+        if not self.unpinned:
+            return []
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2)
+        if ev.hessian_form is None:
+            return []
+        return free_motion.describe(free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale), x)
+
+    def unbalanced(self, x, c) -> str | None:
+        """For an unpinned body: why there is no equilibrium near ``x`` (a
+        net force along a free rigid motion), or None."""
+        if not self.unpinned:
+            return None
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2)
+        if ev.hessian_form is None:
+            return None
+        return free_motion.unbalanced(ev.hessian, x, ev.gradient, ev.force_scale)
 
     def length_gradient_local(self, seg_grad: np.ndarray) -> np.ndarray:
         """dl_t/dx on each tendon's local dof list, (n_tendons, local)."""

@@ -17,7 +17,13 @@ def check_pins(scene: Scene, mesh: Mesh) -> None:
     it has at least two anchored nodes: its own pins, or nodes it shares
     with a piece already held. Every piece must end up held; otherwise
     the Hessian is singular whatever the pose.
+
+    A scene with contact is not refused: the floor and obstacles may hold
+    what the pins do not (the solver reports the rigid motions they leave
+    free, and fails honestly where nothing holds the body).
     """
+    if scene.contact is not None:
+        return
     tri = mesh.triangles
     n_elems = tri.shape[0]
     # edge-connected pieces: union-find over elements sharing an edge

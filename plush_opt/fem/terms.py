@@ -34,7 +34,7 @@ from ..io.scene import Scene
 def node_dofs(nodes: np.ndarray) -> np.ndarray:
     """Interleaved dof indices of node indices: (..., k) -> (..., 2k)."""
     nodes = np.asarray(nodes, dtype=np.int64)
-    return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], -1)
+    return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], 2 * nodes.shape[-1])
 
 
 class Mapped:

@@ -39,13 +39,13 @@ def mesh_section(ck: Checker, mesh) -> dict:
                 ck.fail(at_key("mesh", k), "give either mesh.outline or mesh.nodes + "
                         "mesh.triangles, not both")
         outline = ck.points(mesh["outline"], "mesh.outline", min_len=3)
-        _check_ring(ck, outline, "mesh.outline")
+        check_ring(ck, outline, "mesh.outline")
         holes = []
         if "holes" in has:
             for i, h in enumerate(ck.seq(mesh["holes"], "mesh.holes", what="list of polygons")):
                 hp = at_index("mesh.holes", i)
                 hole = ck.points(h, hp, min_len=3)
-                _check_ring(ck, hole, hp)
+                check_ring(ck, hole, hp)
                 holes.append(hole)
         out.update(outline=outline, holes=holes, diameter=diameter(outline))
         _check_ring_vertices_apart(ck, outline, holes, POINT_TOL * out["diameter"])
@@ -158,7 +158,7 @@ def check_points_are_nodes(ck: Checker, nodes, forced, tol):
                     f"mesh (nearest is mesh.nodes[{int(near[j])}] at distance {dist[j]:.3g})")
 
 
-def _check_ring(ck: Checker, ring: np.ndarray, path: str):
+def check_ring(ck: Checker, ring: np.ndarray, path: str):
     """A simple polygon: no repeated consecutive points, no backtracking,
     no crossings or touchings, nonzero area."""
     nxt = np.roll(ring, -1, axis=0)

@@ -21,6 +21,7 @@ from ..base.errors import format_number, format_point, shown
 from ..base.geometry import classify_points, locate_in_triangles
 from .scene import FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, MAX_WEIGHT, Checker, at_index, at_key, describe
+from .contact_section import contact_section
 from .mesh_input import check_points_are_nodes, length, mesh_section
 from .yaml_reader import read_yaml
 
@@ -33,11 +34,14 @@ MAX_TENDONS = 200
 #: (and of its largest coordinate): smaller discs are below the resolution the
 #: disc integration can split triangles to (use 0, a point attachment)
 MIN_RADIUS, MIN_RADIUS_OF_COORD = 1e-6, 1e-9
+#: the pin stiffness of a file without pins (contact holds the body): recorded,
+#: never used, since no node is pinned
+DEFAULT_PIN_STIFFNESS = 1.0
 
 _NAME = re.compile(r"[A-Za-z0-9_-]+")
 
 _TOP_KEYS = ("format", "name", "description", "mesh", "material", "gravity", "pins",
-             "winches", "tendons", "targets", "points")
+             "winches", "tendons", "targets", "points", "contact")
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "thickness",
                   "density")
 _PIN_KEYS = ("stiffness", "at", "box")
@@ -95,7 +99,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
     """
     ck = Checker(source)
     ck.document(data, _TOP_KEYS,
-                required=("format", "name", "mesh", "material", "pins", "winches", "tendons"))
+                required=("format", "name", "mesh", "material", "winches", "tendons"))
     name, description = _header_section(ck, data)
     geo = mesh_section(ck, data["mesh"])
     material = _material_section(ck, data["material"])
@@ -106,7 +110,12 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
         if material.density is None:
             ck.fail("material.density", "required when gravity is given")
 
-    pin_stiffness, pin_points, pin_box = _pins_section(ck, data["pins"])
+    contact = contact_section(ck, _opt(data, "contact"), geo["diameter"])
+    pins = _opt(data, "pins")
+    if pins is None and contact is None:
+        ck.fail("pins", "missing required key (a body without pins needs a contact section to hold it)")
+    pin_stiffness, pin_points, pin_box = (_pins_section(ck, pins) if pins is not None
+                                          else (DEFAULT_PIN_STIFFNESS, np.zeros((0, 2)), None))
     winches = _winches_section(ck, data["winches"])
     t_stiffness, t_smoothing, tendons = _tendons_section(ck, data["tendons"], winches)
     _check_physics_ranges(ck, data, material, gravity, pin_stiffness, t_stiffness)
@@ -123,7 +132,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
         tendons=tuple(tendons), targets=tuple(targets), points=points, gravity=gravity,
         outline=geo["outline"], holes=tuple(geo["holes"]), max_area=geo["max_area"],
         min_angle=geo["min_angle"], nodes=geo["nodes"], triangles=geo["triangles"],
-        element=geo["element"],
+        element=geo["element"], contact=contact,
     )
 
 

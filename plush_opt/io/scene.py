@@ -114,6 +114,57 @@ class Target:
 
 
 @dataclass(frozen=True)
+class Ground:
+    """The floor: the line through (0, ``height``) at ``slope`` degrees
+    (counter-clockwise); the body stays on its upper side."""
+
+    height: float = 0.0
+    slope: float = 0.0
+
+    @property
+    def normal(self) -> np.ndarray:
+        """(2,) unit normal pointing to the upper (admissible) side."""
+        a = np.radians(self.slope)
+        return np.array([-np.sin(a), np.cos(a)])
+
+    @property
+    def tangent(self) -> np.ndarray:
+        """(2,) unit direction along the floor (its x-ward direction)."""
+        a = np.radians(self.slope)
+        return np.array([np.cos(a), np.sin(a)])
+
+
+@dataclass(frozen=True, eq=False)
+class Obstacle:
+    """A rigid polygon fixed in space: ``outline`` (k, 2), a simple polygon."""
+
+    name: str
+    outline: np.ndarray
+
+    def __eq__(self, other):
+        return (isinstance(other, Obstacle) and self.name == other.name
+                and np.array_equal(self.outline, other.outline))
+
+    __hash__ = None
+
+
+@dataclass(frozen=True)
+class Contact:
+    """The scene's contact section (docs/problem-format.md, "Contact").
+
+    ``distance`` d_hat > 0: the gap below which the barrier pushes;
+    ``stiffness`` kappa (None: chosen by the model); ``friction`` the
+    Coulomb coefficient against ground and obstacles."""
+
+    ground: Ground | None = None
+    obstacles: tuple[Obstacle, ...] = ()
+    self_contact: bool = False
+    distance: float = 1.0
+    stiffness: float | None = None
+    friction: float = 0.0
+
+
+@dataclass(frozen=True)
 class Scene:
     """One validated scene. Exactly one of ``outline`` or ``nodes`` is set.
 
@@ -141,6 +192,7 @@ class Scene:
     targets: tuple[Target, ...] = ()
     points: np.ndarray = field(default_factory=lambda: _points(np.zeros((0, 2))))
     element: str = "P1"               # "P1" (3-node) or "P2" (6-node triangles)
+    contact: Contact | None = None     # floor, obstacles, self-contact
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731

@@ -232,4 +232,6 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
             status = "line search failed: no admissible step decreases the energy"
             break
         x, ev = accepted
+    if not converged and model.unpinned:
+        status = model.unbalanced(x, c) or status
     return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)

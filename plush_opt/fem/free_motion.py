@@ -1,0 +1,125 @@
+"""Rigid motions that contact leaves free (a body without pins).
+
+A body that only contact holds may keep some rigid motions free: on a
+frictionless floor it slides, and nothing but the floor's own slope picks
+a place. Along such a motion r the energy is flat (H r = 0, grad E . r = 0),
+so the Hessian is singular and no pose is isolated. The certificate
+excludes these motions (docs/problem-format.md, "Contact"): the Hessian
+the solvers factor gets a gauge, a stiffness on a few dofs that move along
+r, which leaves the step on the other motions unchanged and fixes the body
+where it is along r (for a singular H with null space N and a gradient
+orthogonal to N, (H + a sum_j e_j e_j^T) dx = -g is the solution of
+H dx = -g that does not move those dofs).
+
+A rigid motion with H r = 0 but a net force along it is not free: the
+body falls or slides, the Hessian stays singular there and the solver's
+regularised steps follow the force (:func:`unbalanced` says so when no
+equilibrium is found).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+#: a rigid motion r (unit) is flat when |H r| is below this fraction of the
+#: Hessian's largest diagonal entry: round-off of a translation-invariant
+#: energy is ~1e-16 of it, the softest contact or elastic mode far above
+FLAT = 1e-9
+#: ... and balanced when |grad E . r| is below this fraction of the force scale
+BALANCED = 1e-6
+#: the motions' names, in the order of :func:`rigid_motions`
+NAMES = ("translation in x", "translation in y", "rotation")
+
+
+def rigid_motions(x: np.ndarray) -> np.ndarray:
+    """(n_dofs, 3) unit rigid motions of the pose ``x``: translations in x
+    and y, rotation about its centroid."""
+    P = x.reshape(-1, 2)
+    n = len(P)
+    V = np.zeros((2 * n, 3))
+    V[0::2, 0] = 1.0
+    V[1::2, 1] = 1.0
+    d = P - P.mean(axis=0)
+    V[0::2, 2], V[1::2, 2] = -d[:, 1], d[:, 0]
+    return V / np.linalg.norm(V, axis=0)
+
+
+def flat_motions(H, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motions along which ``H`` (the Hessian at flat pose ``x``) is
+    flat: (n_dofs, k) orthonormal combinations of :func:`rigid_motions`,
+    and (k, 3) their coordinates in them."""
+    V = rigid_motions(x)
+    HV = H @ V
+    lam, Q = np.linalg.eigh(HV.T @ HV)          # |H V q|^2 over unit q
+    scale = float(np.max(np.abs(H.diagonal()), initial=0.0))
+    flat = np.sqrt(np.maximum(lam, 0.0)) <= FLAT * max(scale, 1e-300)
+    Qf = Q[:, flat]
+    R = V @ Qf
+    # V's columns are orthonormal only up to the rotation's overlap with them
+    R, _ = np.linalg.qr(R) if R.shape[1] else (R, None)
+    return R, Qf.T
+
+
+def free_motions(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> np.ndarray:
+    """(n_dofs, k) the flat rigid motions with no net force along them."""
+    R, _ = flat_motions(H, x)
+    if R.shape[1] == 0:
+        return R
+    push = np.abs(R.T @ g)
+    return R[:, push <= BALANCED * max(force_scale, 1e-300)]
+
+
+def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
+    """H plus a stiffness on one dof per free motion in ``R`` (n_dofs, k):
+    the dofs (greedy pivots of R) make R's rows there invertible."""
+    if R.shape[1] == 0:
+        return H
+    dofs = []
+    rest = R.copy()
+    for j in range(R.shape[1]):
+        i = int(np.argmax(np.abs(rest[:, j])))
+        dofs.append(i)
+        if j + 1 < R.shape[1]:
+            # eliminate dof i from the remaining motions (Gaussian pivoting)
+            rest[:, j + 1:] -= np.outer(rest[:, j] / rest[i, j], rest[i, j + 1:])
+    stiffness = float(np.mean(np.abs(H.diagonal())))
+    D = sp.csc_matrix((np.full(len(dofs), stiffness), (dofs, dofs)), shape=H.shape)
+    G = (H + D).tocsc()
+    G.sort_indices()
+    return G
+
+
+def describe(R: np.ndarray, x: np.ndarray) -> list[str]:
+    """Each free motion in ``R`` in words ("translation in x", or a
+    combination such as "translation along (0.966, 0.259)")."""
+    V = rigid_motions(x)
+    out = []
+    for r in R.T:
+        q = V.T @ r
+        q = q / np.linalg.norm(q)
+        if abs(q[2]) > 0.99:
+            out.append("rotation")
+        elif abs(q[2]) < 1e-6:
+            t = q[:2] / np.linalg.norm(q[:2])
+            if abs(t[1]) < 1e-9:
+                out.append("translation in x")
+            elif abs(t[0]) < 1e-9:
+                out.append("translation in y")
+            else:
+                t = t if t[0] > 0 else -t
+                out.append(f"translation along ({t[0]:.3f}, {t[1]:.3f})")
+        else:
+            out.append("a combined translation and rotation")
+    return out
+
+
+def unbalanced(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> str | None:
+    """Why there is no equilibrium near ``x``, if a flat rigid motion has a
+    net force along it (the body falls or slides), in words; else None."""
+    R, _ = flat_motions(H, x)
+    for r, name in zip(R.T, describe(R, x)):
+        if abs(r @ g) > BALANCED * max(force_scale, 1e-300):
+            return (f"no equilibrium: nothing holds the body against a net force along a free "
+                    f"{name} (it slides or falls)")
+    return None
