@@ -338,6 +338,30 @@ class ContactTerm(Term):
 
     # -- reports ---------------------------------------------------------------
 
+    def section(self) -> dict:
+        """The result's ``model.contact``: the section as used (kappa as
+        chosen, with ``stiffness_chosen`` saying so)."""
+        g = self.ground
+        return {
+            "ground": None if g is None else {"height": float(g.height), "slope": float(g.slope)},
+            "obstacles": [{"name": o.name, "outline": o.outline.tolist()} for o in self.obstacles],
+            "self": bool(self.self_contact), "distance": float(self.distance),
+            "stiffness": float(self.stiffness), "stiffness_chosen": bool(self.stiffness_chosen),
+            "friction": float(self.friction),
+        }
+
+    def report(self, x: np.ndarray) -> dict:
+        """The result's top-level ``contact`` block at flat pose ``x``:
+        ``min_gap``, ``total_force`` (the sum of every contact force on the
+        body) and ``nodes`` (:meth:`node_forces`)."""
+        nodes = self.node_forces(x)
+        total = np.zeros(2)
+        for entry in nodes:
+            total += np.asarray(entry["normal_force"]) + np.asarray(entry["friction_force"])
+        gap = self.min_gap(x)
+        return {"min_gap": gap if np.isfinite(gap) else None,
+                "total_force": [float(total[0]), float(total[1])], "nodes": nodes}
+
     def node_forces(self, x: np.ndarray) -> list[dict]:
         """The contact forces at flat pose ``x``, per (node, thing touched):
         ``node``, ``gap`` (the smallest gap of its pairs with that thing),

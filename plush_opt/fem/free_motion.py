@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..base.linalg import Factorizer
+
 #: a rigid motion r (unit) is flat when |H r| is below this fraction of the
 #: Hessian's largest diagonal entry: round-off of a translation-invariant
 #: energy is ~1e-16 of it, the softest contact or elastic mode far above
@@ -87,7 +89,36 @@ def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
     D = sp.csc_matrix((np.full(len(dofs), stiffness), (dofs, dofs)), shape=H.shape)
     G = (H + D).tocsc()
     G.sort_indices()
+    G.free_motions = R           # what GaugedFactorizer projects its solves on
     return G
+
+
+class GaugedFactorizer(Factorizer):
+    """A :class:`~plush_opt.base.linalg.Factorizer` whose factors of a
+    gauged Hessian (:func:`gauge`) return the solution that does not move
+    the body along its free motions: each solve is projected off them, so
+    Newton steps, sensitivities and adjoints leave the pose's place along a
+    free motion (its mean displacement) where it was."""
+
+    def factor(self, H, shift: float = 0.0):
+        f = super().factor(H, shift)
+        R = getattr(H, "free_motions", None)
+        return f if R is None else ProjectedFactor(f, R)
+
+
+class ProjectedFactor:
+    """A factor whose :meth:`solve` is projected off the free motions ``R``
+    (n_dofs, k orthonormal); everything else is the wrapped factor's."""
+
+    def __init__(self, factor, R: np.ndarray):
+        self._factor, self.R = factor, R
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        y = self._factor.solve(b)
+        return y - self.R @ (self.R.T @ y)
+
+    def __getattr__(self, name):
+        return getattr(self._factor, name)
 
 
 def describe(R: np.ndarray, x: np.ndarray) -> list[str]:

@@ -183,7 +183,7 @@ class Model:
             self.tendons.local_dofs, self._auto_form(hessian))
         self.low_rank, self.split_segments = self.hessian_layout.low_rank, self.hessian_layout.split
         self.hessian_nnz = self.hessian_layout.nnz
-        self.factorizer = Factorizer()
+        self.factorizer = free_motion.GaugedFactorizer() if self.unpinned else Factorizer()
 
     def _describe_terms(self, scene: Scene) -> None:
         """The terms' data under the names the solvers and apps read."""

@@ -62,6 +62,7 @@ def model_dict(model: Model, targets: Targets) -> dict:
         "targets": [{"triangle": int(e), "barycentric": b.tolist(), "to": q.tolist(),
                      "weight": float(w)}
                     for e, b, q, w in zip(targets.triangles, targets.beta, targets.to, targets.weight)],
+        **({"contact": model.contact.section()} if model.contact is not None else {}),
     }
 
 
@@ -113,6 +114,9 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
     }
     for entry, seg, t in zip(doc["model"]["tendons"]["list"], segments, model.scene.tendons):
         entry.update(seg, friction=float(t.friction))
+    if model.contact is not None:
+        doc["contact"] = {**model.contact.report(eq.x),
+                          "free_motions": model.free_motions(eq.x, eq.contraction)}
     record = path_record(eq, model.winch_names)
     if record is not None:
         doc["friction_path"] = record
