@@ -195,7 +195,7 @@ class ContactTerm(Term):
         g = np.zeros(self.n_dofs) if order >= 1 else None
         rows, cols, vals = [], [], []
         if self.ground is not None:
-            e, parts = self._ground(x, order)
+            e, parts = self.ground_part(x, order)
             energy += e
             if order >= 1:
                 dofs, grad, hess = parts
@@ -204,7 +204,7 @@ class ContactTerm(Term):
                     _collect(rows, cols, vals, dofs, hess)
         pairs = self.pairs(x)
         if len(pairs.weight):
-            e, grad, hess = self._point_segment(pairs, order)
+            e, grad, hess = self.pair_part(pairs, order)
             energy += e
             if order >= 1:
                 ok = pairs.dofs >= 0
@@ -221,7 +221,7 @@ class ContactTerm(Term):
             hessian = {"contact_hess": sp.coo_matrix((vals, (rows, cols)), shape=(self.n_dofs, self.n_dofs))}
         return TermEvaluation(float(energy), g, hessian, max(float(np.linalg.norm(g)), self._force_unit))
 
-    def _ground(self, x, order):
+    def ground_part(self, x, order):
         """The floor's energy and, per active node, its dofs (k, 2), gradient
         (k, 2) and Hessian (k, 2, 2)."""
         d = self.ground_gaps(x)
@@ -240,7 +240,7 @@ class ContactTerm(Term):
             hess = curv[:, None, None] * np.outer(n, n)[None]
         return energy, (self.node_dofs[act], grad, hess)
 
-    def _point_segment(self, pairs: Pairs, order):
+    def pair_part(self, pairs: Pairs, order):
         s, ds, d2s = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=order)
         b, db, d2b = geo.barrier(s, self.dhat2)
         kw = self.stiffness * pairs.weight
@@ -335,80 +335,6 @@ class ContactTerm(Term):
         bad = self.violation(X)
         if bad is not None:
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
-
-    # -- reports ---------------------------------------------------------------
-
-    def section(self) -> dict:
-        """The result's ``model.contact``: the section as used (kappa as
-        chosen, with ``stiffness_chosen`` saying so)."""
-        g = self.ground
-        return {
-            "ground": None if g is None else {"height": float(g.height), "slope": float(g.slope)},
-            "obstacles": [{"name": o.name, "outline": o.outline.tolist()} for o in self.obstacles],
-            "self": bool(self.self_contact), "distance": float(self.distance),
-            "stiffness": float(self.stiffness), "stiffness_chosen": bool(self.stiffness_chosen),
-            "friction": float(self.friction),
-        }
-
-    def report(self, x: np.ndarray) -> dict:
-        """The result's top-level ``contact`` block at flat pose ``x``:
-        ``min_gap``, ``total_force`` (the sum of every contact force on the
-        body) and ``nodes`` (:meth:`node_forces`)."""
-        nodes = self.node_forces(x)
-        total = np.zeros(2)
-        for entry in nodes:
-            total += np.asarray(entry["normal_force"]) + np.asarray(entry["friction_force"])
-        gap = self.min_gap(x)
-        return {"min_gap": gap if np.isfinite(gap) else None,
-                "total_force": [float(total[0]), float(total[1])], "nodes": nodes}
-
-    def node_forces(self, x: np.ndarray) -> list[dict]:
-        """The contact forces at flat pose ``x``, per (node, thing touched):
-        ``node``, ``gap`` (the smallest gap of its pairs with that thing),
-        ``with`` ("ground", an obstacle's name or "self") and
-        ``normal_force`` [fx, fy], minus the barrier's gradient at the node
-        (the friction force is [0, 0] without friction)."""
-        out: dict[tuple[int, str], list] = {}
-        names = ["self"] + [o.name for o in self.obstacles]
-
-        def add(node, label, force, gap):
-            entry = out.setdefault((int(node), label), [np.zeros(2), np.inf])
-            entry[0] += force
-            entry[1] = min(entry[1], gap)
-
-        if self.ground is not None:
-            _, parts = self._ground(x, 1)
-            dofs, grad, _ = parts
-            gaps = self.ground_gaps(x)
-            for dof, gr in zip(dofs, grad):
-                k = int(np.searchsorted(self.boundary.nodes, dof[0] // 2))
-                add(dof[0] // 2, "ground", -gr, gaps[k])
-        pairs = self.pairs(x)
-        if len(pairs.weight):
-            s, _, _ = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=0)
-            _, grad, _ = self._point_segment(pairs, 1)
-            for dofs, gr, label, sk in zip(pairs.dofs, grad, pairs.label, s):
-                for q in range(3):
-                    if dofs[2 * q] >= 0:
-                        add(dofs[2 * q] // 2, names[label], -gr[2 * q:2 * q + 2], float(np.sqrt(sk)))
-        return [{"node": node, "gap": float(gap), "with": label, "normal_force": [float(f[0]), float(f[1])],
-                 "friction_force": [0.0, 0.0]}
-                for (node, label), (f, gap) in sorted(out.items()) if np.any(f != 0)]
-
-    def min_gap(self, x: np.ndarray) -> float:
-        """The smallest gap of any pair at flat pose ``x`` (inf: none within
-        the body's reach)."""
-        gaps = [np.inf]
-        if self.ground is not None:
-            gaps.append(float(np.min(self.ground_gaps(x))))
-        if self.obstacles or self.self_contact:
-            far = np.inf if not np.isfinite(gaps[-1]) else max(gaps[-1], self.distance)
-            pairs = self.pairs(x, radius=far if np.isfinite(far) else 4 * self.distance)
-            if len(pairs.weight):
-                s, _, _ = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=0)
-                gaps.append(float(np.sqrt(np.min(s))))
-        return float(min(gaps))
-
 
 def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:
     """Append the entries of local Hessians ``hess`` (k, q, q) on ``dofs``

@@ -13,6 +13,7 @@ import math
 from .equilibrium import Equilibrium
 from .friction_solve import path_record, segment_table
 from ..base.errors import SceneError
+from ..fem import contact_report
 from ..fem.model import Model
 from ..fem.objective import Targets
 from ..io.checker import Checker, at_index, at_key, describe, parse_json
@@ -62,7 +63,7 @@ def model_dict(model: Model, targets: Targets) -> dict:
         "targets": [{"triangle": int(e), "barycentric": b.tolist(), "to": q.tolist(),
                      "weight": float(w)}
                     for e, b, q, w in zip(targets.triangles, targets.beta, targets.to, targets.weight)],
-        **({"contact": model.contact.section()} if model.contact is not None else {}),
+        **({"contact": contact_report.section(model.contact)} if model.contact is not None else {}),
     }
 
 
@@ -115,7 +116,7 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
     for entry, seg, t in zip(doc["model"]["tendons"]["list"], segments, model.scene.tendons):
         entry.update(seg, friction=float(t.friction))
     if model.contact is not None:
-        doc["contact"] = {**model.contact.report(eq.x),
+        doc["contact"] = {**contact_report.report(model.contact, eq.x),
                           "free_motions": model.free_motions(eq.x, eq.contraction)}
     record = path_record(eq, model.winch_names)
     if record is not None:

@@ -1,0 +1,83 @@
+"""What a result reports of contact (docs/problem-format.md, "Contact"):
+the section as used, and at a pose the smallest gap, the total force and
+the force at every node that feels one."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import contact_geometry as geo
+from .contact import ContactTerm
+
+
+
+def section(term: ContactTerm) -> dict:
+    """The result's ``model.contact``: the section as used (kappa as
+    chosen, with ``stiffness_chosen`` saying so)."""
+    g = term.ground
+    return {
+        "ground": None if g is None else {"height": float(g.height), "slope": float(g.slope)},
+        "obstacles": [{"name": o.name, "outline": o.outline.tolist()} for o in term.obstacles],
+        "self": bool(term.self_contact), "distance": float(term.distance),
+        "stiffness": float(term.stiffness), "stiffness_chosen": bool(term.stiffness_chosen),
+        "friction": float(term.friction),
+    }
+
+def report(term: ContactTerm, x: np.ndarray) -> dict:
+    """The result's top-level ``contact`` block at flat pose ``x``:
+    ``min_gap``, ``total_force`` (the sum of every contact force on the
+    body) and ``nodes`` (:func:`node_forces`)."""
+    nodes = node_forces(term, x)
+    total = np.zeros(2)
+    for entry in nodes:
+        total += np.asarray(entry["normal_force"]) + np.asarray(entry["friction_force"])
+    gap = min_gap(term, x)
+    return {"min_gap": gap if np.isfinite(gap) else None,
+            "total_force": [float(total[0]), float(total[1])], "nodes": nodes}
+
+def node_forces(term: ContactTerm, x: np.ndarray) -> list[dict]:
+    """The contact forces at flat pose ``x``, per (node, thing touched):
+    ``node``, ``gap`` (the smallest gap of its pairs with that thing),
+    ``with`` ("ground", an obstacle's name or "self") and
+    ``normal_force`` [fx, fy], minus the barrier's gradient at the node
+    (the friction force is [0, 0] without friction)."""
+    out: dict[tuple[int, str], list] = {}
+    names = ["self"] + [o.name for o in term.obstacles]
+
+    def add(node, label, force, gap):
+        entry = out.setdefault((int(node), label), [np.zeros(2), np.inf])
+        entry[0] += force
+        entry[1] = min(entry[1], gap)
+
+    if term.ground is not None:
+        _, parts = term.ground_part(x, 1)
+        dofs, grad, _ = parts
+        gaps = term.ground_gaps(x)
+        for dof, gr in zip(dofs, grad):
+            k = int(np.searchsorted(term.boundary.nodes, dof[0] // 2))
+            add(dof[0] // 2, "ground", -gr, gaps[k])
+    pairs = term.pairs(x)
+    if len(pairs.weight):
+        s, _, _ = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=0)
+        _, grad, _ = term.pair_part(pairs, 1)
+        for dofs, gr, label, sk in zip(pairs.dofs, grad, pairs.label, s):
+            for q in range(3):
+                if dofs[2 * q] >= 0:
+                    add(dofs[2 * q] // 2, names[label], -gr[2 * q:2 * q + 2], float(np.sqrt(sk)))
+    return [{"node": node, "gap": float(gap), "with": label, "normal_force": [float(f[0]), float(f[1])],
+             "friction_force": [0.0, 0.0]}
+            for (node, label), (f, gap) in sorted(out.items()) if np.any(f != 0)]
+
+def min_gap(term: ContactTerm, x: np.ndarray) -> float:
+    """The smallest gap of any pair at flat pose ``x`` (inf: none within
+    the body's reach)."""
+    gaps = [np.inf]
+    if term.ground is not None:
+        gaps.append(float(np.min(term.ground_gaps(x))))
+    if term.obstacles or term.self_contact:
+        far = np.inf if not np.isfinite(gaps[-1]) else max(gaps[-1], term.distance)
+        pairs = term.pairs(x, radius=far if np.isfinite(far) else 4 * term.distance)
+        if len(pairs.weight):
+            s, _, _ = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=0)
+            gaps.append(float(np.sqrt(np.min(s))))
+    return float(min(gaps))
