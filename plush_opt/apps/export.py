@@ -41,6 +41,7 @@ import numpy as np
 
 from ..base.errors import SceneError, SolverError
 from ..base.files import atomic_path, write_text_atomic
+from ..fem.contact_report import node_forces
 from ..solve.plant import segment_table
 from .run_log import read_run_log
 
@@ -89,8 +90,21 @@ def pose_mesh(model, x, contraction, eq=None):
         "tension": per_cell(np.full(len(tri), NO_VALUE), np.asarray(tension, dtype=np.float64)),
         "tendon": per_cell(np.full(len(tri), -1, dtype=np.int64), seg_tendon),
     }
-    return meshio.Mesh(_xyz(xn), cells, point_data={"displacement": _xyz(xn - X), "rest": _xyz(X)},
-                       cell_data=cell_data)
+    point_data = {"displacement": _xyz(xn - X), "rest": _xyz(X)}
+    if model.contact is not None:
+        point_data.update(_contact_point_data(model, xn))
+    return meshio.Mesh(_xyz(xn), cells, point_data=point_data, cell_data=cell_data)
+
+
+def _contact_point_data(model, xn: np.ndarray) -> dict[str, np.ndarray]:
+    """Per node: the contact forces on it (``contact_normal_force``,
+    ``contact_friction_force``, zero where it feels none), summed over what
+    it touches."""
+    normal, friction = np.zeros_like(xn), np.zeros_like(xn)
+    for entry in node_forces(model.contact, xn.reshape(-1)):
+        normal[entry["node"]] += entry["normal_force"]
+        friction[entry["node"]] += entry["friction_force"]
+    return {"contact_normal_force": _xyz(normal), "contact_friction_force": _xyz(friction)}
 
 
 def write_pose(path, model, x, contraction, eq=None) -> Path:

@@ -9,6 +9,7 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from ..base.files import atomic_path
+from ..fem.contact_report import node_forces
 
 REST_COLOR = "#b0b0b0"
 BODY_COLOR = "#f3d9b1"   # felt
@@ -19,6 +20,10 @@ TENDON_CMAP = "viridis"
 LENGTH_UNIT = "mm"       # the shipped problems' unit (lengths in mm, forces in N)
 LABEL_FONT = 7           # tendon, winch and error labels: small, the pose stays readable
 LABEL_MERGE = 0.05       # stoppers closer than this fraction of the picture share a label (no overprint)
+GROUND_COLOR = "#5a5a5a"
+OBSTACLE_COLOR = "#9fb4c7"
+CONTACT_COLOR = "#1f77b4"
+FORCE_LENGTH = 0.08      # the largest contact force is drawn this fraction of the picture long
 
 
 def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=True,
@@ -62,6 +67,8 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     ends = np.array([xn[p[0]] for p in model.tendon_paths]) if model.n_tendons else np.zeros((0, 2))
     artists["stoppers"] = ax.plot(ends[:, 0], ends[:, 1], "o", ms=3.5, color="#444", zorder=5)[0]
 
+    if model.contact is not None:
+        artists["contact_forces"] = draw_contact(ax, model, xn.reshape(-1))
     # pins hold their nodes at rest: drawn at X
     artists["pins"] = ax.plot(X[model.pin_nodes, 0], X[model.pin_nodes, 1], "^", ms=5,
                               color=PIN_COLOR, zorder=6, label="pins")[0]
@@ -91,6 +98,37 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     if title:
         ax.set_title(title, fontsize=10)
     return artists
+
+
+def draw_contact(ax, model, x) -> LineCollection:
+    """The floor (a line), the obstacles (filled polygons) and the contact
+    forces at pose ``x`` (arrows as segments from each node, the largest
+    :data:`FORCE_LENGTH` of the picture long). Returns the forces' artist."""
+    term = model.contact
+    if term.ground is not None:
+        g = term.ground
+        ax.axline((0.0, g.height), slope=float(np.tan(np.radians(g.slope))), color=GROUND_COLOR,
+                  lw=1.5, zorder=1.5, label="ground")
+    if term.obstacles:
+        ax.add_collection(PolyCollection([o.outline for o in term.obstacles], facecolors=OBSTACLE_COLOR,
+                                         edgecolors=GROUND_COLOR, linewidths=0.8, zorder=1.5))
+    forces = LineCollection(contact_segments(model, x), colors=CONTACT_COLOR, linewidths=1.4, zorder=5.5)
+    ax.add_collection(forces)
+    return forces
+
+
+def contact_segments(model, x) -> np.ndarray:
+    """(k, 2, 2) one segment per node that feels a contact force at flat
+    pose ``x``: from the node along its force, scaled for the picture."""
+    entries = node_forces(model.contact, np.asarray(x, dtype=np.float64).reshape(-1))
+    if not entries:
+        return np.zeros((0, 2, 2))
+    xn = np.asarray(x).reshape(-1, 2)
+    at = xn[[e["node"] for e in entries]]
+    F = np.array([np.add(e["normal_force"], e["friction_force"]) for e in entries])
+    size = float(np.ptp(model.X.reshape(-1, 2), axis=0).max())
+    scale = FORCE_LENGTH * size / max(float(np.linalg.norm(F, axis=1).max()), 1e-300)
+    return np.stack([at, at + scale * F], axis=1)
 
 
 def _label_tendons(ax, model, xn, contraction):
@@ -126,7 +164,11 @@ def _legend(ax, model, targets, show_rest):
     if model.n_tendons:
         handles += [Line2D([], [], color="#2a788e", lw=2.2, label="tendon (winch); colour: tension"),
                     Line2D([], [], ls="", marker="o", ms=3.5, color="#444", label="tendon stopper")]
-    handles.append(Line2D([], [], ls="", marker="^", ms=5, color=PIN_COLOR, label="pins"))
+    if len(model.pin_nodes):
+        handles.append(Line2D([], [], ls="", marker="^", ms=5, color=PIN_COLOR, label="pins"))
+    if model.contact is not None:
+        handles += [Line2D([], [], color=GROUND_COLOR, lw=1.5, label="ground / obstacles"),
+                    Line2D([], [], color=CONTACT_COLOR, lw=1.4, label="contact force")]
     if targets is not None and targets.n_targets:
         handles += [Line2D([], [], ls="", marker="x", ms=8, mew=2, color=TARGET_COLOR, label="target"),
                     Line2D([], [], ls="", marker="o", mfc="white", mec=TARGET_COLOR, ms=5,

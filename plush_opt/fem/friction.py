@@ -20,7 +20,8 @@ import numpy as np
 
 from ..base.linalg import Factorizer
 from .hessian_layout import ViaSegments
-from .model import Evaluation, Model, sum_terms
+from .free_motion import GaugedFactorizer
+from .model import Evaluation, Model, gauged, sum_terms, unbalanced_at
 from .segments import KERNELS, SegmentTerm, via_weights
 
 __all__ = ["KERNELS", "FixedRest", "FrictionModel", "SegmentTerm", "friction_tendons", "via_weights"]
@@ -74,7 +75,8 @@ class FrictionModel:
         # out as low rank (a segment here has no rank-one tendon term)
         self.split = model.split_segments
         self.hessian_layout = self.base.hessian_layout.with_via(ViaSegments(term.W, term.seg_p, self.split))
-        self.factorizer = Factorizer()
+        self.unpinned = self.base.unpinned
+        self.factorizer = GaugedFactorizer() if self.unpinned else Factorizer()
 
     # the attributes the equilibrium Newton reads
     energy_roundoff_scale = property(lambda self: self.base.energy_roundoff_scale)
@@ -122,8 +124,9 @@ class FrictionModel:
         c = np.asarray(c, dtype=np.float64).reshape(-1)
         if c.shape != (self.n_winches,):
             raise ValueError(f"contraction has {c.size} entries, the scene has {self.n_winches} winches")
-        return sum_terms(self.terms[:-1] + (held,), self.hessian_layout,
-                         np.asarray(x, dtype=np.float64).reshape(-1), c, order)
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        ev = sum_terms(self.terms[:-1] + (held,), self.hessian_layout, x, c, order)
+        return gauged(ev, x) if self.unpinned and order == 2 else ev
 
     def mixed(self, x, c, r) -> np.ndarray:
         """d2E/dx dc with the rest lengths held at r, dense (n_dofs, n_winches)."""
@@ -148,12 +151,18 @@ class FixedRest:
         self.fm, self.held, self.r = fm, held, held.rest
         self.n_dofs, self.n_winches, self.X = fm.n_dofs, fm.n_winches, fm.X
         self.factorizer = fm.factorizer
-        self.unpinned = False          # (pinned bodies only: no gauge of free motions here)
+        self.unpinned = fm.unpinned
         self.energy_roundoff_scale = fm.energy_roundoff_scale
         self.has_gravity, self.f_gravity, self.rest_area = fm.has_gravity, fm.f_gravity, fm.rest_area
 
     def evaluate(self, x, c, order: int = 2) -> Evaluation:
         return self.fm.evaluate_held(self.held, x, c, order)
+
+    def unbalanced(self, x, c) -> str | None:
+        """Why there is no equilibrium near ``x`` (see :meth:`Model.unbalanced`)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        c = np.asarray(c, dtype=np.float64).reshape(-1)
+        return unbalanced_at(sum_terms(self.fm.terms[:-1] + (self.held,), self.fm.hessian_layout, x, c, 2), x)
 
     def max_step(self, x, dx) -> float:
         """The base model's :meth:`~plush_opt.fem.model.Model.max_step` (the

@@ -106,6 +106,32 @@ def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order:
     return Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
 
 
+def gauged(ev: Evaluation, x: np.ndarray) -> Evaluation:
+    """``ev`` (order 2, of a body without pins) with the gauge of
+    :mod:`~plush_opt.fem.free_motion` on the rigid motions it leaves free."""
+    if ev.hessian_form is None:
+        return ev
+    R = free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale)
+    if R.shape[1] == 0:
+        return ev
+    return Evaluation(ev.energy, ev.gradient, free_motion.gauge(ev.hessian, R), ev.force_scale, True)
+
+
+def free_motions_at(ev: Evaluation, x: np.ndarray) -> list[str]:
+    """The free rigid motions at an ungauged evaluation ``ev`` (order 2), in words."""
+    if ev.hessian_form is None:
+        return []
+    return free_motion.describe(free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale), x)
+
+
+def unbalanced_at(ev: Evaluation, x: np.ndarray) -> str | None:
+    """Why there is no equilibrium near ``x`` (ungauged evaluation ``ev``,
+    order 2): a net force along a flat rigid motion; or None."""
+    if ev.hessian_form is None:
+        return None
+    return free_motion.unbalanced(ev.hessian, x, ev.gradient, ev.force_scale)
+
+
 class Model:
     """The energy of one scene on one mesh: the sum of its :attr:`terms`.
     Built once; evaluations at any pose and contraction leave it unchanged.
@@ -307,12 +333,7 @@ class Model:
         """
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), order)
-        if order < 2 or not self.unpinned or ev.hessian_form is None:
-            return ev
-        R = free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale)
-        if R.shape[1] == 0:
-            return ev
-        return Evaluation(ev.energy, ev.gradient, free_motion.gauge(ev.hessian, R), ev.force_scale, True)
+        return gauged(ev, x) if self.unpinned and order == 2 else ev
 
     def free_motions(self, x, c) -> list[str]:
         """The rigid motions the contact leaves free at flat pose ``x`` (an
@@ -320,10 +341,7 @@ class Model:
         if not self.unpinned:
             return []
         x = np.asarray(x, dtype=np.float64).reshape(-1)
-        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2)
-        if ev.hessian_form is None:
-            return []
-        return free_motion.describe(free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale), x)
+        return free_motions_at(sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2), x)
 
     def unbalanced(self, x, c) -> str | None:
         """For an unpinned body: why there is no equilibrium near ``x`` (a
@@ -331,10 +349,7 @@ class Model:
         if not self.unpinned:
             return None
         x = np.asarray(x, dtype=np.float64).reshape(-1)
-        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2)
-        if ev.hessian_form is None:
-            return None
-        return free_motion.unbalanced(ev.hessian, x, ev.gradient, ev.force_scale)
+        return unbalanced_at(sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2), x)
 
     def length_gradient_local(self, seg_grad: np.ndarray) -> np.ndarray:
         """dl_t/dx on each tendon's local dof list, (n_tendons, local)."""

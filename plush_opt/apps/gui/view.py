@@ -17,6 +17,7 @@ import numpy as np
 from matplotlib.backend_bases import key_press_handler
 
 from ...base.files import atomic_path
+from ..plot import contact_segments
 from . import figure as F
 from .session import TIMES_KEPT, PosingSession, status_line
 
@@ -81,7 +82,8 @@ class PosingWindow:
     def _blitter(self) -> F.Blitter:
         a = self.artists
         pose = [a[k] for k in ("body", "tendons", "stoppers", "target_lines", "points",
-                               "targets", "preview_line", "grab", "preview", "pins")]
+                               "targets", "preview_line", "grab", "preview", "pins", "contact_forces")
+                if k in a]
         pose.sort(key=lambda artist: artist.get_zorder())
         regions = {"pose": pose, "status": [self.status_text], "message": [self.message_text]}
         periods = {"status": self.options.status_period}
@@ -153,6 +155,8 @@ class PosingWindow:
             a["tendons"].set_clim(0.0, self._tension_max)
             ends = np.array([xn[p[0]] for p in model.tendon_paths])
             a["stoppers"].set_data(ends[:, 0], ends[:, 1])
+        if "contact_forces" in a:
+            a["contact_forces"].set_segments(contact_segments(model, s.x))
         t = s.targets
         if t.n_targets:
             y = t.y(s.x)
