@@ -26,14 +26,22 @@ def section(term: ContactTerm) -> dict:
 def report(term: ContactTerm, x: np.ndarray) -> dict:
     """The result's top-level ``contact`` block at flat pose ``x``:
     ``min_gap``, ``total_force`` (the sum of every contact force on the
-    body) and ``nodes`` (:func:`node_forces`)."""
+    body), ``total_by`` (that sum per thing touched: "ground", an
+    obstacle's name, "self") and ``nodes`` (:func:`node_forces`)."""
     nodes = node_forces(term, x)
     total = np.zeros(2)
+    by: dict[str, np.ndarray] = {}
     for entry in nodes:
-        total += np.asarray(entry["normal_force"]) + np.asarray(entry["friction_force"])
+        force = np.asarray(entry["normal_force"]) + np.asarray(entry["friction_force"])
+        total += force
+        by[entry["with"]] = by.get(entry["with"], np.zeros(2)) + force
     gap = min_gap(term, x)
     return {"min_gap": gap if np.isfinite(gap) else None,
-            "total_force": [float(total[0]), float(total[1])], "nodes": nodes}
+            "total_force": [float(total[0]), float(total[1])],
+            # (an extra) the same sum per thing touched: the grip on an object
+            "total_by": {name: [float(f[0]), float(f[1])] for name, f in sorted(by.items())},
+            "nodes": nodes}
+
 
 def node_forces(term: ContactTerm, x: np.ndarray) -> list[dict]:
     """The contact forces at flat pose ``x``, per (node, thing touched):
