@@ -8,7 +8,7 @@ import numpy as np
 
 from . import contact_geometry as geo
 from .contact import ContactTerm
-
+from .contact_friction import SLIP_FRACTION, ContactFrictionTerm
 
 
 def section(term: ContactTerm) -> dict:
@@ -21,14 +21,18 @@ def section(term: ContactTerm) -> dict:
         "self": bool(term.self_contact), "distance": float(term.distance),
         "stiffness": float(term.stiffness), "stiffness_chosen": bool(term.stiffness_chosen),
         "friction": float(term.friction),
+        # (an extra) the smoothed static friction's slip threshold eps (length)
+        **({"slip_threshold": SLIP_FRACTION * float(term.distance)} if term.friction > 0 else {}),
     }
 
-def report(term: ContactTerm, x: np.ndarray) -> dict:
+
+def report(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm | None = None) -> dict:
     """The result's top-level ``contact`` block at flat pose ``x``:
     ``min_gap``, ``total_force`` (the sum of every contact force on the
     body), ``total_by`` (that sum per thing touched: "ground", an
-    obstacle's name, "self") and ``nodes`` (:func:`node_forces`)."""
-    nodes = node_forces(term, x)
+    obstacle's name, "self") and ``nodes`` (:func:`node_forces`; with
+    ``friction``, the lagged friction of the step that reached ``x``)."""
+    nodes = node_forces(term, x, friction)
     total = np.zeros(2)
     by: dict[str, np.ndarray] = {}
     for entry in nodes:
@@ -43,19 +47,21 @@ def report(term: ContactTerm, x: np.ndarray) -> dict:
             "nodes": nodes}
 
 
-def node_forces(term: ContactTerm, x: np.ndarray) -> list[dict]:
+def node_forces(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm | None = None) -> list[dict]:
     """The contact forces at flat pose ``x``, per (node, thing touched):
     ``node``, ``gap`` (the smallest gap of its pairs with that thing),
-    ``with`` ("ground", an obstacle's name or "self") and
-    ``normal_force`` [fx, fy], minus the barrier's gradient at the node
-    (the friction force is [0, 0] without friction)."""
+    ``with`` ("ground", an obstacle's name or "self"), ``normal_force``
+    [fx, fy] (minus the barrier's gradient at the node) and
+    ``friction_force`` [fx, fy] (minus the gradient of ``friction``, the
+    lagged friction potential; [0, 0] without it)."""
     out: dict[tuple[int, str], list] = {}
     names = ["self"] + [o.name for o in term.obstacles]
 
-    def add(node, label, force, gap):
-        entry = out.setdefault((int(node), label), [np.zeros(2), np.inf])
-        entry[0] += force
-        entry[1] = min(entry[1], gap)
+    def add(node, label, force, gap, kind=0):
+        entry = out.setdefault((int(node), label), [np.zeros(2), np.inf, np.zeros(2)])
+        entry[2 * kind] += force
+        if kind == 0:
+            entry[1] = min(entry[1], gap)
 
     if term.ground is not None:
         _, parts = term.ground_part(x, 1)
@@ -72,9 +78,13 @@ def node_forces(term: ContactTerm, x: np.ndarray) -> list[dict]:
             for q in range(3):
                 if dofs[2 * q] >= 0:
                     add(dofs[2 * q] // 2, names[label], -gr[2 * q:2 * q + 2], float(np.sqrt(sk)))
-    return [{"node": node, "gap": float(gap), "with": label, "normal_force": [float(f[0]), float(f[1])],
-             "friction_force": [0.0, 0.0]}
-            for (node, label), (f, gap) in sorted(out.items()) if np.any(f != 0)]
+    if friction is not None:
+        ground_or = ["ground"] + [o.name for o in term.obstacles]
+        for k, force in enumerate(friction.forces(x)):
+            add(term.boundary.nodes[friction.lag.node[k]], ground_or[friction.lag.label[k]], force, np.inf, 1)
+    return [{"node": node, "gap": float(gap) if np.isfinite(gap) else None, "with": label,
+             "normal_force": [float(f[0]), float(f[1])], "friction_force": [float(t[0]), float(t[1])]}
+            for (node, label), (f, gap, t) in sorted(out.items()) if np.any(f != 0) or np.any(t != 0)]
 
 def min_gap(term: ContactTerm, x: np.ndarray) -> float:
     """The smallest gap of any pair at flat pose ``x`` (inf: none within

@@ -231,14 +231,14 @@ class HessianLayout:
         self._end_on = np.where(hit, pos, -1)
 
     def assemble(self, elem_hess: np.ndarray, pin_stiffness: float, seg_hess=None, length_grad=None,
-                 dtension=None, via_hess=None, contact_hess=None):
+                 dtension=None, via_hess=None, contact_hess=None, friction_hess=None):
         """The Hessian from its terms: element Hessians (flat), the pin
         stiffness, and with tendons each segment's U' l'' (n_segments, 16),
         each tendon's l' on its local dofs (n_tendons, local) and U''; with
         via segments (:class:`ViaSegments`) each one's Hessian in its ends'
         via point coordinates (count, 4, 4); with contact, its pairs'
-        Hessian (a sparse matrix on node dofs whose pattern follows the
-        pairs in contact), added last.
+        Hessian and with contact friction its (sparse matrices on node dofs
+        whose pattern follows the pairs in contact), added last.
         A CSC matrix, or a LowRankHessian."""
         data = np.bincount(self._slot_elem, weights=elem_hess, minlength=self.nnz)
         data += np.bincount(self._slot_pin, weights=np.full(len(self._slot_pin), pin_stiffness),
@@ -261,9 +261,10 @@ class HessianLayout:
         if via_hess is not None:
             data += self._via_expand @ (2 * via_hess if self.via.split else via_hess).ravel()
         H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
-        if contact_hess is not None and contact_hess.nnz:
-            H = (H + contact_hess.tocsc()).tocsc()
-            H.sort_indices()
+        for extra in (contact_hess, friction_hess):
+            if extra is not None and extra.nnz:
+                H = (H + extra.tocsc()).tocsc()
+                H.sort_indices()
         Q, M = self._low_rank_term(K, length_grad, dtension) if self.low_rank else (None, None)
         if via_hess is not None and self.via.split:
             Qv, Mv = self._via_pairs, pair_blocks(via_hess[:, :2, :2])

@@ -335,13 +335,14 @@ class Model:
         ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), order)
         return gauged(ev, x) if self.unpinned and order == 2 else ev
 
-    def free_motions(self, x, c) -> list[str]:
+    def free_motions(self, x, c, extra: tuple[Term, ...] = ()) -> list[str]:
         """The rigid motions the contact leaves free at flat pose ``x`` (an
-        unpinned body), in words; [] for a held body."""
+        unpinned body), in words; [] for a held body. ``extra``: terms
+        summed with the model's (the friction of a step)."""
         if not self.unpinned:
             return []
         x = np.asarray(x, dtype=np.float64).reshape(-1)
-        return free_motions_at(sum_terms(self.terms, self.hessian_layout, x, self._c(c), 2), x)
+        return free_motions_at(sum_terms(self.terms + tuple(extra), self.hessian_layout, x, self._c(c), 2), x)
 
     def unbalanced(self, x, c) -> str | None:
         """For an unpinned body: why there is no equilibrium near ``x`` (a

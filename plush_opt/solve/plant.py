@@ -24,14 +24,16 @@ at via points. Control and the apps ask the plant (``path_dependent``,
 
 from __future__ import annotations
 
+from ..base.errors import SceneError
 from ..fem.friction import friction_tendons
 from ..fem.model import Model
+from .contact_plant import ContactFrictionPlant
 from .elastic_plant import ElasticPlant
 from .friction_plant import FrictionPlant
 from .friction_solve import path_record, segment_table
 from .plant_base import Plant
 
-__all__ = ["ElasticPlant", "FrictionPlant", "Plant", "make_plant", "path_record", "segment_table"]
+__all__ = ["ContactFrictionPlant", "ElasticPlant", "FrictionPlant", "Plant", "make_plant", "path_record", "segment_table"]
 
 
 def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
@@ -48,11 +50,19 @@ def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
 
     Returns
     -------
-    A :class:`~plush_opt.solve.friction_plant.FrictionPlant` when a tendon
-    has friction and an interior via point (or ``segmented``), else an
-    :class:`ElasticPlant`. Nothing is committed: the plant starts at the
+    A :class:`~plush_opt.solve.contact_plant.ContactFrictionPlant` when the
+    contact has friction; a :class:`~plush_opt.solve.friction_plant.FrictionPlant`
+    when a tendon has friction and an interior via point (or ``segmented``);
+    else an :class:`ElasticPlant`. Nothing is committed: the plant starts at the
     scene's start state.
     """
+    contact_friction = model.contact is not None and model.contact.friction > 0
+    if contact_friction and (segmented or friction_tendons(model.scene)):
+        raise SceneError(f"{model.scene.source}: contact.friction: friction at contacts and friction at via "
+                         "points (or a segmented sweep) in one scene are not supported together; set one of "
+                         "them to 0")
+    if contact_friction:
+        return ContactFrictionPlant(model)
     if segmented or friction_tendons(model.scene):
         return FrictionPlant(model, include_frictionless=segmented)
     return ElasticPlant(model)

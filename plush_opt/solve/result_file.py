@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import math
 
+from .contact_plant import ContactEquilibrium
 from .equilibrium import Equilibrium
 from .friction_solve import path_record, segment_table
 from ..base.errors import SceneError
 from ..fem import contact_report
+from ..fem.contact_friction import ContactFrictionTerm
 from ..fem.model import Model
 from ..fem.objective import Targets
 from ..io.checker import Checker, at_index, at_key, describe, parse_json
@@ -75,6 +77,21 @@ def _finite(v):
     return v if math.isfinite(v) else None
 
 
+def contact_block(model: Model, eq: Equilibrium) -> dict:
+    """The result's ``contact`` block at ``eq`` (with friction at contacts,
+    the friction of the step that reached it, and the path followed)."""
+    friction = None
+    if isinstance(eq, ContactEquilibrium) and eq.contact is not None:
+        friction = ContactFrictionTerm(model.contact, eq.contact.lag)
+    block = {**contact_report.report(model.contact, eq.x, friction),
+             "free_motions": model.free_motions(eq.x, eq.contraction, () if friction is None else (friction,))}
+    if isinstance(eq, ContactEquilibrium) and eq.path is not None:
+        block["path"] = {"from": eq.origin, "steps": int(len(eq.path)), "steps_done": int(eq.steps_done),
+                         "contractions": [{n: float(v) for n, v in zip(model.winch_names, row)}
+                                          for row in eq.path]}
+    return block
+
+
 def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
                 converged: bool, status: str, total_s: float, solve_s: float,
                 iterations: int, extra: dict | None = None) -> dict:
@@ -116,8 +133,7 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
     for entry, seg, t in zip(doc["model"]["tendons"]["list"], segments, model.scene.tendons):
         entry.update(seg, friction=float(t.friction))
     if model.contact is not None:
-        doc["contact"] = {**contact_report.report(model.contact, eq.x),
-                          "free_motions": model.free_motions(eq.x, eq.contraction)}
+        doc["contact"] = contact_block(model, eq)
     record = path_record(eq, model.winch_names)
     if record is not None:
         doc["friction_path"] = record
