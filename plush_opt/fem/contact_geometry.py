@@ -76,9 +76,10 @@ def barrier(s, dhat2):
     ln = np.empty_like(si)
     ln[near] = np.log1p(u[near] / hi[near])
     ln[~near] = np.log(si[~near] / hi[~near])
-    b[inside] = -u * u * ln
-    db[inside] = -2.0 * u * ln - u * u / si
-    d2b[inside] = -2.0 * ln - 4.0 * u / si + (u / si) ** 2
+    with np.errstate(over="ignore"):                   # s below about 1e-154 dhat2: b'' is inf
+        b[inside] = -u * u * ln
+        db[inside] = -2.0 * u * ln - u * u / si
+        d2b[inside] = -2.0 * ln - 4.0 * u / si + (u / si) ** 2
     bad = (s <= 0) | np.isnan(s)
     b[bad] = np.where(np.isnan(s[bad]), np.nan, np.inf)
     db[bad] = d2b[bad] = np.nan
@@ -178,6 +179,40 @@ def _approach_bound(dp, da, db):
     return speed(dp) + np.maximum(speed(da), speed(db))
 
 
+# Power basis -> Bernstein basis of degree 4 on [0, 1]: M[i, j] = C(i, j) / C(4, j).
+_TO_BERNSTEIN = np.array([[1.0, 0, 0, 0, 0],
+                          [1.0, 1 / 4, 0, 0, 0],
+                          [1.0, 2 / 4, 1 / 6, 0, 0],
+                          [1.0, 3 / 4, 3 / 6, 1 / 4, 0],
+                          [1.0, 1.0, 1.0, 1.0, 1.0]])
+# The line certificate asks its Bernstein coefficients to clear rounding by
+# this much, relative to the size of the terms they are made of.
+LINE_CERTIFICATE_MARGIN = 1e-9
+
+
+def _line_stays_clear(p, a, b, dp, da, db, t, floor):
+    """Whether p provably stays farther than ``floor`` from the segment's
+    whole line for every time in [t, 1], (k,) bool. The segment is part of
+    its line, so this certifies the pair; it settles sliding contacts at
+    once, which additive steps would cross in many small strides.
+
+    With time s = t + tau (1 - t): cross(e, q) = c0 + c1 tau + c2 tau^2 and
+    |e|^2 = l0 + l1 tau + l2 tau^2; the quartic cross^2 - floor^2 |e|^2 is
+    positive on [0, 1] when all its Bernstein coefficients are.
+    """
+    rest = (1.0 - t)[:, None]
+    q, e = (p - a) + t[:, None] * (dp - da), (b - a) + t[:, None] * (db - da)
+    dq, de = rest * (dp - da), rest * (db - da)
+    c0, c1, c2 = _cross(e, q), _cross(e, dq) + _cross(de, q), _cross(de, dq)
+    dot = lambda u, v: np.einsum("ij,ij->i", u, v)      # noqa: E731
+    f2 = floor * floor
+    l0, l1, l2 = dot(e, e), 2.0 * dot(e, de), dot(de, de)
+    power = np.column_stack([c0 * c0 - f2 * l0, 2 * c0 * c1 - f2 * l1, c1 * c1 + 2 * c0 * c2 - f2 * l2,
+                             2 * c1 * c2, c2 * c2])
+    size = (np.abs(c0) + np.abs(c1) + np.abs(c2)) ** 2 + f2 * (l0 + np.abs(l1) + l2)
+    return np.all(power @ _TO_BERNSTEIN.T > LINE_CERTIFICATE_MARGIN * size[:, None], axis=1)
+
+
 def ccd_point_segment(p, a, b, dp, da, db, *, min_fraction: float = 0.2,
                       tolerance: float = 1e-6, max_iterations: int = CCD_MAX_ITERATIONS):
     """Conservative time of impact of linear motions p + t dp, a + t da,
@@ -187,8 +222,9 @@ def ccd_point_segment(p, a, b, dp, da, db, *, min_fraction: float = 0.2,
     Returns t (k,): on [0, t] the distance never falls below ``min_fraction``
     times its value at t = 0, so p never reaches the segment. Exactly 1.0
     for a pair that never comes that close; 0.0 for a pair already touching
-    at t = 0. Each pair advances by steps its approach bound makes safe,
-    and stops once its distance is within CCD_NEAR_FLOOR of that floor, once
+    at t = 0. Each pair advances by steps its approach bound makes safe
+    (until p provably stays clear of the segment's line for the rest of
+    the motion, which ends it at 1), and stops once its distance is within CCD_NEAR_FLOOR of that floor, once
     a step advances t by less than ``tolerance``, or after
     ``max_iterations`` steps, always at its last safe time.
     """
@@ -199,6 +235,10 @@ def ccd_point_segment(p, a, b, dp, da, db, *, min_fraction: float = 0.2,
     t = np.where((dist > 0) & (speed == 0), 1.0, 0.0)   # a rigid translation never closes
     active = np.flatnonzero((dist > 0) & (speed > 0))
     for _ in range(max_iterations):
+        clear = _line_stays_clear(p[active], a[active], b[active], dp[active], da[active], db[active],
+                                  t[active], floor[active])
+        t[active[clear]] = 1.0
+        active = active[~clear]
         if active.size == 0:
             break
         # on [t, t + step] the distance stays >= dist - speed * step = floor
@@ -263,12 +303,15 @@ def polygon_is_simple(outline):
     or ``(False, i)`` with i the first offending edge (edge i runs from
     vertex i to i + 1): one of zero length, one folding back onto the next,
     or one meeting a non-adjacent edge; ``(False, None)`` for fewer than
-    3 points or no area."""
+    3 points or no area. A zero-length edge is named before any other fault."""
     P = np.asarray(outline, float)
     if P.ndim != 2 or P.shape[1] != 2 or len(P) < 3:
         return False, None
     a, b = _ring_edges(P)
-    bad = list(np.flatnonzero(np.all(a == b, axis=1)))
+    zero = np.flatnonzero(np.all(a == b, axis=1))
+    if zero.size:                                    # said first: its neighbours touch through it
+        return False, int(zero[0])
+    bad = []
     nxt = np.roll(b, -1, axis=0)
     folds = (orientation(a, b, nxt) == 0) & (np.einsum("ij,ij->i", b - a, nxt - b) < 0)
     bad += list(np.flatnonzero(folds))
