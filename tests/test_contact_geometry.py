@@ -317,8 +317,8 @@ def test_broad_phase_work_grows_linearly(monkeypatch, long_edge):
     tested = []
     box_pairs = cg.box_pairs
 
-    def counted(*args):
-        out = box_pairs(*args)
+    def counted(*args, **kwargs):
+        out = box_pairs(*args, **kwargs)
         tested.append(out[2])
         return out
 

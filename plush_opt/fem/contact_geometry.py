@@ -386,11 +386,12 @@ def _grid(lo_a, hi_a, lo_b, hi_b, origin, span):
         h *= 2.0
 
 
-def box_pairs(lo_a, hi_a, lo_b, hi_b):
+def box_pairs(lo_a, hi_a, lo_b, hi_b, unique: bool = True):
     """Every pair of overlapping closed boxes, box i of A and box j of B
     (each ``(n, 2)`` corners), through a uniform grid.
 
-    Returns ``(ia, ib, tested)``, pairs sorted by (ib, ia), and ``tested``
+    Returns ``(ia, ib, tested)``, pairs sorted by (ib, ia) (with
+    ``unique`` False: unsorted, a pair sharing several cells repeated), and ``tested``
     the number of box pairs the grid put side by side (the work done:
     near-linear in the boxes when they are about as large as their spacing).
     """
@@ -408,12 +409,18 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b):
     order = np.argsort(kb, kind="stable")
     kb, jb = kb[order], jb[order]
     ka, ja = _cells(alo, ahi, width)
+    order = np.argsort(ka, kind="stable")              # sorted needles search about 4x faster
+    ka, ja = ka[order], ja[order]
     start, stop = np.searchsorted(kb, ka, "left"), np.searchsorted(kb, ka, "right")
     count = stop - start
     tested = int(count.sum())
     pos = np.repeat(start - (np.cumsum(count) - count), count) + np.arange(tested)
     ia, ib = inside[ja[np.repeat(np.arange(len(ka)), count)]], jb[pos]
-    meet = np.all((lo_a[ia] <= hi_b[ib]) & (lo_b[ib] <= hi_a[ia]), axis=1)
+    la, ha, lb, hb = lo_a[ia], hi_a[ia], lo_b[ib], hi_b[ib]
+    meet = ((la[:, 0] <= hb[:, 0]) & (la[:, 1] <= hb[:, 1])         # columns by hand: np.all(axis=1)
+            & (lb[:, 0] <= ha[:, 0]) & (lb[:, 1] <= ha[:, 1]))      # is several times slower
+    if not unique:
+        return ia[meet], ib[meet], tested
     key = np.unique(ib[meet] * len(lo_a) + ia[meet])
     return key % len(lo_a), key // len(lo_a), tested
 
@@ -456,7 +463,7 @@ def _keep_not_excluded(point, seg, exclude):
 
 def _segment_pairs(lo, hi, seg, point_lo, point_hi):
     """(point, segment) pairs whose boxes meet, segment pieces merged."""
-    ia, ib, _ = box_pairs(point_lo, point_hi, lo, hi)
+    ia, ib, _ = box_pairs(point_lo, point_hi, lo, hi, unique=False)   # merged once below
     n = len(point_lo)
     key = np.unique(seg[ib] * n + ia)
     return key % n, key // n
@@ -522,7 +529,7 @@ def crossing_pairs(seg_a, seg_b, other_a=None, other_b=None, exclude_shared=True
     size = float(np.median(lengths)) if lengths.size else 0.0
     lo1, hi1, s1 = _piece_boxes(a[None], b[None], 0.0, size)
     lo2, hi2, s2 = _piece_boxes(oa[None], ob[None], 0.0, size)
-    ia, ib, _ = box_pairs(lo1, hi1, lo2, hi2)
+    ia, ib, _ = box_pairs(lo1, hi1, lo2, hi2, unique=False)
     key = np.unique(s1[ia] * len(oa) + s2[ib])
     i, j = key // len(oa), key % len(oa)
     if one_set:
