@@ -408,3 +408,26 @@ def test_points_in_polygon_even_odd():
     assert cg.points_in_polygon(pts, u_shape[::-1], chunk=3).tolist() == [True, False, True, True,
                                                                         False, False]
     assert cg.points_in_polygon(np.zeros((0, 2)), u_shape).shape == (0,)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 50), st.integers(0, 50), st.integers(0, 3), st.integers(0, 2 ** 31))
+def test_box_pairs_agree_with_all_pairs_even_with_huge_boxes(na, nb, huge, seed):
+    rng = np.random.default_rng(seed)
+
+    def boxes(n):
+        lo = rng.uniform(0, 100, size=(n, 2))
+        size = rng.exponential(1.0, size=(n, 2)) * (rng.random((n, 1)) < 0.8)   # some points
+        size[:min(huge, n)] *= 1e4                                             # a few huge boxes
+        return lo, lo + size
+
+    (la, ha), (lb, hb) = boxes(na), boxes(nb)
+    ia, ib, _ = cg.box_pairs(la, ha, lb, hb)
+    meet = np.all((la[:, None] <= hb[None]) & (lb[None] <= ha[:, None]), axis=2)
+    assert set(zip(ia.tolist(), ib.tolist())) == set(zip(*np.nonzero(meet)))
+
+
+def test_candidate_pairs_with_a_zero_length_segment():
+    points = np.array([[0.0, 0.05], [0.0, 0.5]])
+    point, seg = cg.candidate_pairs(points, [[0.0, 0.0]], [[0.0, 0.0]], 0.1)
+    assert point.tolist() == [0] and seg.tolist() == [0]

@@ -124,17 +124,18 @@ def _point_line(q, e, order):
         return s, None, None
     gc = np.column_stack([-e[:, 1], e[:, 0], q[:, 1], -q[:, 0]])
     gl = np.column_stack([np.zeros((len(e), 2)), 2.0 * e])
-    w1, w2 = (2.0 * c / length2)[:, None], (c * c / length2 ** 2)[:, None]
-    g = w1 * gc - w2 * gl
+    g = (2.0 * c / length2)[:, None] * gc - (c * c / length2 ** 2)[:, None] * gl
     if order == 1:
         return s, g, None
-    outer = np.einsum
-    gcl = outer("ki,kj->kij", gc, gl)
-    h = (outer("ki,kj->kij", gc, gc) * (2.0 / length2)[:, None, None]
-         + (2.0 * c / length2)[:, None, None] * _CROSS_HESS
-         - (2.0 * c / length2 ** 2)[:, None, None] * (gcl + gcl.transpose(0, 2, 1))
-         - w2[:, :, None] * _LEN_HESS
-         + (2.0 * c * c / length2 ** 3)[:, None, None] * outer("ki,kj->kij", gl, gl))
+    # d2(c^2 / L) = 2 dc dc^T / L + 2 c d2c / L - 2 c (dc dL^T + dL dc^T) / L^2
+    #               - c^2 d2L / L^2 + 2 c^2 dL dL^T / L^3
+    col = lambda v: v[:, None, None]                    # noqa: E731
+    gcl = np.einsum("ki,kj->kij", gc, gl)
+    h = (col(2.0 / length2) * np.einsum("ki,kj->kij", gc, gc)
+         + col(2.0 * c / length2) * _CROSS_HESS
+         - col(2.0 * c / length2 ** 2) * (gcl + gcl.transpose(0, 2, 1))
+         - col(c * c / length2 ** 2) * _LEN_HESS
+         + col(2.0 * c * c / length2 ** 3) * np.einsum("ki,kj->kij", gl, gl))
     return s, g, h
 
 
@@ -223,11 +224,13 @@ def ccd_point_segment(p, a, b, dp, da, db, *, min_fraction: float = 0.2,
     times its value at t = 0, so p never reaches the segment. Exactly 1.0
     for a pair that never comes that close; 0.0 for a pair already touching
     at t = 0. Each pair advances by steps its approach bound makes safe
-    (until p provably stays clear of the segment's line for the rest of
-    the motion, which ends it at 1), and stops once its distance is within CCD_NEAR_FLOOR of that floor, once
-    a step advances t by less than ``tolerance``, or after
-    ``max_iterations`` steps, always at its last safe time.
+    until p provably stays clear of the segment's line for the rest of the
+    motion (then its t is 1), its distance comes within CCD_NEAR_FLOOR of
+    the floor, a step advances t by less than ``tolerance``, or
+    ``max_iterations`` steps are done; it stops at its last safe time.
     """
+    if not 0.0 < min_fraction < 1.0:
+        raise ValueError(f"ccd_point_segment: min_fraction must be in (0, 1), not {min_fraction}")
     p, a, b, dp, da, db = _pairs(p, a, b, dp, da, db)
     speed = _approach_bound(dp, da, db)
     dist = np.sqrt(point_segment_sq(p, a, b, order=0)[0])
