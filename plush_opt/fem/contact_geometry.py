@@ -353,6 +353,10 @@ def points_in_polygon(points, outline, chunk: int = 1 << 20) -> np.ndarray:
 GRID_CELLS_PER_BOX = 16
 # Cell indices per axis stay below this so that a cell's key fits an int64.
 GRID_MAX_CELLS_PER_AXIS = 2 ** 30
+# Segments longer than this many times the median are cut into pieces for
+# the grid (a long obstacle edge's box would cover many cells it is far
+# from); at or below it a segment stays whole, as most are.
+PIECE_RATIO = 2.0
 # Boxes grow by this many ulps of their coordinates, so a segment cut into
 # pieces (rounded) stays inside its pieces' boxes.
 BOX_PAD_ULPS = 8.0
@@ -431,11 +435,12 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, unique: bool = True):
 def _pieces(starts, ends, size):
     """Cut segments (one row per segment; ``starts``/``ends`` stacked
     (c, m, 2) for several configurations of the same segments) into pieces
-    no longer than about ``size``: (piece starts, piece ends, segment index)."""
+    no longer than PIECE_RATIO times ``size``: (piece starts, piece ends,
+    segment index)."""
     length = np.linalg.norm(ends - starts, axis=2).max(axis=0)
     k = np.ones(len(length), dtype=np.int64)
     if size > 0:
-        k = np.maximum(1, np.ceil(length / size)).astype(np.int64)
+        k = np.maximum(1, np.ceil(length / (PIECE_RATIO * size))).astype(np.int64)
     seg = np.repeat(np.arange(len(length)), k)
     j = np.arange(seg.size) - np.repeat(np.cumsum(k) - k, k)
     f0, f1 = (j / k[seg])[:, None], ((j + 1) / k[seg])[:, None]
