@@ -431,3 +431,19 @@ def test_candidate_pairs_with_a_zero_length_segment():
     points = np.array([[0.0, 0.05], [0.0, 0.5]])
     point, seg = cg.candidate_pairs(points, [[0.0, 0.0]], [[0.0, 0.0]], 0.1)
     assert point.tolist() == [0] and seg.tolist() == [0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(3, 30), st.integers(0, 2 ** 31))
+def test_points_in_polygon_agrees_with_matplotlib_on_star_polygons(k, seed):
+    path = pytest.importorskip("matplotlib.path")
+    rng = np.random.default_rng(seed)
+    angle = np.sort(rng.uniform(0, 2 * np.pi, k))
+    outline = rng.uniform(0.3, 1.0, size=(k, 1)) * np.column_stack([np.cos(angle), np.sin(angle)])
+    pts = rng.uniform(-1.1, 1.1, size=(400, 2))
+    a, b = outline, np.roll(outline, -1, axis=0)
+    s = np.min([cg.point_segment_sq(pts, np.broadcast_to(a[i], pts.shape), np.broadcast_to(b[i], pts.shape),
+                                    order=0)[0] for i in range(k)], axis=0)
+    clear = s > 1e-12                                  # on the boundary either answer is right
+    expected = path.Path(outline).contains_points(pts)
+    assert np.array_equal(cg.points_in_polygon(pts, outline)[clear], expected[clear])
