@@ -447,3 +447,8 @@ def test_points_in_polygon_agrees_with_matplotlib_on_star_polygons(k, seed):
     clear = s > 1e-12                                  # on the boundary either answer is right
     expected = path.Path(outline).contains_points(pts)
     assert np.array_equal(cg.points_in_polygon(pts, outline)[clear], expected[clear])
+
+
+def test_broad_phase_refuses_non_finite_coordinates():
+    with pytest.raises(ValueError, match="non-finite"):
+        cg.candidate_pairs([[np.nan, 0.0]], [[0.0, 0.0]], [[1.0, 0.0]], 0.1)

@@ -344,7 +344,6 @@ def points_in_polygon(points, outline, chunk: int = 1 << 20) -> np.ndarray:
     return out
 
 
-
 # --- broad phase: a uniform grid ---------------------------------------------
 
 # The grid's cells start at the median box size; while the boxes together
@@ -380,8 +379,8 @@ def _cells(ilo, ihi, width):
 
 
 def _grid(lo_a, hi_a, lo_b, hi_b, origin, span):
-    """The cell size and both sets' cell ranges, cells doubled until the
-    boxes cover a near-linear number of cells."""
+    """Both sets' cell ranges (lo, hi) as int64, on cells doubled from
+    the median box size until the boxes cover a near-linear number of them."""
     h = _cell_size((hi_b - lo_b).max(axis=1), (hi_a - lo_a).max(axis=1), span)
     while True:
         if span.max() / h < GRID_MAX_CELLS_PER_AXIS:
@@ -397,15 +396,18 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, unique: bool = True):
     """Every pair of overlapping closed boxes, box i of A and box j of B
     (each ``(n, 2)`` corners), through a uniform grid.
 
-    Returns ``(ia, ib, tested)``, pairs sorted by (ib, ia) (with
-    ``unique`` False: unsorted, a pair sharing several cells repeated), and ``tested``
-    the number of box pairs the grid put side by side (the work done:
-    near-linear in the boxes when they are about as large as their spacing).
+    Returns ``(ia, ib, tested)``: the pairs sorted by (ib, ia) (with
+    ``unique`` False unsorted, a pair that shares several cells repeated),
+    and ``tested`` the number of box pairs the grid put side by side (the
+    work done: near-linear in the boxes when they are about as large as
+    their spacing). Corners must be finite (ValueError otherwise).
     """
     lo_a, hi_a, lo_b, hi_b = _pairs(lo_a, hi_a, lo_b, hi_b)
     none = np.zeros(0, dtype=np.int64)
     if len(lo_a) == 0 or len(lo_b) == 0:
         return none, none, 0
+    if not all(np.isfinite(v).all() for v in (lo_a, hi_a, lo_b, hi_b)):
+        raise ValueError("box_pairs: a box with a non-finite corner")   # no grid holds it
     origin, top = lo_b.min(axis=0), hi_b.max(axis=0)
     # A's boxes outside B's union meet nothing; the rest are clipped to it
     inside = np.flatnonzero(np.all((lo_a <= top) & (hi_a >= origin), axis=1))
