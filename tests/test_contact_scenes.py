@@ -1,0 +1,184 @@
+"""Contact's known answers: a propped cantilever against beam theory, a
+strip curled onto itself, a block on a slope with friction, the gripper
+holding a ball; the obstacle and self pairs' derivatives; no step through
+an obstacle."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from plush_opt.apps.cantilever import SHEAR_CORRECTION
+from plush_opt.fem import contact_geometry as geo
+from plush_opt.fem import contact_report
+from plush_opt.fem.contact_boundary import build_boundary
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import Model
+from plush_opt.io.problem_file import load_scene, scene_from_dict
+from plush_opt.solve.equilibrium import solve_equilibrium
+from plush_opt.solve.plant import make_plant
+
+from shipped import ROOT
+from test_contact import BLOCK, _fd_check
+
+PROBLEMS = ROOT / "problems"
+
+
+def _model(doc, name="scene.yaml"):
+    scene = scene_from_dict(doc, name)
+    return Model(scene, build_mesh(scene))
+
+
+def test_a_propped_cantilever_carries_what_beam_theory_says():
+    """Timoshenko, plane strain: the prop at a holds the beam at its gap
+    below the free sag there; R = (sag(a) - held) / compliance(a)."""
+    doc = yaml.safe_load((PROBLEMS / "cantilever.yaml").read_text())
+    doc["mesh"].update(element="P2", max_area=16.0)
+    mat = scene_from_dict(doc, "cantilever.yaml").material
+    nu = mat.lam / (2 * (mat.lam + mat.mu))
+    e_plane = 2 * mat.mu * (1 + nu) / (1 - nu ** 2)
+    length, height = 200.0, 10.0
+    inertia, area = mat.thickness * height ** 3 / 12, height * mat.thickness
+    shear = SHEAR_CORRECTION * mat.mu * area
+    q = mat.density * 9.81 * area
+    # 10 mm in from the free end: the end face's rotation does not move the contact
+    a = 190.0
+    sag = (q * a ** 2 * (6 * length ** 2 - 4 * length * a + a ** 2) / (24 * e_plane * inertia)
+           + q * (length * a - a * a / 2) / shear)
+    below = 0.5 * sag
+    doc["contact"] = {"obstacles": [{"name": "block", "outline": [[a - 5, -15], [a + 5, -15], [a, -5 - below]]}],
+                      "distance": 0.02 * sag}
+    model = _model(doc, "cantilever.yaml")
+    eq = solve_equilibrium(model, np.zeros(1))
+    assert eq.converged, eq.status
+    rep = contact_report.report(model.contact, eq.x)
+    held = below - rep["min_gap"]               # the beam's bottom rests a gap above the block
+    reaction = (sag - held) / (a ** 3 / (3 * e_plane * inertia) + a / shear)
+    assert rep["total_force"][1] == pytest.approx(reaction, rel=0.02)
+    assert abs(rep["total_force"][0]) < 1e-2 * rep["total_force"][1]
+    assert set(rep["total_by"]) == {"block"}
+
+
+STRIP = {
+    "format": "plush-opt/1", "name": "strip",
+    "mesh": {"outline": [[0, 0], [100, 0], [100, 4], [0, 4]], "max_area": 1.0},
+    "material": {"model": "neo_hookean", "youngs_modulus": 0.05, "poisson_ratio": 0.3, "thickness": 10.0},
+    "pins": {"stiffness": 100.0, "box": [0, 0, 0, 4]},
+    "winches": [{"name": "curl", "bounds": [0.0, 40.0]}],
+    "tendons": {"stiffness": 5.0, "smoothing": 0.05,
+                "list": [{"name": "t", "winch": "curl",
+                          "path": [[1, 3.6], [25, 3.6], [50, 3.6], [75, 3.6], [99, 3.6]]}]},
+}
+
+
+def _crossings(model, x) -> int:
+    b = build_boundary(model.mesh)
+    P = x.reshape(-1, 2)
+    i, _ = geo.crossing_pairs(P[b.segments[:, 0]], P[b.segments[:, 1]], shared=b.segments)
+    return len(i)
+
+
+@pytest.mark.parametrize("self_contact", [False, True])
+def test_a_strip_curled_onto_itself_crosses_itself_only_without_self_contact(self_contact):
+    doc = json.loads(json.dumps(STRIP))
+    if self_contact:
+        doc["contact"] = {"self": True, "distance": 0.5}
+    model = _model(doc, "strip.yaml")
+    x, crossed = None, []
+    for c in np.arange(4.0, 32.1, 4.0):           # a full turn at about 22
+        eq = solve_equilibrium(model, np.array([c]), x)
+        assert eq.converged, (c, eq.status)
+        x = eq.x
+        crossed.append(_crossings(model, x))
+    if self_contact:
+        assert crossed == [0] * len(crossed)
+        assert contact_report.min_gap(model.contact, x) > 0
+    else:
+        assert max(crossed) > 0
+
+
+def test_obstacle_and_self_pairs_match_finite_differences():
+    doc = json.loads(json.dumps(STRIP))
+    # a peg 1.5 below the strip (within d_hat): the strip curls up, away from it
+    doc["contact"] = {"self": True, "distance": 2.0,
+                      "obstacles": [{"name": "peg", "outline": [[40, -5], [44, -5], [42, -1.5]]}]}
+    model = _model(doc, "strip.yaml")
+    assert model.contact.pairs(model.X).label.max() == 1
+    _fd_check(model.contact, model.X + 0.05 * np.random.default_rng(4).standard_normal(model.n_dofs),
+              np.zeros(1))
+    x = None
+    for c in (8.0, 16.0, 24.0):                       # curled: its tip near its root
+        eq = solve_equilibrium(model, np.array([c]), x)
+        assert eq.converged, eq.status
+        x = eq.x
+    assert (model.contact.pairs(x).label == 0).any()
+    _fd_check(model.contact, x, np.zeros(1))
+
+
+def test_a_newton_step_never_passes_through_a_thin_obstacle():
+    doc = json.loads(json.dumps(BLOCK))
+    doc["contact"] = {"distance": 0.5, "obstacles": [{"name": "blade", "outline": [[-5, -1], [15, -1], [15, -0.9]]}]}
+    model = _model(doc, "block.yaml")
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        dx = rng.standard_normal(model.n_dofs)
+        dx[1::2] -= 8.0                          # down through the blade
+        t = model.max_step(model.X, dx)
+        assert 0 <= t <= 1
+        x = model.X + t * dx
+        if model.elastic.admissible(x):
+            assert model.contact.admissible(x)
+        assert t < 1        # the blade is in the way: the full step would pass (even through) it
+
+
+def _block_on(slope: float, friction: float):
+    doc = json.loads(json.dumps(BLOCK))
+    a = np.radians(slope)
+    # the floor tilted up to the right, 0.6 below the block's lower right corner
+    doc["contact"] = {"ground": {"height": 0.5 - 10 * np.tan(a) - 0.6 / np.cos(a), "slope": slope},
+                      "distance": 1.0, "friction": friction}
+    scene = scene_from_dict(doc, "block.yaml")
+    model = Model(scene, build_mesh(scene))
+    return model, make_plant(model)
+
+
+def test_a_block_on_a_slope_sticks_below_the_friction_angle():
+    model, plant = _block_on(10.0, 0.3)         # friction angle 16.7 degrees
+    eq = plant.equilibrium(np.zeros(1), steps=1)
+    assert eq.converged, eq.status
+    friction = contact_report.ContactFrictionTerm(model.contact, eq.contact.lag)
+    rep = contact_report.report(model.contact, eq.x, friction)
+    weight = model.f_gravity.reshape(-1, 2).sum(axis=0)
+    assert np.allclose(rep["total_force"], -weight, rtol=1e-6, atol=1e-9 * abs(weight[1]))
+    tangent = model.contact.ground.tangent
+    along = sum(np.dot(n["friction_force"], tangent) for n in rep["nodes"])
+    assert along == pytest.approx(-weight @ tangent, rel=1e-6)          # friction holds it
+    assert model.free_motions(eq.x, eq.contraction, (friction,)) == []
+
+
+def test_a_block_on_a_slope_steeper_than_the_friction_angle_slides():
+    model, plant = _block_on(25.0, 0.3)
+    eq = plant.equilibrium(np.zeros(1), steps=1)
+    assert not eq.converged
+    assert "slides" in eq.status
+
+
+def test_the_gripper_holds_the_ball_and_the_forces_balance_node_by_node():
+    scene = load_scene(PROBLEMS / "gripper_object.yaml")
+    model = Model(scene, build_mesh(scene))
+    eq = solve_equilibrium(model, np.array([0.0, 0.0, 15.0]))
+    assert eq.converged, eq.status
+    rep = contact_report.report(model.contact, eq.x)
+    assert set(rep["total_by"]) == {"ball"} and rep["total_force"][1] > 0    # the ball pushes the arm up
+    others = np.zeros(model.n_dofs)
+    for term in model.terms:
+        if term is not model.contact:
+            others += term.evaluate(eq.x, eq.contraction, 1).gradient
+    forces = np.zeros((model.n_nodes, 2))
+    for entry in rep["nodes"]:
+        forces[entry["node"]] += entry["normal_force"]
+    touched = np.abs(forces).sum(axis=1) > 0
+    assert np.abs(others.reshape(-1, 2)[touched] - forces[touched]).max() <= 1e-6 * np.abs(forces).max()
