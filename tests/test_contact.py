@@ -183,3 +183,23 @@ def test_the_shipped_contact_problem_reads_as_the_spec_says():
     assert scene.contact.distance == raw["contact"]["distance"]
     assert scene.contact.ground.height == raw["contact"]["ground"]["height"]
     assert len(scene.pin_points) == 0
+
+
+def test_a_rest_pose_inside_an_obstacle_is_refused_naming_it():
+    with pytest.raises(SceneError) as err:
+        _model(_block(contact={"distance": 0.5, "obstacles": [
+            {"name": "peg", "outline": [[4, 2], [6, 2], [5, 4]]}]}))       # inside the block
+    assert str(err.value).startswith("block.yaml: contact.obstacles[0]: obstacle 'peg' overlaps")
+    with pytest.raises(SceneError, match=r"contact.obstacles\[0\]: obstacle 'wall' overlaps"):
+        _model(_block(contact={"distance": 0.5, "obstacles": [
+            {"name": "wall", "outline": [[-5, 2], [5, 2], [5, 3], [-5, 3]]}]}))   # across its edge
+
+
+def test_the_command_line_says_one_line_for_a_bad_contact_file(tmp_path):
+    from cli_helpers import cli, one_error_line
+    doc = json.loads(json.dumps(BLOCK))
+    doc["contact"] = {"ground": {"height": 2.0}, "distance": 1.0}
+    path = tmp_path / "sunk.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    line = one_error_line(cli("solve", str(path)))
+    assert "sunk.yaml: contact.ground: the body starts on or below the ground" in line

@@ -714,3 +714,25 @@ def test_targets_of_the_problem_file_start_held(make_window):
     key(w, " ")
     assert s.running and w.tick() is not None
     assert isinstance(s.targets, Targets) and s.targets.n_targets == 3
+
+
+# -- contact -------------------------------------------------------------------
+
+def test_a_contact_scene_poses_live_floor_and_forces_drawn_dragging_while_touching(make_window):
+    w, s = make_window("hexapod_stand")
+    forces = w.artists["contact_forces"]
+    assert len(forces.get_segments()) > 0                 # lying on the floor: it pushes
+    corner = np.array([40.0, 30.5])
+    w.sliders["a"].set_val(10.0)
+    w.sliders["b"].set_val(10.0)
+    risen = where_now(s, corner)
+    assert risen[1] > 35.0 and s.equilibrium.converged
+    drag(w, risen, risen + np.array([0.0, 5.0]))         # ask the body up: the legs push the floor
+    for _ in range(30):
+        w.tick()
+        if not s.running:
+            break
+    assert where_now(s, corner)[1] > risen[1]
+    assert s.model.contact.admissible(s.x)
+    segs = forces.get_segments()
+    assert len(segs) > 0 and all(np.all(np.isfinite(seg)) for seg in segs)
