@@ -384,6 +384,9 @@ def add_bench_parser(sub) -> None:
                    help="skip the inverse solves on meshes above N nodes (they take minutes at 30,000)")
     p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
     p.add_argument("--out", type=Path, required=True, help="output folder for bench.md and bench.json")
+    p.add_argument("--contact", action="store_true",
+                   help="measure what contact costs instead (contact.md, contact.json): a slab on the floor "
+                        "against it pinned, at --sizes (node counts), and hexapod_stand's control iterate")
     p.set_defaults(func=cmd_bench)
 
 
@@ -419,6 +422,14 @@ def cmd_bench(args) -> int:
         raise SceneError(f"--repeats: expected >= 1, got {args.repeats}")
     if args.inverse_max_nodes is not None and args.inverse_max_nodes < 0:
         raise SceneError(f"--inverse-max-nodes: expected >= 0, got {args.inverse_max_nodes}")
+    command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
+    if args.contact:
+        from .bench_contact import run_contact_bench
+        if any(not isinstance(n, int) or n == 0 for n in sizes):
+            raise SceneError(f"--sizes: --contact takes node counts only, got {args.sizes!r}")
+        progress = (lambda msg: None) if getattr(args, "quiet", False) else print
+        run_contact_bench(sizes, args.out, args.repeats, command, progress)
+        return 0
     if args.problems:
         problems = args.problems
     else:

@@ -74,7 +74,9 @@ def free_motions(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> np.ndar
 
 def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
     """H plus a stiffness on one dof per free motion in ``R`` (n_dofs, k):
-    the dofs (greedy pivots of R) make R's rows there invertible."""
+    the dofs (greedy pivots of R) make R's rows there invertible. ``H``
+    (the fresh Hessian of one evaluation) is changed in place where its
+    pattern holds those diagonal entries."""
     if R.shape[1] == 0:
         return H
     dofs = []
@@ -85,12 +87,30 @@ def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
         if j + 1 < R.shape[1]:
             # eliminate dof i from the remaining motions (Gaussian pivoting)
             rest[:, j + 1:] -= np.outer(rest[:, j] / rest[i, j], rest[i, j + 1:])
-    stiffness = float(np.mean(np.abs(H.diagonal())))
-    D = sp.csc_matrix((np.full(len(dofs), stiffness), (dofs, dofs)), shape=H.shape)
-    G = (H + D).tocsc()
-    G.sort_indices()
+    diagonal = H.diagonal()
+    stiffness = float(np.mean(np.abs(diagonal)))
+    slots = _diagonal_slots(H, dofs)
+    if np.all(slots >= 0):
+        # in place (H is a fresh matrix of one evaluation): no copy, the same pattern
+        G = H
+        G.data[slots] += stiffness
+    else:
+        G = (H + sp.csc_matrix((np.full(len(dofs), stiffness), (dofs, dofs)), shape=H.shape)).tocsc()
+        G.sort_indices()
     G.free_motions = R           # what GaugedFactorizer projects its solves on
     return G
+
+
+def _diagonal_slots(H: sp.csc_matrix, dofs) -> np.ndarray:
+    """Where the diagonal entries (j, j) of ``dofs`` sit in ``H.data``
+    (sorted CSC indices), -1 where the pattern lacks one."""
+    out = np.full(len(dofs), -1, dtype=np.int64)
+    for k, j in enumerate(dofs):
+        lo, hi = H.indptr[j], H.indptr[j + 1]
+        i = lo + int(np.searchsorted(H.indices[lo:hi], j))
+        if i < hi and H.indices[i] == j:
+            out[k] = i
+    return out
 
 
 class GaugedFactorizer(Factorizer):

@@ -1,0 +1,134 @@
+"""``plush-opt bench --contact``: what contact costs (docs/benchmarks.md, "Contact").
+
+Three measurements, medians of ``repeats`` runs, written to
+``contact.json`` and ``contact.md``:
+
+* a slab lying on the floor (no pins) against the same slab pinned along
+  its underside without contact, forward solve from rest, at each size:
+  the ratio is what resting on a floor costs;
+* at each size, the contact term alone: boundary nodes, one evaluation
+  with its Hessian, and one step bound (CCD), so that how the cost grows
+  with the boundary can be read off;
+* ``problems/hexapod_stand.yaml``'s control run: time per iterate.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..base.data_files import data_file
+from ..base.files import write_text_atomic
+from ..fem.mesh import area_for_nodes
+from ..fem.model import Model
+from ..io.problem_file import scene_from_dict
+from ..problem import load
+from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
+
+NO_EIG = EquilibriumOptions(eigenvalue=False)
+#: the slab: 200 x 20 mm felt, 30 mm thick, under its weight (its one tendon,
+#: which the format asks for, is a thread: it carries nothing)
+SLAB = {
+    "format": "plush-opt/1", "name": "slab",
+    "mesh": {"outline": [[0, 0.5], [200, 0.5], [200, 20.5], [0, 20.5]], "min_angle": 28.0},
+    "material": {"model": "neo_hookean", "youngs_modulus": 0.02, "poisson_ratio": 0.3,
+                 "thickness": 30.0, "density": 1e-10},
+    "gravity": [0.0, -9810.0],
+    "winches": [{"name": "w", "bounds": [0.0, 10.0]}],
+    "tendons": {"stiffness": 1e-6, "smoothing": 0.01,
+                "list": [{"name": "t", "winch": "w", "path": [[10, 18], [100, 18], [190, 18]]}]},
+}
+
+
+def slab(on_floor: bool):
+    """The slab scene: lying on a frictionless floor (no pins), or pinned
+    along its underside without contact."""
+    doc = json.loads(json.dumps(SLAB))
+    if on_floor:
+        doc["contact"] = {"ground": {"height": 0.0}, "distance": 0.5}
+    else:
+        doc["pins"] = {"stiffness": 10.0, "box": [0, 0.5, 200, 0.5]}
+    return scene_from_dict(doc, "slab.yaml")
+
+
+def _median(fn, repeats: int):
+    times, out = [], None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def floor_row(nodes: int, repeats: int) -> dict:
+    """The slab at about ``nodes`` nodes: forward solve on the floor and
+    pinned, and the contact term's own costs."""
+    row = {"target_nodes": nodes}
+    for key, on_floor in (("floor", True), ("pinned", False)):
+        scene = slab(on_floor)
+        _, mesh = area_for_nodes(scene, nodes)
+        model = Model(scene, mesh)
+        c = scene.contraction
+        solve_equilibrium(model, c, options=NO_EIG)                # warm the kernels
+        seconds, eq = _median(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
+        row[key] = {"nodes": mesh.n_nodes, "solve_s": seconds, "newton_iterations": eq.iterations,
+                    "converged": bool(eq.converged)}
+        if on_floor:
+            term = model.contact
+            x = eq.x
+            row["boundary_nodes"] = int(len(term.boundary.nodes))
+            row["contact_eval_s"], _ = _median(lambda: term.evaluate(x, c, 2), repeats)
+            dx = np.random.default_rng(0).standard_normal(x.size) * 0.1
+            row["contact_step_bound_s"], _ = _median(lambda: model.max_step(x, dx), repeats)
+            row["full_eval_s"], _ = _median(lambda: model.evaluate(x, c, 2), repeats)
+    row["ratio"] = row["floor"]["solve_s"] / row["pinned"]["solve_s"]
+    return row
+
+
+def hexapod_row(repeats: int) -> dict:
+    """``hexapod_stand``'s control run from rest: time per iterate."""
+    problem = load(data_file("problems") / "hexapod_stand.yaml")
+    problem.control()                                              # warm the kernels
+    seconds, result = _median(problem.control, repeats)
+    iterations = max(result.stats.iterations, 1)
+    return {"nodes": problem.model.n_nodes, "control_s": seconds, "iterations": result.stats.iterations,
+            "per_iterate_s": seconds / iterations, "certified": bool(result.equilibrium.converged)}
+
+
+def render(report: dict) -> str:
+    lines = ["# What contact costs", "", f"Reproduce with `{report['command']}`.", "",
+             "A 200 x 20 mm slab under its weight lying on a frictionless floor (no pins), against "
+             "the same slab pinned along its underside without contact; forward solve from rest, medians of "
+             f"{report['repeats']} runs; the contact term's own evaluation (with its Hessian) and "
+             "step bound (CCD) at the floor's equilibrium.", "",
+             "| nodes | boundary nodes | floor solve | pinned solve | ratio | Newton its floor / pinned "
+             "| contact eval | whole eval | step bound |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in report["floor"]:
+        f, p = r["floor"], r["pinned"]
+        lines.append(f"| {f['nodes']:,} | {r['boundary_nodes']:,} | {1e3 * f['solve_s']:.1f} ms | "
+                     f"{1e3 * p['solve_s']:.1f} ms | {r['ratio']:.2f} | {f['newton_iterations']} / "
+                     f"{p['newton_iterations']} | {1e3 * r['contact_eval_s']:.2f} ms | "
+                     f"{1e3 * r['full_eval_s']:.2f} ms | {1e3 * r['contact_step_bound_s']:.2f} ms |")
+    h = report["hexapod_stand"]
+    lines += ["", f"`hexapod_stand` ({h['nodes']:,} nodes): control from rest {1e3 * h['control_s']:.0f} ms "
+              f"over {h['iterations']} iterates, {1e3 * h['per_iterate_s']:.1f} ms per iterate "
+              f"(certified: {h['certified']}).", ""]
+    return "\n".join(lines)
+
+
+def run_contact_bench(sizes, out: Path, repeats: int, command: str, progress=print) -> Path:
+    """Measure, write ``out/contact.json`` and ``out/contact.md``; returns the markdown's path."""
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n in sizes:
+        progress(f"contact: slab at about {n} nodes")
+        rows.append(floor_row(int(n), repeats))
+    progress("contact: hexapod_stand control")
+    report = {"command": command, "repeats": repeats, "floor": rows, "hexapod_stand": hexapod_row(repeats)}
+    write_text_atomic(out / "contact.json", json.dumps(report, indent=2) + "\n")
+    write_text_atomic(out / "contact.md", render(report))
+    return out / "contact.md"
