@@ -112,7 +112,6 @@ class ContactTerm(Term):
         self._obstacle_weight = [0.5 * (np.linalg.norm(b - a, axis=1)
                                         + np.roll(np.linalg.norm(b - a, axis=1), 1))
                                  for a, b in self._obstacle_edges]
-        self._force_unit = self.stiffness * self.dhat2 * self.distance * float(np.mean(self.boundary.weight))
         self._check_rest(X)
 
     # -- geometry at a pose ---------------------------------------------------
@@ -219,7 +218,8 @@ class ContactTerm(Term):
             cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
             vals = np.concatenate(vals) if vals else np.zeros(0)
             hessian = {"contact_hess": sp.coo_matrix((vals, (rows, cols)), shape=(self.n_dofs, self.n_dofs))}
-        return TermEvaluation(float(energy), g, hessian, max(float(np.linalg.norm(g)), self._force_unit))
+        # the contact forces in balance (0 where nothing touches: the other terms set the scale)
+        return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
 
     def ground_part(self, x, order):
         """The floor's energy and, per active node, its dofs (k, 2), gradient
