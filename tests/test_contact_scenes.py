@@ -182,3 +182,28 @@ def test_the_gripper_holds_the_ball_and_the_forces_balance_node_by_node():
         forces[entry["node"]] += entry["normal_force"]
     touched = np.abs(forces).sum(axis=1) > 0
     assert np.abs(others.reshape(-1, 2)[touched] - forces[touched]).max() <= 1e-6 * np.abs(forces).max()
+
+
+@pytest.mark.parametrize("grip", [14.0, 14.05, 15.0])     # clear of the ball, just touching, pressing
+def test_sensitivity_across_a_contact_that_is_just_touching_matches_resolving(grip):
+    from plush_opt.solve.sensitivity import state_sensitivity
+    scene = load_scene(PROBLEMS / "gripper_object.yaml")
+    model = Model(scene, build_mesh(scene))
+    c = np.array([0.0, 0.0, grip])
+    eq = solve_equilibrium(model, c, solve_equilibrium(model, c - [0, 0, 2.0]).x)
+    assert eq.converged, eq.status
+    dxdc = state_sensitivity(model, eq)[:, 2]
+    h = 1e-3
+    xp = solve_equilibrium(model, c + [0, 0, h], eq.x).x
+    xm = solve_equilibrium(model, c - [0, 0, h], eq.x).x
+    fd = (xp - xm) / (2 * h)
+    assert np.linalg.norm(fd - dxdc) <= 1e-4 * np.linalg.norm(fd)
+
+
+def test_both_control_methods_stand_the_hexapod_up_to_the_same_pose():
+    from plush_opt.problem import load
+    problem = load(PROBLEMS / "hexapod_stand.yaml")
+    loop, bilevel = problem.control("reparam"), problem.control("bilevel")
+    assert loop.equilibrium.converged and bilevel.equilibrium.converged
+    assert bilevel.objective == pytest.approx(loop.objective, rel=1e-4)
+    assert np.allclose(bilevel.contraction, loop.contraction, atol=1e-3)
