@@ -11,6 +11,8 @@ import json
 
 import numpy as np
 
+from spec_contact import check_contact, contact_gradient
+
 REQUIRED = ("format", "problem", "method", "converged", "status", "contractions", "nodes",
             "objective", "residual_norm", "min_hessian_eigenvalue", "timing", "model")
 
@@ -203,12 +205,21 @@ def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
 
     E, g = energy_and_gradient(doc, x)
     assert np.isfinite(E), "pose not admissible (some J <= 0)"
+    contact = m.get("contact")
+    if contact is not None:
+        check_contact(doc, x, g)
+        friction = np.zeros_like(x)
+        for entry in doc["contact"]["nodes"]:
+            friction[entry["node"]] += entry["friction_force"]
+        g = g + contact_gradient(doc, x)[0] - friction
     rnorm = float(np.linalg.norm(g))
     assert abs(rnorm - doc["residual_norm"]) <= 1e-6 * max(1.0, np.abs(g).max() * 10) + 1e-9, \
         f"residual_norm {doc['residual_norm']} but the spec's gradient has norm {rnorm}"
     O = 0.0 if doc["method"] == "forward" else objective(doc, x)   # spec: 0 for forward
     assert abs(O - doc["objective"]) <= 1e-9 * max(1.0, abs(O)), f"objective {doc['objective']} != {O}"
 
+    if doc["converged"] and contact is not None and contact["friction"] > 0:
+        return doc      # the friction's lag is the solver's history: balance and cones checked above
     if doc["converged"]:
         # residual small against the forces in balance
         scale = max(np.linalg.norm(_internal_force_scale(doc, x)), 1e-300)
@@ -224,15 +235,54 @@ def check_result(doc_or_path, rel_residual=1e-6, hessian_step=1e-5):
             xp[i] += h
             xm = flat.copy()
             xm[i] -= h
-            H[:, i] = (energy_and_gradient(doc, xp.reshape(-1, 2))[1].reshape(-1)
-                       - energy_and_gradient(doc, xm.reshape(-1, 2))[1].reshape(-1)) / (2 * h)
+            H[:, i] = (_full_gradient(doc, xp.reshape(-1, 2)).reshape(-1)
+                       - _full_gradient(doc, xm.reshape(-1, 2)).reshape(-1)) / (2 * h)
         H = (H + H.T) / 2
+        free = doc.get("contact", {}).get("free_motions", [])
+        if free:
+            # positive definite on the motions the contact does not leave free
+            Q = _complement(_rigid(x, free))
+            lam_min = float(np.linalg.eigvalsh(Q.T @ H @ Q)[0])
+            assert lam_min > 0, f"Hessian not positive definite off the free motions ({lam_min})"
+            return doc
         lam_min = float(np.linalg.eigvalsh(H)[0])
         assert lam_min > 0, f"Hessian not positive definite (smallest eigenvalue {lam_min})"
         reported = doc["min_hessian_eigenvalue"]
         assert reported is not None and abs(reported - lam_min) <= 1e-3 * abs(lam_min) + 1e-6 * np.abs(H).max(), \
             f"min_hessian_eigenvalue {reported} but finite differences give {lam_min}"
     return doc
+
+
+def _full_gradient(doc, x):
+    """grad_x E with contact (without friction, which carries history)."""
+    g = energy_and_gradient(doc, x)[1]
+    if doc["model"].get("contact") is not None:
+        g = g + contact_gradient(doc, x)[0]
+    return g
+
+
+def _rigid(x, names):
+    """(n_dofs, k) the named rigid motions of pose x (flat, interleaved)."""
+    cols = []
+    for name in names:
+        v = np.zeros_like(x)
+        if name == "translation in x":
+            v[:, 0] = 1
+        elif name == "translation in y":
+            v[:, 1] = 1
+        elif name.startswith("translation along ("):
+            v[:] = [float(t) for t in name[len("translation along ("):-1].split(",")]
+        else:                       # a rotation about the centroid
+            d = x - x.mean(axis=0)
+            v[:, 0], v[:, 1] = -d[:, 1], d[:, 0]
+        cols.append(v.reshape(-1))
+    return np.stack(cols, axis=1)
+
+
+def _complement(V):
+    """An orthonormal basis of the complement of V's columns."""
+    q, _ = np.linalg.qr(np.hstack([V, np.eye(V.shape[0])]))
+    return q[:, V.shape[1]:]
 
 
 def _check_segments(doc, t, x, n_segments):
@@ -253,8 +303,12 @@ def _check_segments(doc, t, x, n_segments):
 
 
 def _internal_force_scale(doc, x):
-    """Pin forces: at equilibrium they balance everything else."""
+    """Pin forces and contact forces: at equilibrium they balance everything else."""
     m = doc["model"]
     X = np.asarray(m["rest_nodes"], float)
     pn = np.asarray(m["pins"]["nodes"], int)
-    return m["pins"]["stiffness"] * (x[pn] - X[pn])
+    forces = m["pins"]["stiffness"] * (x[pn] - X[pn])
+    if m.get("contact") is not None:
+        forces = np.concatenate([forces.reshape(-1, 2)] + [np.reshape(e["normal_force"], (1, 2))
+                                                          for e in doc["contact"]["nodes"]])
+    return forces

@@ -203,3 +203,33 @@ def test_the_command_line_says_one_line_for_a_bad_contact_file(tmp_path):
     path.write_text(yaml.safe_dump(doc))
     line = one_error_line(cli("solve", str(path)))
     assert "sunk.yaml: contact.ground: the body starts on or below the ground" in line
+
+
+@pytest.mark.parametrize("name, args", [
+    ("hexapod_stand", []),
+    ("hexapod_stand", ["--method", "bilevel"]),
+    ("gripper_object", ["--method", "forward", "-c", "grip=15"]),
+])
+def test_contact_results_pass_the_independent_checker(tmp_path, name, args):
+    from cli_helpers import cli
+    from spec_checker import check_result
+    out = tmp_path / "r.json"
+    p = cli("solve", PROBLEMS / f"{name}.yaml", *args, "--out", out, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    doc = check_result(out)
+    assert doc["contact"]["min_gap"] > 0 and doc["contact"]["nodes"]
+
+
+def test_a_friction_result_passes_the_independent_checker(tmp_path):
+    from cli_helpers import cli
+    from spec_checker import check_result
+    doc = json.loads(json.dumps(BLOCK))
+    doc["contact"] = {"ground": {"height": 0.0}, "distance": 1.0, "friction": 0.3}
+    path = tmp_path / "block.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "r.json"
+    p = cli("solve", path, "-c", "w=2", "--out", out, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    result = check_result(out)
+    assert any(np.any(np.asarray(n["friction_force"]) != 0) for n in result["contact"]["nodes"])
+    assert result["contact"]["path"]["steps_done"] == result["contact"]["path"]["steps"]
