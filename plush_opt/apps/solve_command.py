@@ -232,7 +232,7 @@ def _check_solve_outputs(args) -> None:
         raise SceneError("--trace: only a control run has an iterate history (not --method forward)")
 
 
-def _write_interrupted(out, exc: KeyboardInterrupt) -> None:
+def write_interrupted(out, exc: KeyboardInterrupt) -> None:
     """``--out``, atomically, with the result of a control run a signal
     ended (``status: interrupted``), if the run left one; the signal then
     ends the command with its status."""
@@ -251,7 +251,7 @@ def cmd_solve(args) -> int:
             args.problem, args.contraction, args.freeze, args.method, args.equilibrium,
             args.max_iterations, args.max_time, args.accuracy, args.direction, args.ipopt_print_level)
     except KeyboardInterrupt as exc:
-        _write_interrupted(args.out, exc)
+        write_interrupted(args.out, exc)
         raise
     if "accuracy" in doc:
         acc = doc["accuracy"]

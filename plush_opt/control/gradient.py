@@ -39,15 +39,13 @@ from .bounds import bounds_strategy
 from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
 from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
                      projected_gradient)
-from .result import ControlIterate, ControlResult, ControlStats
+from .result import INTERRUPTED, ControlIterate, ControlResult, ControlStats
 from .slack import slack_winches
 from .step import line_search, search_direction
 
 log = logging.getLogger(__name__)
 
 # where a path-dependent plant's iterates were driven from (recorded on them)
-#: the reason of a run a signal ended (as a run log's end line says it)
-INTERRUPTED = "interrupted"
 CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
 
 
