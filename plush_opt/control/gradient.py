@@ -276,7 +276,8 @@ class Controller:
             self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
             return None
         self.converged, self.reason = False, "no_decrease"
-        self.status = "cannot decrease the objective further: line search failed" + _bound_note(last)
+        self.status = (STALLED_ON_FRICTION if self.plant.path_dependent else
+                       "cannot decrease the objective further: line search failed") + _bound_note(last)
         return None
 
     def _at_bounds_status(self, last: Iterate) -> str:
@@ -413,6 +414,15 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
     elif move is not None:
         log.info("probe: moving %s to %.4g lowered O", names[move.winch], move.contraction[move.winch])
     return move, tried
+
+
+#: The status of a failed line search where the pose depends on the path
+#: (friction at via points): the objective is not smooth in the contractions
+#: there, and the step the sensitivities propose can raise it at any length.
+STALLED_ON_FRICTION = (
+    "stalled: no trial step lowered O (friction at via points: O is not smooth in the contractions, "
+    "the sensitivities hold for the current stick/slip state only); the pose is the best certified "
+    "iterate, not a proven optimum")
 
 
 def _bound_note(last: Iterate) -> str:

@@ -1,0 +1,24 @@
+"""A control run with friction at via points that cannot go further says
+why (issue 35): the shipped gripper_friction.yaml stops at a certified pose
+about 1 mm from its targets where no trial step lowers O, and its status
+names the friction, not a failed line search."""
+
+import json
+
+from cli_helpers import cli
+from shipped import ROOT
+
+
+def test_gripper_friction_says_it_stalled_on_friction(tmp_path):
+    out = tmp_path / "r.json"
+    p = cli("solve", ROOT / "problems" / "gripper_friction.yaml", "--out", out)
+    assert p.returncode == 3, p.stderr              # not converged: never claimed
+    assert "Traceback" not in p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["converged"] is False and doc["reason"] == "no_decrease"
+    assert doc["status"].startswith("stalled: no trial step lowered O (friction at via points")
+    assert "best certified iterate, not a proven optimum" in doc["status"]
+    assert "line search failed" not in doc["status"]
+    assert p.stderr.strip().splitlines() == [f"plush-opt: not converged: {doc['status']}"]
+    assert doc["residual_norm"] is not None and doc["residual_norm"] < 1e-8    # a certified equilibrium
+    assert max(doc["target_error"]) < 1.5 and doc["objective"] < 1.5        # about 1 mm from the targets
