@@ -460,9 +460,20 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         Bad ``tol``/``levels``, a point off the body, or a level whose
         equilibrium cannot be certified.
     """
-    options = options or LEVEL_OPTIONS
     if scene.outline is None:
         return _explicit(scene, tol)
+    best, computed, report = choose_levels(scene, tol, levels, contractions, points, options, elements, solved)
+    return best.mesh, report
+
+
+def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, points=None,
+                  options: EquilibriumOptions | None = None, elements=ELEMENT_ORDER,
+                  solved: dict | None = None) -> tuple[Level, list[Level], dict]:
+    """:func:`choose_mesh` of an outline scene, with its levels: (the picked
+    level, every level computed in the order of ``report["levels"]``, the
+    report). The levels let the error be estimated again at other
+    contractions (:func:`plush_opt.solve.accuracy_check.bounds_at`)."""
+    options = options or LEVEL_OPTIONS
     tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
         points, kind = probe_points(scene)
@@ -495,7 +506,8 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],
     }
     report["summary"] = summary(report)
-    return best.mesh, report
+    report["point_coordinates"] = points.tolist()
+    return best, computed, report
 
 
 def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
