@@ -208,8 +208,8 @@ def _measurements(tmp_path, replace):
 
 
 @pytest.mark.parametrize("replace, pattern", [
-    (("  - [49.76, -2.39]", "  - [1.0e11, -2.39]"),
-     r"m\.yaml: poses\[0\]\.positions\[9\]: point \(100000000000\.0, -2\.39\) is more than 10 body "
+    (("  - [49.74, -2.45]", "  - [1.0e11, -2.45]"),
+     r"m\.yaml: poses\[0\]\.positions\[9\]: point \(100000000000\.0, -2\.45\) is more than 10 body "
      r"diameters \(1016\)"),
     (("sigma: 0.3", "sigma: 1.0e-300"), r"m\.yaml: sigma: 1e-300 is below 1e-09 of the body's diameter"),
 ])
