@@ -22,3 +22,16 @@ def test_gripper_friction_says_it_stalled_on_friction(tmp_path):
     assert p.stderr.strip().splitlines() == [f"plush-opt: not converged: {doc['status']}"]
     assert doc["residual_norm"] is not None and doc["residual_norm"] < 1e-8    # a certified equilibrium
     assert max(doc["target_error"]) < 1.5 and doc["objective"] < 1.5        # about 1 mm from the targets
+
+
+def test_a_forward_solve_along_a_friction_path_counts_its_newton_iterations(tmp_path):
+    """The path's steps are Newton solves too: ``timing.iterations`` counts
+    them (it said 0 after following 10 steps)."""
+    out = tmp_path / "r.json"
+    p = cli("solve", ROOT / "problems" / "gripper_friction.yaml", "--method", "forward", "-c", "grip=10",
+            "--out", out)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["friction_path"]["steps_done"] == 10
+    assert doc["timing"]["iterations"] >= doc["friction_path"]["steps_done"] // 2 > 0
+    assert doc["equilibrium"]["newton_iterations"] == doc["timing"]["iterations"]
