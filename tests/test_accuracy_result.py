@@ -50,6 +50,10 @@ def test_the_leg_at_tolerance_1_is_within_it_of_a_fine_p2_solve_at_its_answer(tm
     first = doc["mesh_accuracy"]["at_result"][0]
     assert first["met"] is False and first["estimated_error"] > 1.0
     assert at["summary"] in p.stderr and "warning" not in p.stderr
+    # progress by default: each level as it is solved, the check, the second solve
+    assert "plush-opt: accuracy: P2 level of 832 nodes solved at 2 contraction(s)" in p.stderr
+    assert "plush-opt: accuracy: estimating the error at the returned contractions on the" in p.stderr
+    assert "> 1 at the returned contractions: solving again on the P1 level of" in p.stderr
     # the claim itself: the returned pose against a fine P2 solve at its contractions
     problem, _ = result_problem(LEG, out)
     scene = load_scene(LEG)
@@ -70,3 +74,16 @@ def test_the_summary_at_the_result_says_whether_it_is_met():
     missed = {**met, "estimated_error": None, "met": False, "resolves": 2}
     assert at_result_summary(missed, 0.5) == ("at the returned contractions: tolerance 0.5 NOT met: no estimate "
                                               "on P2 elements, 832 nodes (solved again on it 2x)")
+
+
+def test_at_a_probe_contraction_the_sweeps_poses_are_reused_and_the_bounds_agree(monkeypatch):
+    """The sweep has one probe contraction on the cantilever: the estimate
+    there is the sweep's, and nothing is solved again."""
+    import plush_opt.solve.accuracy_check as check
+    from plush_opt.solve.accuracy import choose_levels
+    scene = load_scene(ROOT / "problems" / "cantilever.yaml")
+    best, levels, report = choose_levels(scene, 0.01, elements=("P2",))
+    monkeypatch.setattr(check, "equilibrium_at", lambda *a, **k: pytest.fail("solved again"))
+    at = check.bounds_at(scene, levels, report["contractions"], scene.contraction, report["point_coordinates"])
+    assert [lv.bound for lv in at] == pytest.approx([lv.bound for lv in levels], rel=1e-12)
+    assert at[levels.index(best)].meets(0.01)

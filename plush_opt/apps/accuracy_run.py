@@ -31,16 +31,19 @@ MAX_RESOLVES = 2
 class AccurateSolve:
     """The mesh levels of one problem file for a tolerance, and the level in
     use (``problem``: the :class:`~plush_opt.problem.Problem` on it, its
-    ``mesh_report`` the sweep's report for that level)."""
+    ``mesh_report`` the sweep's report for that level). ``progress(line)``
+    hears what is being solved (default: the log, at info level)."""
 
-    def __init__(self, path, tol: float):
+    def __init__(self, path, tol: float, progress=None):
+        self.progress = progress or (lambda line: log.info("%s", line))
         self.scene = load_scene(path)
         self.tol = float(tol)
         if self.scene.outline is None:        # an explicit mesh: nothing to choose, nothing to check
             self.levels = None
             self.problem = load(path, accuracy=tol)
             return
-        best, self.levels, self.report = choose_levels(self.scene, tol)
+        self.progress(f"accuracy: choosing the element and mesh for tolerance {tol:g} (a sweep of mesh levels)")
+        best, self.levels, self.report = choose_levels(self.scene, tol, progress=self.progress)
         self.problem = self._problem(self.levels.index(best))
 
     def _problem(self, k: int) -> Problem:
@@ -62,8 +65,8 @@ class AccurateSolve:
             p, eq, doc, history = solved
             if not eq.converged:            # no certified pose: nothing to estimate at
                 break
-            log.info("accuracy: estimating the error at the returned contractions on the %d levels",
-                     len(self.levels))
+            self.progress(f"accuracy: estimating the error at the returned contractions on the "
+                          f"{len(self.levels)} levels")
             at = bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction,
                            self.report["point_coordinates"])
             used = at[self.index]
@@ -76,10 +79,10 @@ class AccurateSolve:
             k = cheapest_meeting(at, self.tol)
             if k is None:
                 break
-            log.info("accuracy: %s level of %d nodes estimated %.3g > %g at the returned contractions: "
-                     "solving again on the %s level of %d nodes", used.element, used.mesh.n_nodes,
-                     used.bound if used.bound is not None else float("nan"), self.tol, at[k].element,
-                     at[k].mesh.n_nodes)
+            est = "no estimate" if used.bound is None else f"estimated {used.bound:.3g}"
+            self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes is {est} > "
+                          f"{self.tol:g} at the returned contractions: solving again on the {at[k].element} "
+                          f"level of {at[k].mesh.n_nodes:,} nodes")
             solved = resolve(self._problem(k), dict(zip(p.winch_names, eq.contraction.tolist())))
         p, eq, doc, history = solved
         if rounds:

@@ -100,7 +100,7 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         p = load(problem)
     else:
         from .accuracy_run import AccurateSolve
-        accurate = AccurateSolve(problem, accuracy)
+        accurate = AccurateSolve(problem, accuracy, progress=lambda line: say(f"plush-opt: {line}", err=True))
         p = accurate.problem
     log.debug("%s: %d nodes, %d elements, %d tendons, winches %s", p.source, p.mesh.n_nodes, p.mesh.n_elems,
               p.model.n_tendons, ", ".join(p.winch_names))

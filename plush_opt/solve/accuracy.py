@@ -376,14 +376,15 @@ def estimate_levels(levels: list[Level]) -> None:
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
-           time_limit: float = math.inf, solved: dict | None = None) -> list[Level]:
+           time_limit: float = math.inf, solved: dict | None = None, progress=None) -> list[Level]:
     """Levels of one element, coarse to fine, until one meets ``tol``, the
     levels run out, or a level's solve is slower than ``time_limit`` (the
     best other candidate's: no finer level of this element can beat it).
     ``levels`` are :class:`Resolution` (or plain max_area values: an
     explicit sequence of independent meshes). ``solved`` maps (element,
     resolution) to levels solved before at the same contractions and
-    points: they are reused, and the levels solved here are added."""
+    points: they are reused, and the levels solved here are added.
+    ``progress(line)``, if given, hears of each level solved."""
     scene = dataclasses.replace(scene, element=element)
     solved = {} if solved is None else solved
     done: list[Level] = []
@@ -391,10 +392,14 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
         res = res if isinstance(res, Resolution) else Resolution(float(res))
         level = solved.get((element, res))
         if level is None:
+            t0 = time.perf_counter()
             level = _solve_level(scene, res, cs, points, done[-1] if done else None, options)
             if level is None:
                 continue
             solved[(element, res)] = level
+            if progress is not None:
+                progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
+                         f"contraction(s) in {time.perf_counter() - t0:.1f} s")
         done.append(level)
         estimate_levels(done)
         if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
@@ -468,11 +473,12 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
 
 def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, points=None,
                   options: EquilibriumOptions | None = None, elements=ELEMENT_ORDER,
-                  solved: dict | None = None) -> tuple[Level, list[Level], dict]:
+                  solved: dict | None = None, progress=None) -> tuple[Level, list[Level], dict]:
     """:func:`choose_mesh` of an outline scene, with its levels: (the picked
     level, every level computed in the order of ``report["levels"]``, the
     report). The levels let the error be estimated again at other
-    contractions (:func:`plush_opt.solve.accuracy_check.bounds_at`)."""
+    contractions (:func:`plush_opt.solve.accuracy_check.bounds_at`).
+    ``progress(line)``, if given, hears of each level solved."""
     options = options or LEVEL_OPTIONS
     tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
@@ -486,7 +492,7 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
     for element in elements:
         done = sweep(scene, element, default_levels(scene, element) if levels is None else levels,
                      cs, points, tol, options,
-                     math.inf if best is None else best.t_solve, solved)
+                     math.inf if best is None else best.t_solve, solved, progress)
         computed += done
         bound_errors(computed)
         for lv in computed:

@@ -30,7 +30,8 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
               options: EquilibriumOptions | None = None) -> list[Level]:
     """The sweep's ``levels`` (solved at the contractions ``probes``, (m,
     n_winches)) solved at ``contraction`` ((n_winches,)), each from its pose
-    at the nearest probe contraction, and estimated there: new
+    at the nearest probe contraction (at a probe contraction itself: the
+    sweep's poses, nothing solved), and estimated there: new
     :class:`Level` objects (same meshes, one pose
     each, ``y`` of shape (1, k, 2) at ``points``, (k, 2) rest coordinates),
     in the same order, with their ``estimate`` and ``bound`` at that
@@ -40,9 +41,14 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     probes = np.asarray(probes, dtype=np.float64).reshape(-1, c.size)
-    near = int(np.argmin(np.max(np.abs(probes - c), axis=1)))
+    gap = np.max(np.abs(probes - c), axis=1)
+    near = int(np.argmin(gap))
     out = []
     for lv in levels:
+        if gap[near] == 0.0:          # a probe contraction: its poses were solved in the sweep
+            out.append(dataclasses.replace(lv, poses=[lv.poses[near]], y=lv.y[near:near + 1], difference_to_next=None,
+                                           ratio=None, estimate=None, confirmed=False, bound=None, bound_via=None))
+            continue
         s = dataclasses.replace(scene, element=lv.element)
         model = build_model(s, lv.mesh)
         probe = Targets.at_points(lv.mesh, points, points)
