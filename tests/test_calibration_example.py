@@ -20,11 +20,25 @@ pytestmark = pytest.mark.slow      # a calibration of ten poses, and the doc's s
 
 
 @pytest.fixture(scope="module")
-def report():
+def fitted():
     meas = load_measurements(ROOT / "examples" / "hexapod_leg_measurements.yaml")
     result = calibrate(meas, "youngs_modulus,assembly_offset", FitOptions(holdout=(8, 9)))
     assert result.identifiable and result.converged, result.status
-    return report_dict(meas, result)
+    return meas, result
+
+
+@pytest.fixture(scope="module")
+def report(fitted):
+    return report_dict(*fitted)
+
+
+def test_the_calibration_pictures_have_labelled_axes(fitted):
+    from matplotlib.figure import Figure
+    from plush_opt.apps.calibrate_plot import _panel
+    meas, result = fitted
+    ax = Figure().subplots()
+    _panel(ax, result.after, 5, meas.positions[5], meas.seen[5], "k", "after")
+    assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (mm)", "y (mm)")
 
 
 def test_the_fit_recovers_the_truth_within_its_standard_errors(report):

@@ -13,6 +13,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from ..base.files import atomic_path
+from .console import LENGTH_UNIT
 from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 
 MEASURED = "#222222"
@@ -44,6 +45,8 @@ def _panel(ax, pred, i, measured, seen, color, title):
               label="residual" + (f" x{gain:.3g}" if gain > 1 else ""))
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1)))) if seen.any() else float("nan")
     ax.set_title(f"{title}: RMS marker error {rms:.3g}")
+    ax.set_xlabel(f"x ({LENGTH_UNIT})")
+    ax.set_ylabel(f"y ({LENGTH_UNIT})")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.legend(loc="upper right", fontsize=7)   # "best" tries every placement: slow on many points
