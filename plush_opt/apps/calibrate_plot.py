@@ -58,7 +58,7 @@ def plot_poses(directory, meas, result) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
     for i in range(meas.n_poses):
-        fig = Figure(figsize=(11, 4.5))
+        fig = Figure(figsize=(11, 4.8), layout="constrained")    # room for the suptitle and the axis labels
         axes = fig.subplots(1, 2, sharex=True, sharey=True)
         seen = meas.seen[i]
         _panel(axes[0], result.before, i, meas.positions[i], seen, BEFORE, "before")
@@ -66,7 +66,6 @@ def plot_poses(directory, meas, result) -> list[Path]:
         held = " (held out)" if not result.fitted_poses[i] else ""
         cs = ", ".join(f"{n}={c:g}" for n, c in zip(meas.scene.winch_names, meas.contractions[i]))
         fig.suptitle(f"{meas.scene.name}: pose {i}{held}: {cs}")
-        fig.tight_layout()
         path = directory / f"pose_{i:02d}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)
