@@ -277,11 +277,14 @@ class Controller:
             return None
         self.converged, self.reason = False, "no_decrease"
         self.status = (STALLED_ON_FRICTION if self.plant.path_dependent else
-                       "cannot decrease the objective further: line search failed") + _bound_note(last)
+                       "cannot decrease the objective further: line search failed") + self._bound_note(last)
         return None
 
+    def _bound_note(self, last: Iterate) -> str:
+        return _bound_note(last, self.model, self.options.gtol)
+
     def _at_bounds_status(self, last: Iterate) -> str:
-        return "stationary: every free winch is held at a bound" + _bound_note(last)
+        return "stationary: every free winch is held at a bound" + self._bound_note(last)
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
         """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
@@ -397,7 +400,7 @@ def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall: Stall
         no_gradient=bool(np.all(last.gradient[free] == 0.0)))
     if rule is None:
         return None
-    return _verdict(rule, last, options, [names[i] for i in np.flatnonzero(free)])
+    return _verdict(rule, last, options, [names[i] for i in np.flatnonzero(free)], model)
 
 
 def _look_further(options: ControlOptions, model: Model, last: Iterate, objective_at_start: float,
@@ -425,14 +428,33 @@ STALLED_ON_FRICTION = (
     "iterate, not a proven optimum")
 
 
-def _bound_note(last: Iterate) -> str:
-    return f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""
+#: A held winch within this fraction of its range from its bound is "at" it.
+AT_BOUND = 1e-9
 
 
-def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str]):
+def _bound_note(last: Iterate, model: Model, gtol: float) -> str:
+    """``; bound active: NAMES``: the held winches at their bound, and those
+    held inside it (the reparametrised bounds' blend zone) with how far,
+    where their gradient is not negligible (``gtol`` x O, as the loop's
+    stationarity test): one there with a negligible gradient is at an
+    interior stationary point, not held by its bound."""
+    parts = []
+    for name in last.active_bounds:
+        w = model.winch_names.index(name)
+        c, lo, hi = float(last.contraction[w]), float(model.lower[w]), float(model.upper[w])
+        side, bound = ("lower", lo) if c - lo <= hi - c else ("upper", hi)
+        gap = abs(c - bound)
+        if gap <= AT_BOUND * (hi - lo):
+            parts.append(name)
+        elif abs(float(last.gradient[w])) * (hi - lo) > gtol * last.objective:
+            parts.append(f"{name} (held {gap:.3g} inside its {side} bound {bound:g} by the reparametrised bounds)")
+    return "; bound active: " + ", ".join(parts) if parts else ""
+
+
+def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str], model: Model):
     """The loop's (converged, reason, status) for stop rule ``rule``
     (:data:`~.policy.RULES`) at ``last``; ``free_names`` the free winches."""
-    note = _bound_note(last)
+    note = _bound_note(last, model, options.gtol)
     if rule == "no_gradient":
         return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
                                       f"{', '.join(free_names)} slack)")
