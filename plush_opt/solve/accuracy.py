@@ -96,7 +96,7 @@ SAFETY = 1.25
 #: scale), not the default 1e-10: the force scale, a 2-norm of nodal forces,
 #: halves with each uniform refinement while the residual's round-off floor
 #: (eps |H| |x|) grows, and on the finest graded levels the floor comes
-#: within a factor of a few of 1e-10 (docs/accuracy.md, "Measured"). A
+#: within a factor of a few of 1e-10 (docs/notes/accuracy-measurements.md). A
 #: residual of 1e-9 moves the compared points by about 1e-9 of the
 #: displacement, far below any difference the estimate uses.
 LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9)
