@@ -76,6 +76,7 @@ def test_the_summary_at_the_result_says_whether_it_is_met():
                                               "on P2 elements, 832 nodes (solved again on it 2x)")
 
 
+@pytest.mark.slow        # a sweep of mesh levels
 def test_at_a_probe_contraction_the_sweeps_poses_are_reused_and_the_bounds_agree(monkeypatch):
     """The sweep has one probe contraction on the cantilever: the estimate
     there is the sweep's, and nothing is solved again."""
@@ -87,3 +88,19 @@ def test_at_a_probe_contraction_the_sweeps_poses_are_reused_and_the_bounds_agree
     at = check.bounds_at(scene, levels, report["contractions"], scene.contraction, report["point_coordinates"])
     assert [lv.bound for lv in at] == pytest.approx([lv.bound for lv in levels], rel=1e-12)
     assert at[levels.index(best)].meets(0.01)
+
+
+@pytest.mark.slow        # a sweep of mesh levels
+def test_a_pose_that_is_not_certified_is_never_claimed_within_the_tolerance(monkeypatch):
+    """A solve whose pose is not certified gets ``at_result`` with ``met``
+    false and no estimate, never the estimate of an earlier pose."""
+    from types import SimpleNamespace
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    acc = AccurateSolve(ROOT / "problems" / "cantilever.yaml", 0.05)
+    eq = SimpleNamespace(converged=False, contraction=acc.scene.contraction.copy())
+    p = SimpleNamespace(winch_names=acc.problem.winch_names)
+    doc = {"accuracy": {}, "mesh_accuracy": {}}
+    _, _, doc, _ = acc.check((p, eq, doc, ()), lambda *a: pytest.fail("solved again"))
+    at = doc["accuracy"]["at_result"]
+    assert at["met"] is False and at["estimated_error"] is None and at["resolves"] == 0
+    assert "NOT met: no estimate" in at["summary"]

@@ -63,7 +63,11 @@ class AccurateSolve:
         rounds = []
         for attempt in range(MAX_RESOLVES + 1):
             p, eq, doc, history = solved
-            if not eq.converged:            # no certified pose: nothing to estimate at
+            if not eq.converged:            # no certified pose: nothing to estimate at, and nothing claimed
+                lv = self.levels[self.index]
+                rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
+                               "element": lv.element, "nodes": lv.mesh.n_nodes, "estimated_error": None,
+                               "met": False, "levels": []})
                 break
             self.progress(f"accuracy: estimating the error at the returned contractions on the "
                           f"{len(self.levels)} levels")
