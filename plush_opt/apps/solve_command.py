@@ -114,9 +114,8 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     extra = {} if p.mesh_report is None else accuracy_record(p.mesh_report)
 
     def solve(p, contraction):
-        extra = {} if p.mesh_report is None else accuracy_record(p.mesh_report)
         return _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
-                             ipopt_print_level, t0, extra)
+                             ipopt_print_level, t0, {} if p.mesh_report is None else accuracy_record(p.mesh_report))
     try:
         solved = solve(p, contraction)
         # --accuracy: the estimate at the returned contractions (and a finer level if needed)
@@ -269,8 +268,10 @@ def cmd_solve(args) -> int:
         raise
     if "accuracy" in doc:
         acc = doc["accuracy"]
-        for ok, line in ((acc["reached"], acc["summary"]),
-                         *([(acc["at_result"]["met"], acc["at_result"]["summary"])] if "at_result" in acc else [])):
+        lines = [(acc["reached"], acc["summary"])]          # the sweep's pick, then the returned pose
+        if "at_result" in acc:
+            lines.append((acc["at_result"]["met"], acc["at_result"]["summary"]))
+        for ok, line in lines:
             if ok:
                 say(f"plush-opt: {line}", err=True)
             else:                               # not met: a warning, not a progress line
