@@ -71,35 +71,36 @@ def friction_sweep() -> str:
             "\"Friction sweep\", were made on earlier code).")
 
 
-def friction_loops() -> str:
-    """The hysteresis loops of `plush-opt sweep` on gripper_friction.yaml."""
+def friction_loops(pictures: bool = False) -> str:
+    """The hysteresis loops of `plush-opt sweep` on gripper_friction.yaml (and,
+    with ``pictures``, docs/img/gripper_friction_loop.png from the same run)."""
     from plush_opt import load
+    from plush_opt.apps.sweep import run_sweep, sweep_path
+    from plush_opt.apps.sweep_plot import loop_area, plot_sweep
     p = load(ROOT / "problems" / "gripper_friction.yaml")
-    w = p.winch_names.index("grip")
-    values = np.r_[np.linspace(0, 15, 11)[1:], np.linspace(15, 0, 11)[1:]]
-    path = np.zeros((len(values), p.model.n_winches))
-    path[:, w] = values
-    states = p.plant.follow(path)
+    _, states = run_sweep(p, sweep_path(p, "grip", 15.0, 0.0, 10, {}))
     assert all(s.converged for s in states), "the sweep did not converge"
+    if pictures:
+        plot_sweep(p, states, "grip", DOCS / "img" / "gripper_friction_loop.png")
+    w = p.winch_names.index("grip")
     c = np.array([s.contraction[w] for s in states])
-    ys = np.array([[s.nodes[n] for n in p.mesh.point_nodes] for s in states])     # (states, points, 2)
-    areas = []
-    for k in range(ys.shape[1]):
-        y = ys[:, k, 1]
-        areas.append(abs(0.5 * float(np.sum(c * np.roll(y, -1) - np.roll(c, -1) * y))))
-    k = 0
-    tip = p.scene.points[k]
+    X = p.mesh.X
+    d = np.array([[np.linalg.norm(s.nodes[n] - X[n]) for n in p.mesh.point_nodes] for s in states])
+    areas = [abs(loop_area(c, d[:, k])) for k in range(d.shape[1])]
     at12 = [i for i, v in enumerate(c) if abs(v - 12.0) < 1e-9]
-    down_in, down_back = (float(ys[0, k, 1] - ys[i, k, 1]) for i in at12)
-    back = float(np.linalg.norm(ys[-1, k] - ys[0, k]))
-    return (f"On `problems/gripper_friction.yaml` (mu = {p.scene.tendons[0].friction:g}, attachment radius "
-            f"{p.scene.tendons[0].attachment_radius:g} mm, {p.mesh.n_nodes:,} nodes), grip 0 -> 15 -> 0 in "
-            f"10 + 10 steps gives the loops of `docs/img/gripper_friction_loop.png`, areas "
-            f"{', '.join(f'{a:.2f}' for a in areas)} mm^2 for its points "
-            f"{', '.join(f'({q[0]:g}, {q[1]:g})' for q in p.scene.points)} (vertical displacement against "
-            f"contraction; 0 without friction, `tests/test_friction.py`): the tip ({tip[0]:g}, {tip[1]:g}) is "
-            f"{down_in:.2f} mm down at grip 12 on the way in against {down_back:.2f} mm on the way back, and "
-            f"returns to within {back:.2g} mm of its start.")
+    d_in, d_back = (float(d[i, 0]) for i in at12)
+    n0 = p.mesh.point_nodes[0]
+    back = float(np.linalg.norm(states[-1].nodes[n0] - states[0].nodes[n0]))
+    t = p.scene.tendons[0]
+    return (f"On `problems/gripper_friction.yaml` (mu = {t.friction:g}, attachment radius "
+            f"{t.attachment_radius:g} mm, {p.mesh.n_nodes:,} nodes), `plush-opt sweep "
+            f"problems/gripper_friction.yaml --winch grip --to 15 --back 0 --steps 10 --plot S.png` (grip 0 -> 15 "
+            f"-> 0 in 10 + 10 steps) gives the loops of `docs/img/gripper_friction_loop.png`, areas "
+            f"{', '.join(f'{a:.3g}' for a in areas)} mm^2 for its points "
+            f"{', '.join(f'({q[0]:g}, {q[1]:g})' for q in p.scene.points)} (displacement against contraction; "
+            f"0 without friction, `tests/test_friction.py`): the first point has moved {d_in:.2f} mm at grip 12 "
+            f"on the way in against {d_back:.2f} mm on the way back, and returns to within {back:.2g} mm "
+            "of where it started.")
 
 
 def accuracy_pick() -> str:
@@ -126,6 +127,10 @@ BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True)
           "friction-loops": (friction_loops, True), "accuracy-pick": (accuracy_pick, False)}
 
 
+#: Blocks whose function also draws the picture the text describes (not with --check).
+PICTURES = ("friction-loops",)
+
+
 def _pattern(name: str):
     return re.compile(rf"(<!-- doc-numbers: {re.escape(name)} -->\n).*?(\n<!-- /doc-numbers: {re.escape(name)} -->)",
                       re.S)
@@ -144,7 +149,8 @@ def main(argv=None) -> int:
         if not found:
             print(f"no block {name!r} in docs/", file=sys.stderr)
             return 2
-        text = BLOCKS[name][0]()
+        make = BLOCKS[name][0]
+        text = make(pictures=not args.check) if name in PICTURES else make()
         for path in found:
             new = _pattern(name).sub(lambda m: m.group(1) + text + m.group(2), docs[path])
             if new != docs[path]:
