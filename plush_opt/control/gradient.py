@@ -276,15 +276,12 @@ class Controller:
             self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
             return None
         self.converged, self.reason = False, "no_decrease"
-        self.status = (STALLED_ON_FRICTION if self.plant.path_dependent else
-                       "cannot decrease the objective further: line search failed") + self._bound_note(last)
+        failed = STALLED_ON_FRICTION if self.plant.path_dependent else LINE_SEARCH_FAILED
+        self.status = failed + _bound_note(last, self.model, self.options.gtol)
         return None
 
-    def _bound_note(self, last: Iterate) -> str:
-        return _bound_note(last, self.model, self.options.gtol)
-
     def _at_bounds_status(self, last: Iterate) -> str:
-        return "stationary: every free winch is held at a bound" + self._bound_note(last)
+        return "stationary: every free winch is held at a bound" + _bound_note(last, self.model, self.options.gtol)
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
         """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
@@ -419,7 +416,9 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
     return move, tried
 
 
-#: The status of a failed line search where the pose depends on the path
+#: The status of a line search that found no decrease.
+LINE_SEARCH_FAILED = "cannot decrease the objective further: line search failed"
+#: The same where the pose depends on the path
 #: (friction at via points): the objective is not smooth in the contractions
 #: there, and the step the sensitivities propose can raise it at any length.
 STALLED_ON_FRICTION = (
