@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from cli_helpers import interrupt
+
 ROOT = Path(__file__).resolve().parents[1]
 EXPECTED = {"SIGINT": 130, "SIGTERM": 143, "SIGHUP": 129}
 WAIT = 120.0
@@ -67,15 +69,8 @@ def test_interrupted_control_run_writes_an_interrupted_result(tmp_path, name, me
     else:
         proc.wait()
         pytest.fail(f"the run ended before a step: {proc.stderr.read()[-2000:]}")
-    time.sleep(0.3)
-    proc.send_signal(getattr(signal, name))
-    try:
-        _, err = proc.communicate(timeout=WAIT)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        pytest.fail(f"{name} did not end the run")
-    assert proc.returncode == EXPECTED[name], err[-2000:]
+    code, err = interrupt(proc, name, WAIT)
+    assert code == EXPECTED[name], err[-2000:]
     assert "Traceback" not in err, err
     assert err.strip().splitlines() == [f"plush-opt: interrupted ({name})"], err
     doc = json.loads(out.read_text())
@@ -98,3 +93,25 @@ def test_a_signal_before_the_first_iterate_writes_no_result(tmp_path):
     _, err = proc.communicate(timeout=WAIT)
     assert proc.returncode == 143, err[-2000:]
     assert not out.exists()
+
+
+def test_interrupted_demo_writes_an_interrupted_result(tmp_path):
+    """``demo`` ended by a signal mid-control: its result.json is the run so
+    far, marked interrupted, and it exits with the signal's status."""
+    out = tmp_path / "demo"
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_SOLVE, "demo", "--no-board", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
+    for line in proc.stdout:
+        if line.startswith("ITERATE 1"):
+            break
+    else:
+        proc.wait()
+        pytest.fail(f"the demo ended before a step: {proc.stderr.read()[-2000:]}")
+    code, err = interrupt(proc, "SIGTERM", WAIT)
+    assert code == 143, err[-2000:]
+    assert err.strip().splitlines() == ["plush-opt: interrupted (SIGTERM)"], err
+    doc = json.loads((out / "result.json").read_text())
+    assert doc["converged"] is False and doc["reason"] == "interrupted" and doc["signal"] == "SIGTERM"
+    assert doc["status"] == "interrupted by SIGTERM"
+    assert doc["timing"]["iterations"] >= 1
+    assert sorted(p.name for p in out.iterdir()) == ["result.json"]     # nothing else, no temp file

@@ -25,12 +25,31 @@ def _sh(cmd, cwd, env, timeout=BUILD_TIMEOUT):
     return p
 
 
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory):
-    """(venv bin folder, environment) of a fresh venv with the built wheel installed."""
+#: Python versions the package supports besides the one running the tests
+#: (pyproject.toml's requires-python, README's "Install"): each gets a fresh
+#: venv where its interpreter is found (on PATH, or under pyenv's root).
+OTHER_PYTHONS = ("3.11", "3.12", "3.13")
+
+
+def _interpreter(version: str) -> str | None:
+    """A working ``python{version}``, or None."""
+    candidates = [shutil.which(f"python{version}")]
+    pyenv = shutil.which("pyenv")
+    if pyenv:
+        root = subprocess.run([pyenv, "root"], capture_output=True, text=True).stdout.strip()
+        candidates += sorted(str(p) for p in Path(root).glob(f"versions/{version}*/bin/python{version}"))
+    for c in filter(None, candidates):
+        p = subprocess.run([c, "-c", "import sys; print('%d.%d' % sys.version_info[:2])"],
+                           capture_output=True, text=True)
+        if p.returncode == 0 and p.stdout.strip() == version:
+            return c
+    return None
+
+
+def _install(tmp, python: str):
+    """(venv bin folder, environment) of a fresh venv of ``python`` with the built wheel installed."""
     if shutil.which("c++") is None and shutil.which("g++") is None:
         pytest.skip("no C++ compiler: the emulator cannot be compiled on first use")
-    tmp = tmp_path_factory.mktemp("wheel")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PLUSH_BOARD_EMU")}
     env["PLUSH_OPT_CACHE"] = str(tmp / "cache")      # the emulator is built anew, as on a new machine
     env["OPENBLAS_NUM_THREADS"] = "1"
@@ -40,11 +59,42 @@ def installed(tmp_path_factory):
                                                              "__pycache__", ".pytest_cache", ".hypothesis"))
     _sh([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)], tmp, env)
     wheel = next((tmp / "dist").glob("plush_opt-*.whl"))
-    base = getattr(sys, "_base_executable", sys.executable)
-    _sh([base, "-m", "venv", str(tmp / "venv")], tmp, env)
+    _sh([python, "-m", "venv", str(tmp / "venv")], tmp, env)
     bin_ = tmp / "venv" / "bin"
     _sh([bin_ / "python", "-m", "pip", "install", "-q", "-c", str(ROOT / "requirements.lock"), str(wheel)], tmp, env)
     return bin_, env
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory):
+    """(venv bin folder, environment) of a fresh venv of this interpreter with the built wheel installed."""
+    return _install(tmp_path_factory.mktemp("wheel"), getattr(sys, "_base_executable", sys.executable))
+
+
+@pytest.fixture(scope="module", params=[v for v in OTHER_PYTHONS if v != "%d.%d" % sys.version_info[:2]])
+def installed_other(request, tmp_path_factory):
+    """The same on each other supported Python version whose interpreter is on this machine."""
+    python = _interpreter(request.param)
+    if python is None:
+        pytest.skip(f"no python{request.param} on this machine")
+    return _install(tmp_path_factory.mktemp(f"wheel{request.param}"), python)
+
+
+def test_requires_python_admits_the_versions_tested():
+    import tomllib
+    spec = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["requires-python"]
+    from packaging.specifiers import SpecifierSet
+    assert all(v in SpecifierSet(spec) for v in OTHER_PYTHONS), spec
+    assert "3.14" not in SpecifierSet(spec)        # not tested: not claimed
+
+
+def test_the_demo_on_every_supported_python(installed_other, tmp_path):
+    """``pip install`` of the wheel and the demo (a solve, a run on the
+    emulator compiled on first use) in a fresh venv of Python 3.11-3.13."""
+    bin_, env = installed_other
+    demo = _sh([str(bin_ / "plush-opt"), "demo", "--out", "d"], tmp_path, env)
+    assert (tmp_path / "d" / "pose.png").is_file() and (tmp_path / "d" / "run.png").is_file()
+    assert "targets RMS error" in demo.stdout
 
 
 def test_the_wheel_installs_without_cholmod_and_carries_its_files(installed):

@@ -208,8 +208,8 @@ def _measurements(tmp_path, replace):
 
 
 @pytest.mark.parametrize("replace, pattern", [
-    (("  - [49.76, -2.39]", "  - [1.0e11, -2.39]"),
-     r"m\.yaml: poses\[0\]\.positions\[9\]: point \(100000000000\.0, -2\.39\) is more than 10 body "
+    (("  - [49.74, -2.45]", "  - [1.0e11, -2.45]"),
+     r"m\.yaml: poses\[0\]\.positions\[9\]: point \(100000000000\.0, -2\.45\) is more than 10 body "
      r"diameters \(1016\)"),
     (("sigma: 0.3", "sigma: 1.0e-300"), r"m\.yaml: sigma: 1e-300 is below 1e-09 of the body's diameter"),
 ])
@@ -233,3 +233,33 @@ def test_a_stale_temp_with_an_impossible_pid_is_removed(tmp_path):
     stale.write_bytes(b"")
     write_json_atomic(tmp_path / "r.json", {"a": 1})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]
+
+
+def _cantilever_result(tmp_path):
+    from plush_opt.problem import load
+    p = load(ROOT / "problems" / "cantilever.yaml")
+    out = tmp_path / "r.json"
+    assert cli("solve", ROOT / "problems" / "cantilever.yaml", "--out", out).returncode == 0
+    return p, json.loads(out.read_text())
+
+
+def test_a_result_of_another_mesh_says_what_differs(tmp_path):
+    """Rest nodes that are not the problem's mesh: the message says how (the
+    counts when they differ, else how far and how many nodes are elsewhere),
+    never two equal counts as if they differed."""
+    from plush_opt.apps.export import recorded_pose
+    p, doc = _cantilever_result(tmp_path)
+    n = p.mesh.n_nodes
+    moved = json.loads(json.dumps(doc))
+    moved["model"]["rest_nodes"][7][0] += 0.25
+    with pytest.raises(SceneError) as err:
+        recorded_pose(p, "r.json", doc=moved)
+    assert re.fullmatch(rf"r\.json: model\.rest_nodes\[7\]: 0\.25 length units from node 7 of the mesh of "
+                        rf"\S*cantilever\.yaml \(1 of its {n} nodes elsewhere\): a result of another problem "
+                        r"file or mesh\?", str(err.value)), err.value
+    fewer = json.loads(json.dumps(doc))
+    fewer["model"]["rest_nodes"] = fewer["model"]["rest_nodes"][:-1]
+    with pytest.raises(SceneError) as err:
+        recorded_pose(p, "r.json", doc=fewer)
+    assert re.fullmatch(rf"r\.json: model\.rest_nodes: {n - 1} nodes, the mesh of \S*cantilever\.yaml has {n}: "
+                        r"a result of another mesh size\?", str(err.value)), err.value

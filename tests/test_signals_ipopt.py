@@ -3,8 +3,9 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
-import signal
 import subprocess
 import sys
 import textwrap
@@ -12,6 +13,8 @@ import time
 from pathlib import Path
 
 import pytest
+
+from cli_helpers import interrupt
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPECTED = {"SIGINT": 130, "SIGTERM": 143, "SIGHUP": 129}
@@ -37,18 +40,6 @@ def _start(args, marker: str):
     proc.kill()
     out, err = proc.communicate()
     pytest.fail(f"{marker!r} never appeared; stderr: {err[-2000:]}")
-
-
-def _interrupt(proc, name: str):
-    time.sleep(0.3)
-    proc.send_signal(getattr(signal, name))
-    try:
-        out, err = proc.communicate(timeout=WAIT)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.communicate()
-        pytest.fail(f"{name} did not end the IPOPT solve within {WAIT} s")
-    return proc.returncode, err
 
 
 # an IPOPT equilibrium solve that never ends by itself: tolerances out of reach
@@ -82,7 +73,7 @@ ENDLESS = textwrap.dedent("""
 @pytest.mark.parametrize("name", sorted(EXPECTED))
 def test_signal_stops_an_endless_ipopt_equilibrium(name):
     proc = _start([sys.executable, "-c", ENDLESS], "solving")
-    code, err = _interrupt(proc, name)
+    code, err = interrupt(proc, name, WAIT)
     assert code == EXPECTED[name], err
     assert f"interrupted {name}" in err
 
@@ -101,7 +92,7 @@ def test_signal_during_cli_ipopt_equilibrium(tmp_path, name):
     args = [sys.executable, "-m", "plush_opt", "solve", str(_fine(tmp_path, 4.0)), "-c", "grip=15",
             "--method", "forward", "--equilibrium", "ipopt", "--ipopt-print-level", "5", "-o", str(out)]
     proc = _start(args, "iter    objective")
-    code, err = _interrupt(proc, name)
+    code, err = interrupt(proc, name, WAIT)
     assert code == EXPECTED[name], err
     assert err.strip() == f"plush-opt: interrupted ({name})"      # one line: no solver noise either
     assert not out.exists()          # no result, rather than one that claims an answer
@@ -113,10 +104,17 @@ def test_signal_during_cli_bilevel(tmp_path, name):
     args = [sys.executable, "-m", "plush_opt", "solve", str(_fine(tmp_path, 8.0)), "--method", "bilevel",
             "--ipopt-print-level", "5", "-o", str(out)]
     proc = _start(args, "iter    objective")
-    code, err = _interrupt(proc, name)
+    code, err = interrupt(proc, name, WAIT)
     assert code == EXPECTED[name], err
     assert "User_Requested_Stop" not in err and "Traceback" not in err
-    assert not out.exists()
+    # the run so far: its lowest certified iterate, marked interrupted
+    doc = json.loads(out.read_text())
+    assert doc["converged"] is False and doc["method"] == "bilevel"
+    assert doc["reason"] == "interrupted" and doc["signal"] == name
+    assert doc["status"] == f"interrupted by {name}"
+    assert doc["residual_norm"] is not None and math.isfinite(doc["residual_norm"])
+    assert all(math.isfinite(v) for v in doc["contractions"].values())
+    assert not [p for p in tmp_path.iterdir() if p.name not in ("r.json", "fine.yaml")]
 
 
 # the full-space bilevel NLP with tolerances out of reach: IPOPT never stops by itself
@@ -137,7 +135,7 @@ ENDLESS_BILEVEL = textwrap.dedent("""
         r = p.control("bilevel", options=o)
     except KeyboardInterrupt as exc:
         name, code = interrupt_status(exc)
-        print("interrupted", name, file=sys.stderr)
+        print("interrupted", name, exc.partial_result.status, exc.partial_result.reason, file=sys.stderr)
         sys.exit(code)
     print("returned", r.converged, file=sys.stderr)
     sys.exit(0)
@@ -147,6 +145,8 @@ ENDLESS_BILEVEL = textwrap.dedent("""
 @pytest.mark.parametrize("name", ["SIGINT", "SIGTERM", "SIGHUP"])
 def test_signal_stops_the_full_bilevel_ipopt(name):
     proc = _start([sys.executable, "-c", ENDLESS_BILEVEL], "iter    objective")
-    code, err = _interrupt(proc, name)
+    code, err = interrupt(proc, name, WAIT)
     assert code == EXPECTED[name], err
-    assert f"interrupted {name}" in err
+    # one line: the recorder stopped IPOPT itself, so no solver warning comes first;
+    # the run so far is its certified start, marked interrupted
+    assert err.strip().splitlines() == [f"interrupted {name} interrupted by {name} interrupted"], err

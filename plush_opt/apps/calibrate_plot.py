@@ -13,6 +13,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from ..base.files import atomic_path
+from .console import LENGTH_UNIT
 from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 
 MEASURED = "#222222"
@@ -44,6 +45,8 @@ def _panel(ax, pred, i, measured, seen, color, title):
               label="residual" + (f" x{gain:.3g}" if gain > 1 else ""))
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1)))) if seen.any() else float("nan")
     ax.set_title(f"{title}: RMS marker error {rms:.3g}")
+    ax.set_xlabel(f"x ({LENGTH_UNIT})")
+    ax.set_ylabel(f"y ({LENGTH_UNIT})")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.legend(loc="upper right", fontsize=7)   # "best" tries every placement: slow on many points
@@ -55,7 +58,7 @@ def plot_poses(directory, meas, result) -> list[Path]:
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
     for i in range(meas.n_poses):
-        fig = Figure(figsize=(11, 4.5))
+        fig = Figure(figsize=(11, 4.8), layout="constrained")    # room for the suptitle and the axis labels
         axes = fig.subplots(1, 2, sharex=True, sharey=True)
         seen = meas.seen[i]
         _panel(axes[0], result.before, i, meas.positions[i], seen, BEFORE, "before")
@@ -63,7 +66,6 @@ def plot_poses(directory, meas, result) -> list[Path]:
         held = " (held out)" if not result.fitted_poses[i] else ""
         cs = ", ".join(f"{n}={c:g}" for n, c in zip(meas.scene.winch_names, meas.contractions[i]))
         fig.suptitle(f"{meas.scene.name}: pose {i}{held}: {cs}")
-        fig.tight_layout()
         path = directory / f"pose_{i:02d}.png"
         with atomic_path(path) as tmp:
             fig.savefig(tmp, dpi=110)

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 from .arguments import check_tension_max
 from .console import EXIT_OK, EXIT_SOLVER, LENGTH_UNIT, is_quiet, say, target_summary, use_agg
 from .run_command import cmd_run
-from .solve_command import solve_problem, write_trace
+from .solve_command import solve_problem, write_interrupted, write_trace
 
 
 def add_demo_parser(sub) -> None:
@@ -61,7 +61,13 @@ def cmd_demo(args) -> int:
     out = check_output_folder(args.out, "--out")
     out.mkdir(parents=True, exist_ok=True)
     say(f"demo: solving {problem.name} (control to its targets)")
-    p, eq, doc, history = solve_problem(problem, method="reparam")
+    try:
+        p, eq, doc, history = solve_problem(problem, method="reparam")
+    except KeyboardInterrupt as exc:
+        # a signal mid-control: result.json is the run so far, marked
+        # interrupted (as `solve --out` writes it); the signal ends the demo
+        write_interrupted(out / "result.json", exc)
+        raise
     write_json_atomic(out / "result.json", doc)
     plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=args.tension_max)
     plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates")

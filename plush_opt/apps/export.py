@@ -196,6 +196,24 @@ def _same_nodes(X, Y) -> bool:
                                        <= REST_MATCH * (1 + float(np.max(np.abs(Y), initial=0.0))))
 
 
+def _check_same_mesh(where: str, nodes, rest_nodes, X, source) -> None:
+    """A result's ``nodes`` and ``model.rest_nodes`` are one point per node of
+    the problem's mesh ``X``, at its rest positions; else one line saying
+    which differs: the node counts, or (equal counts) how far apart."""
+    if rest_nodes.ndim != 2 or rest_nodes.shape[1:] != (2,) or len(rest_nodes) != len(X):
+        raise SceneError(f"{where}: model.rest_nodes: {len(rest_nodes)} nodes, the mesh of {source} has "
+                         f"{len(X)}: a result of another mesh size?")
+    if nodes.shape != X.shape:
+        raise SceneError(f"{where}: nodes: {len(nodes)} points, one per node of the mesh of {source} "
+                         f"({len(X)}) expected")
+    if not _same_nodes(rest_nodes, X):
+        moved = np.linalg.norm(rest_nodes - X, axis=1)
+        k = int(np.argmax(moved))
+        raise SceneError(f"{where}: model.rest_nodes[{k}]: {moved[k]:.3g} length units from node {k} of the "
+                         f"mesh of {source} ({int(np.count_nonzero(moved > REST_MATCH * (1 + np.abs(X).max())))} "
+                         f"of its {len(X)} nodes elsewhere): a result of another problem file or mesh?")
+
+
 def recorded_pose(problem, result_path, options=None, doc=None):
     """The pose a result file of ``problem`` recorded, as an equilibrium of
     the problem: at its recorded segment rest lengths with friction at via
@@ -218,9 +236,7 @@ def recorded_pose(problem, result_path, options=None, doc=None):
     if len(tendons) != model.n_tendons:
         raise SceneError(f"{where}: model.tendons.list: {len(tendons)} tendons, the problem has {model.n_tendons}")
     X = model.X.reshape(-1, 2)
-    if not (nodes.shape == X.shape and _same_nodes(rest_nodes, X)):
-        raise SceneError(f"{where}: model.rest_nodes: {len(rest_nodes)} nodes, not the mesh of {problem.source} "
-                         f"({len(X)} nodes): a result of another mesh size?")
+    _check_same_mesh(where, nodes, rest_nodes, X, problem.source)
     if set(contraction) != set(model.winch_names):
         raise SceneError(f"{where}: contractions: winches {sorted(contraction)}, the problem has "
                          f"{sorted(model.winch_names)}")

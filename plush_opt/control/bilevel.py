@@ -37,7 +37,7 @@ from .bilevel_full import FullRun
 from .bilevel_nlp import build_nlp
 from .bilevel_options import ALPHA_FOR_Y, FORMULATIONS, BilevelOptions, BilevelStats
 from .bilevel_search import ReducedRun
-from .result import ControlResult, ControlStats
+from .result import INTERRUPTED, ControlResult, ControlStats
 from .slack import slack_winches, take_up
 
 __all__ = ["ALPHA_FOR_Y", "FORMULATIONS", "BilevelOptions", "BilevelSolver", "BilevelStats",
@@ -117,8 +117,13 @@ class BilevelSolver:
         if options.formulation == "reduced":
             return self._solve_reduced(targets, frozen, start, start_info, options, t_start)
         run = FullRun(self.model, targets, options, frozen, start, taken, start_info)
-        run.entry, run.built = self._entry(frozen, targets, options)
-        run.solve()
+        try:
+            run.entry, run.built = self._entry(frozen, targets, options)
+            run.solve()
+        except KeyboardInterrupt as exc:      # IPOPT's iterates are not poses: the start is the last certified one
+            exc.partial_result = self._interrupted(targets, frozen, start, getattr(run, "history", ()), start_info,
+                                                   "full", t_start, exc)
+            raise
         run.certify()
         return self._result(targets, frozen, run.eq, run.ok, run.reason(), run.status(),
                             run.history, run.iterations, run.entry.t_build if run.built else 0.0,
@@ -126,7 +131,14 @@ class BilevelSolver:
 
     def _solve_reduced(self, targets, frozen, start, start_info, options, t_start) -> ControlResult:
         run = ReducedRun(self.model, targets, options, frozen, start, t_start)
-        run.solve()
+        try:
+            run.solve()
+        except KeyboardInterrupt as exc:      # the lowest certified iterate so far
+            seen = [h for h in run.history if h.dispatchable]
+            best = min(seen, key=lambda h: h.objective).equilibrium if seen else start
+            exc.partial_result = self._interrupted(targets, frozen, best, run.history, start_info, "reduced",
+                                                   t_start, exc)
+            raise
         ok, reason, status = run.verdict()
         return self._result(targets, frozen, run.end.eq, ok, reason, status, run.history,
                             run.iterations, run.t_build, run.stats(start_info), t_start)
@@ -147,6 +159,27 @@ class BilevelSolver:
             objective=float(stats.objective_certified), active_bounds=tuple(stats.active_bounds or ()),
             frozen=tuple(names[i] for i in np.flatnonzero(frozen)), history=tuple(history),
             stats=common, model=model, targets=targets)
+
+
+    def _interrupted(self, targets, frozen, eq, history, start_info, formulation, t_start,
+                     exc: BaseException) -> ControlResult:
+        """The run so far, ended by a signal: ``eq`` (a certified equilibrium,
+        not certified again), ``history`` (the iterates recorded), ``converged`` false, reason ``interrupted``, the
+        signal's name in ``status`` (``interrupted by SIGTERM``)."""
+        from ..base.errors import interrupt_status
+        names = self.model.winch_names
+        objective = float(targets.value(eq.x))
+        iterates = tuple(history)
+        stats = BilevelStats(start=start_info, objective_certified=objective, formulation=formulation,
+                             history_points=len(iterates))
+        common = ControlStats(solver="ipopt", iterations=max(len(iterates) - 1, 0), equilibrium_solves=1,
+                              newton_iterations=int(eq.iterations), t_wall=time.perf_counter() - t_start,
+                              details=stats)
+        return ControlResult(
+            method="bilevel", converged=False, reason=INTERRUPTED,
+            status=f"{INTERRUPTED} by {interrupt_status(exc)[0]}", equilibrium=eq, objective=objective,
+            active_bounds=(), frozen=tuple(names[i] for i in np.flatnonzero(frozen)), history=iterates,
+            stats=common, model=self.model, targets=targets)
 
 
 def solve_bilevel(model: Model, targets: Targets, contraction0=None, frozen=None, x0=None,

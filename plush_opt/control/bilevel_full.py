@@ -81,7 +81,7 @@ class FullRun:
                               "free": free, "c_fixed": c0.copy(), "max_time": options.max_time})
         t_ipopt = time.perf_counter()
         try:
-            self.sol = call_ipopt(entry.solver, x0=z0, p=self.p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
+            self.sol = call_ipopt(entry.solver, stops_itself=True, x0=z0, p=self.p, lbx=lbx, ubx=ubx, lbg=entry.lbg, ubg=entry.ubg)
         finally:
             self.t_ipopt = time.perf_counter() - t_ipopt
             self.history = tuple(entry.recorder.points)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..base.linalg import NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Model
+from ..base.errors import interrupt_noted
 from ..solve.ipopt_equilibrium import IterationCallback
 from .result import ControlIterate
 
@@ -25,7 +26,10 @@ SADDLE_RESIDUAL = 1e-6
 
 class Recorder(IterationCallback):
     """IPOPT iteration callback: records (t, O, violation, c) and stops
-    IPOPT (by returning 1) once the time limit has passed."""
+    IPOPT (by returning 1) once the time limit has passed or a signal has
+    been noted (:func:`~plush_opt.base.errors.interrupt_noted`; the caller
+    then re-raises it, :func:`~plush_opt.solve.ipopt_equilibrium.call_ipopt`
+    with ``stops_itself``)."""
 
     def __init__(self, name: str, n_z: int, n_g: int, n_p: int):
         ca.Callback.__init__(self)
@@ -40,7 +44,15 @@ class Recorder(IterationCallback):
 
 
     def eval(self, arg):
+        try:
+            return self._record(arg)
+        except KeyboardInterrupt:    # the handler ran here: it noted the signal
+            return [1]
+
+    def _record(self, arg):
         run = self.run
+        if interrupt_noted():
+            return [1]
         if run is None:
             return [0]
         t = time.perf_counter() - run["t0"]

@@ -35,6 +35,9 @@ from .slack import slack_winches
 
 log = logging.getLogger(__name__)
 
+#: The head of the status where the loop's stop rules stopped IPOPT (which
+#: reports it as User_Requested_Stop, a word for the user's own stop).
+STOPPED_BY_RULES = "stopped by the stop rules"
 #: IPOPT return statuses counted as a KKT point.
 KKT_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 # A winch within this fraction of its range from a bound, with the gradient
@@ -233,7 +236,9 @@ class ReducedRun:
     def verdict(self) -> tuple[bool, str, str]:
         """(converged, reason, status) of the run."""
         end, opts = self.end, self.options
-        head = f"ipopt (reduced): {self.return_status}"
+        # IPOPT reports a stop by our own rules as User_Requested_Stop: say whose rule it was
+        ours = self.return_status == "User_Requested_Stop" and (self.stop is not None or self.stationary)
+        head = f"ipopt (reduced): {STOPPED_BY_RULES if ours else self.return_status}"
         g = self.gradient(end)
         pg = self._projected(end)
         at_start = bool(np.all(np.abs(end.c - self.start.c) <= START_FRACTION * self.span))

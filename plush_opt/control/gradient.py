@@ -39,15 +39,13 @@ from .bounds import bounds_strategy
 from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
 from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
                      projected_gradient)
-from .result import ControlIterate, ControlResult, ControlStats
+from .result import INTERRUPTED, ControlIterate, ControlResult, ControlStats
 from .slack import slack_winches
 from .step import line_search, search_direction
 
 log = logging.getLogger(__name__)
 
 # where a path-dependent plant's iterates were driven from (recorded on them)
-#: the reason of a run a signal ended (as a run log's end line says it)
-INTERRUPTED = "interrupted"
 CONTROL_ORIGIN = "the control run's starting state, then its accepted iterates in order"
 
 
@@ -278,11 +276,12 @@ class Controller:
             self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
             return None
         self.converged, self.reason = False, "no_decrease"
-        self.status = "cannot decrease the objective further: line search failed" + _bound_note(last)
+        failed = STALLED_ON_FRICTION if self.plant.path_dependent else LINE_SEARCH_FAILED
+        self.status = failed + _bound_note(last, self.model, self.options.gtol)
         return None
 
     def _at_bounds_status(self, last: Iterate) -> str:
-        return "stationary: every free winch is held at a bound" + _bound_note(last)
+        return "stationary: every free winch is held at a bound" + _bound_note(last, self.model, self.options.gtol)
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
         """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
@@ -398,7 +397,7 @@ def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall: Stall
         no_gradient=bool(np.all(last.gradient[free] == 0.0)))
     if rule is None:
         return None
-    return _verdict(rule, last, options, [names[i] for i in np.flatnonzero(free)])
+    return _verdict(rule, last, options, [names[i] for i in np.flatnonzero(free)], model)
 
 
 def _look_further(options: ControlOptions, model: Model, last: Iterate, objective_at_start: float,
@@ -417,14 +416,44 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
     return move, tried
 
 
-def _bound_note(last: Iterate) -> str:
-    return f"; bound active: {', '.join(last.active_bounds)}" if last.active_bounds else ""
+#: The status of a line search that found no decrease.
+LINE_SEARCH_FAILED = "cannot decrease the objective further: line search failed"
+#: The same where the pose depends on the path
+#: (friction at via points): the objective is not smooth in the contractions
+#: there, and the step the sensitivities propose can raise it at any length.
+STALLED_ON_FRICTION = (
+    "stalled: no trial step lowered O (friction at via points: O is not smooth in the contractions, "
+    "the sensitivities hold for the current stick/slip state only); the pose is the best certified "
+    "iterate, not a proven optimum")
 
 
-def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str]):
+#: A held winch within this fraction of its range from its bound is "at" it.
+AT_BOUND = 1e-9
+
+
+def _bound_note(last: Iterate, model: Model, gtol: float) -> str:
+    """``; bound active: NAMES``: the held winches at their bound, and those
+    held inside it (the reparametrised bounds' blend zone) with how far,
+    where their gradient is not negligible (``gtol`` x O, as the loop's
+    stationarity test): one there with a negligible gradient is at an
+    interior stationary point, not held by its bound."""
+    parts = []
+    for name in last.active_bounds:
+        w = model.winch_names.index(name)
+        c, lo, hi = float(last.contraction[w]), float(model.lower[w]), float(model.upper[w])
+        side, bound = ("lower", lo) if c - lo <= hi - c else ("upper", hi)
+        gap = abs(c - bound)
+        if gap <= AT_BOUND * (hi - lo):
+            parts.append(name)
+        elif abs(float(last.gradient[w])) * (hi - lo) > gtol * last.objective:
+            parts.append(f"{name} (held {gap:.3g} inside its {side} bound {bound:g} by the reparametrised bounds)")
+    return "; bound active: " + ", ".join(parts) if parts else ""
+
+
+def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str], model: Model):
     """The loop's (converged, reason, status) for stop rule ``rule``
     (:data:`~.policy.RULES`) at ``last``; ``free_names`` the free winches."""
-    note = _bound_note(last)
+    note = _bound_note(last, model, options.gtol)
     if rule == "no_gradient":
         return False, "no_decrease", ("no free winch moves the targets (zero gradient: all tendons of "
                                       f"{', '.join(free_names)} slack)")

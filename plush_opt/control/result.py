@@ -34,6 +34,8 @@ REASONS = (
     "interrupted",          # a signal (Ctrl-C, SIGTERM, SIGHUP) ended the run at its last accepted iterate
 )
 CONVERGED_REASONS = ("targets_reached", "stationary")
+#: the reason of a run a signal ended (as a run log's end line says it)
+INTERRUPTED = "interrupted"
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@ pins, via points and extra points, and point location for targets."""
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -14,7 +15,10 @@ from ..base.errors import SceneError, format_point
 from ..base.geometry import body_area, diameter, distance_to_segments, locate_in_triangles
 from .elements import Element, add_midside_nodes, named
 from .grading import grade
+from ..io.plausibility import large_mesh_note
 from ..io.scene import POINT_TOL, Scene
+
+log = logging.getLogger("plush_opt")
 
 DEFAULT_MIN_ANGLE = 20.0     # Triangle's own default for quality meshing, degrees
 MAX_ELEMS = 4_000_000        # refuse a mesh larger than this (the model would not fit in memory)
@@ -314,6 +318,9 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
             raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
         if max_area is not None:
             _refuse_large(scene, max_area / 4.0 ** refinements, tol)
+            note = large_mesh_note(scene, max_area, refinements)
+            if note is not None:                  # minutes of work ahead: say what is being built
+                log.warning("%s: %s", src, note)
         if graded and max_area is None:
             raise SceneError(f"{src}: mesh: a graded mesh needs max_area")
         X, tris, node_of, keys = _mesh_outline(scene, max_area, tol, graded)

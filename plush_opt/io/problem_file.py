@@ -10,6 +10,7 @@ use :mod:`plush_opt.base.geometry`.
 
 from __future__ import annotations
 
+import logging
 import math
 import numbers
 import os
@@ -23,7 +24,10 @@ from .scene import FORMAT, POINT_TOL, Material, Scene, Target, Tendon, Winch
 from .checker import MAX_COORD, MAX_WEIGHT, Checker, at_index, at_key, describe
 from .contact_section import contact_section
 from .mesh_input import check_points_are_nodes, length, mesh_section
+from .plausibility import plausibility_warnings
 from .yaml_reader import read_yaml
+
+log = logging.getLogger("plush_opt")
 
 #: via points of one tendon, and of a whole file: a tendon's Hessian block and
 #: its path's mesh nodes grow with them; sewn robots have tens
@@ -70,7 +74,10 @@ def load_scene(path) -> Scene:
         starts with the file name and names the key and list index.
     """
     source = os.path.basename(os.fspath(path)) or os.fspath(path)
-    return scene_from_dict(read_yaml(path, what="problem file", source=source), source)
+    scene = scene_from_dict(read_yaml(path, what="problem file", source=source), source)
+    for line in plausibility_warnings(scene):       # valid, but unlikely meant: said, not refused
+        log.warning("%s: %s", source, line)
+    return scene
 
 
 def _opt(d: dict, key: str):

@@ -96,7 +96,7 @@ SAFETY = 1.25
 #: scale), not the default 1e-10: the force scale, a 2-norm of nodal forces,
 #: halves with each uniform refinement while the residual's round-off floor
 #: (eps |H| |x|) grows, and on the finest graded levels the floor comes
-#: within a factor of a few of 1e-10 (docs/accuracy.md, "Measured"). A
+#: within a factor of a few of 1e-10 (docs/notes/accuracy-measurements.md). A
 #: residual of 1e-9 moves the compared points by about 1e-9 of the
 #: displacement, far below any difference the estimate uses.
 LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9)
@@ -376,14 +376,15 @@ def estimate_levels(levels: list[Level]) -> None:
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
-           time_limit: float = math.inf, solved: dict | None = None) -> list[Level]:
+           time_limit: float = math.inf, solved: dict | None = None, progress=None) -> list[Level]:
     """Levels of one element, coarse to fine, until one meets ``tol``, the
     levels run out, or a level's solve is slower than ``time_limit`` (the
     best other candidate's: no finer level of this element can beat it).
     ``levels`` are :class:`Resolution` (or plain max_area values: an
     explicit sequence of independent meshes). ``solved`` maps (element,
     resolution) to levels solved before at the same contractions and
-    points: they are reused, and the levels solved here are added."""
+    points: they are reused, and the levels solved here are added.
+    ``progress(line)``, if given, hears of each level solved."""
     scene = dataclasses.replace(scene, element=element)
     solved = {} if solved is None else solved
     done: list[Level] = []
@@ -391,10 +392,14 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
         res = res if isinstance(res, Resolution) else Resolution(float(res))
         level = solved.get((element, res))
         if level is None:
+            t0 = time.perf_counter()
             level = _solve_level(scene, res, cs, points, done[-1] if done else None, options)
             if level is None:
                 continue
             solved[(element, res)] = level
+            if progress is not None:
+                progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
+                         f"contraction(s) in {time.perf_counter() - t0:.1f} s")
         done.append(level)
         estimate_levels(done)
         if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
@@ -460,9 +465,21 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         Bad ``tol``/``levels``, a point off the body, or a level whose
         equilibrium cannot be certified.
     """
-    options = options or LEVEL_OPTIONS
     if scene.outline is None:
         return _explicit(scene, tol)
+    best, computed, report = choose_levels(scene, tol, levels, contractions, points, options, elements, solved)
+    return best.mesh, report
+
+
+def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, points=None,
+                  options: EquilibriumOptions | None = None, elements=ELEMENT_ORDER,
+                  solved: dict | None = None, progress=None) -> tuple[Level, list[Level], dict]:
+    """:func:`choose_mesh` of an outline scene, with its levels: (the picked
+    level, every level computed in the order of ``report["levels"]``, the
+    report). The levels let the error be estimated again at other
+    contractions (:func:`plush_opt.solve.accuracy_check.bounds_at`).
+    ``progress(line)``, if given, hears of each level solved."""
+    options = options or LEVEL_OPTIONS
     tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
         points, kind = probe_points(scene)
@@ -475,7 +492,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
     for element in elements:
         done = sweep(scene, element, default_levels(scene, element) if levels is None else levels,
                      cs, points, tol, options,
-                     math.inf if best is None else best.t_solve, solved)
+                     math.inf if best is None else best.t_solve, solved, progress)
         computed += done
         bound_errors(computed)
         for lv in computed:
@@ -495,7 +512,8 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],
     }
     report["summary"] = summary(report)
-    return best.mesh, report
+    report["point_coordinates"] = points.tolist()
+    return best, computed, report
 
 
 def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:

@@ -80,10 +80,12 @@ def straight_path(start, contraction, steps: int) -> np.ndarray:
 
 
 def finish(fm: FrictionModel, state: FrictionState, path: np.ndarray, steps_done: int,
-           options: EquilibriumOptions | None = None) -> FrictionEquilibrium:
+           options: EquilibriumOptions | None = None, path_iterations: int = 0) -> FrictionEquilibrium:
     """The equilibrium record of a path's last state: the pose polished and
     certified at the state's rest lengths (smallest Hessian eigenvalue as
-    asked by ``options``), with the state and the path attached."""
+    asked by ``options``), with the state and the path attached. Its
+    ``iterations`` are the polish's Newton iterations plus ``path_iterations``
+    (those of the path's steps)."""
     options = options or EquilibriumOptions()
     if state.converged:
         eq = solve_equilibrium(fm.fixed(state.rest), state.contraction, state.x, options)
@@ -97,7 +99,7 @@ def finish(fm: FrictionModel, state: FrictionState, path: np.ndarray, steps_done
         status = (f"friction path stopped after {steps_done} of {len(path)} step(s): "
                   f"{state.status}")
     base = {f.name: getattr(eq, f.name) for f in fields(Equilibrium)}
-    base.update(converged=converged, status=status)
+    base.update(converged=converged, status=status, iterations=int(eq.iterations) + int(path_iterations))
     return FrictionEquilibrium(**base, friction=state, friction_model=fm, path=path, steps_done=steps_done)
 
 
@@ -114,7 +116,9 @@ def solve_forward(fm: FrictionModel, contraction, steps: int = DEFAULT_PATH_STEP
     if not start.converged:
         return finish(fm, start, path, 0, equilibrium)
     states = follow(fm, start, path, options)
-    return finish(fm, states[-1], path, sum(s.converged for s in states), equilibrium)
+    # each step's final Newton solve (the stick/slip rounds before it are not counted)
+    newton = sum(s.equilibrium.iterations for s in states if s.equilibrium is not None)
+    return finish(fm, states[-1], path, sum(s.converged for s in states), equilibrium, newton)
 
 
 def segment_table(model, x, c, eq: Equilibrium | None = None) -> list[dict]:

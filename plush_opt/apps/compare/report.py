@@ -225,6 +225,14 @@ def _differences(problem, runs) -> list[str]:
     return notes
 
 
+def timing_note(repeat: int) -> str:
+    """What the report's times are: medians of ``repeat`` runs, or one sample."""
+    if repeat == 1:
+        return ("Times are one sample per run (a quick run): wall times this short vary by a factor of "
+                "2 or more on a shared machine, so \"fastest\" compares single noisy samples, not speeds.")
+    return f"Times are the median of {repeat} runs of each case (wall seconds)."
+
+
 def report_text(problems, runs, settings, t_total) -> str:
     L = ["# Control methods compared: speed against error", ""]
     L.append("Reproduce with `plush-opt compare PROBLEM.yaml [...] --out DIR"
@@ -242,7 +250,8 @@ def report_text(problems, runs, settings, t_total) -> str:
           "equilibrium solves. Objective O in length^2, errors in length units.",
           "", "![objective against wall time](anytime.png)", "",
           "![speed against error](speed_error.png)", ""]
-    L += ["## Summary", "", "| problem | nodes | best O | fastest within 1 % of best O | "
+    L += ["## Summary", "", timing_note(settings.repeat), "",
+          "| problem | nodes | best O | fastest within 1 % of best O | "
           "lowest fine-mesh error on the Pareto front |", "|---|---|---|---|---|"]
     for p in problems:
         rs = [r for r in runs if r.problem == p.scene.name]
@@ -355,9 +364,11 @@ def accuracy_section(problem, runs) -> list[str]:
     checks = [r.reference_difference for r in runs if math.isfinite(r.reference_difference)]
     L = [f"Accuracy: errors are measured against a P2 reference of {ref.mesh.n_nodes} nodes (graded "
          f"towards reentrant corners, pinned ends and attachment discs) at each run's contractions. "
-         f"Its check against a coarser P2 level ({chk.mesh.n_nodes} nodes): "
-         f"RMS distance of the target points at most {_fmt(max(checks, default=math.nan), '.3g')} "
-         f"(the reference's own error is below it where the levels converge); the smallest model "
+         f"Its distance to a coarser P2 level ({chk.mesh.n_nodes} nodes), RMS over the target points: "
+         f"at most {_fmt(max(checks, default=math.nan), '.3g')}. That difference measures the "
+         f"coarser level's error, not a bound of the reference's: two levels give no convergence rate, "
+         f"and before the asymptotic regime the reference's own error can exceed it (`plush-opt solve "
+         f"--accuracy` estimates errors with the rate, docs/accuracy.md). The smallest model "
          f"error measured is {_fmt(min(measured, default=math.nan), '.3g')}"
          + ("." if checks and measured and max(checks) <= REFERENCE_MARGIN * min(measured) else
             f": **the reference is not converged to {1 / REFERENCE_MARGIN:g} x below the errors "

@@ -40,9 +40,10 @@ class CompareSettings:
     resolve_bilevel_iterates : after the main bilevel run, solve the
         equilibrium at each IPOPT iterate's contractions (not timed) to show
         what sending IPOPT's iterates to the robot would do.
-    repeat : run each case this many times and keep the fastest (wall
-        times of runs this short are noisy on a shared machine); setup is
-        taken from the first run, which pays it.
+    repeat : run each case this many times and keep the run of median
+        time (wall times of runs this short are noisy on a shared machine;
+        the report says how many samples each time is); setup is taken
+        from the first run, which pays it.
     large_nodes : also run the mesh sweep at about this many nodes (a
         finer max_area chosen per problem) when the finest factor stays
         below LARGE_SHORTFALL of it; None: no such level.

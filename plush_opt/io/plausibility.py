@@ -1,0 +1,93 @@
+"""Plausibility warnings for a problem file: values that are valid but
+unlikely to mean what the file wants, most often a file written in other
+units than the outputs print (lengths in mm, forces in N, moduli in MPa).
+
+:func:`plausibility_warnings` returns one line per finding, each naming the
+key; :func:`~plush_opt.io.problem_file.load_scene` logs them as warnings.
+:func:`large_mesh_note` is the line a large mesh is announced with.
+Nothing is refused or repaired here: a file in consistent other units
+solves correctly, only the outputs' unit labels are then wrong.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..base.errors import format_number
+from ..base.geometry import body_area
+from .scene import Scene
+
+#: A body smaller than this (length units) is implausible in mm, the unit the
+#: outputs print: a robot of felt or silicone is centimetres to a metre across.
+MIN_BODY_SIZE = 1.0
+#: The tendon law's smoothing length above this fraction of the body's size
+#: blurs the slack/taut transition over the whole body (the shipped files use
+#: 0.01-0.05 mm on bodies of 100-200 mm, about 0.03 %).
+MAX_SMOOTHING_FRACTION = 0.02
+#: An attachment disc wider than this fraction of the body is not a stopper or
+#: a felt hole (the shipped radii are 1-2 mm on 100-200 mm bodies).
+MAX_RADIUS_FRACTION = 0.2
+#: Young's modulus above this (MPa with mm and N) is stiffer than any soft
+#: body (felt about 0.02, silicone 0.1-10, hard rubber about 100): a value in Pa?
+MAX_SOFT_MODULUS = 1.0e3
+#: A mesh estimated above this many nodes is announced when it is built
+#: (fem.mesh.build_mesh): meshing and solving it takes minutes; the hard
+#: limit is fem.mesh.MAX_ELEMS triangles.
+LARGE_MESH_NODES = 50_000
+#: Nodes per (body area / max_area) of a mesh made by the mesher, per element
+#: (measured on the shipped problems at and below their own max_area: 0.84-1.0
+#: for P1, 3.2-3.7 for P2; the lower ends, as fine meshes approach them).
+NODES_PER_AREA = {"P1": 0.85, "P2": 3.25}
+
+
+def youngs_modulus(scene: Scene) -> float:
+    """E of the scene's material, from its Lame parameters."""
+    mu, lam = scene.material.mu, scene.material.lam
+    return mu * (3 * lam + 2 * mu) / (lam + mu)
+
+
+def estimated_nodes(scene: Scene, max_area: float | None = None) -> int | None:
+    """About how many nodes meshing the outline at ``max_area`` (default the
+    file's) gives; None for an explicit mesh or without a max_area."""
+    area = scene.max_area if max_area is None else max_area
+    if scene.outline is None or area is None:
+        return None
+    return int(NODES_PER_AREA.get(scene.element, NODES_PER_AREA["P2"]) * body_area(scene.outline, scene.holes)
+               / area)
+
+
+def large_mesh_note(scene: Scene, max_area: float, refinements: int = 0) -> str | None:
+    """A line announcing a mesh estimated above :data:`LARGE_MESH_NODES`
+    nodes (``max_area`` refined uniformly ``refinements`` times), else None."""
+    n = estimated_nodes(scene, max_area / 4.0 ** refinements)
+    if n is None or n <= LARGE_MESH_NODES:
+        return None
+    refined = f" refined {refinements} times" if refinements else ""
+    return (f"mesh.max_area: {format_number(max_area)}{refined} gives about {n:,} {scene.element} nodes "
+            f"(more than {LARGE_MESH_NODES:,}): building and solving it can take minutes; a larger max_area "
+            "is faster")
+
+
+def plausibility_warnings(scene: Scene) -> list[str]:
+    """One line per implausible value, each starting with the key."""
+    out = []
+    size = scene.diameter
+    units = "outputs print lengths in mm, forces in N, moduli in MPa: is the file in other units?"
+    if size < MIN_BODY_SIZE:
+        out.append(f"mesh: the body is {size:.3g} across, implausibly small in mm ({units})")
+    eps = scene.tendon_smoothing
+    if eps > MAX_SMOOTHING_FRACTION * size:
+        out.append(f"tendons.smoothing: {eps:.3g} is {100 * eps / size:.3g} % of the body's size "
+                   f"({size:.3g}); the tendons go slack to taut over that length, meant to be a small "
+                   f"fraction of the body ({units})")
+    for i, t in enumerate(scene.tendons):
+        if t.attachment_radius > MAX_RADIUS_FRACTION * size:
+            out.append(f"tendons.list[{i}].attachment_radius: {t.attachment_radius:.3g} is "
+                       f"{100 * t.attachment_radius / size:.3g} % of the body's size ({size:.3g}): "
+                       "a disc that wide is not a stopper or a felt hole")
+            break
+    e = youngs_modulus(scene)
+    if math.isfinite(e) and e > MAX_SOFT_MODULUS:
+        out.append(f"material: Young's modulus {e:.3g} is stiffer than any soft body in MPa (felt "
+                   f"about 0.02, silicone 0.1-10; {units})")
+    return out

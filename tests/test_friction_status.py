@@ -1,0 +1,62 @@
+"""A control run with friction at via points that cannot go further says
+why (issue 35): the shipped gripper_friction.yaml stops at a certified pose
+about 1 mm from its targets where no trial step lowers O, and its status
+names the friction, not a failed line search."""
+
+import json
+
+from cli_helpers import cli
+from shipped import ROOT
+
+
+def test_gripper_friction_says_it_stalled_on_friction(tmp_path):
+    out = tmp_path / "r.json"
+    p = cli("solve", ROOT / "problems" / "gripper_friction.yaml", "--out", out)
+    assert p.returncode == 3, p.stderr              # not converged: never claimed
+    assert "Traceback" not in p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["converged"] is False and doc["reason"] == "no_decrease"
+    assert doc["status"].startswith("stalled: no trial step lowered O (friction at via points")
+    assert "best certified iterate, not a proven optimum" in doc["status"]
+    assert "line search failed" not in doc["status"]
+    assert p.stderr.strip().splitlines() == [f"plush-opt: not converged: {doc['status']}"]
+    assert doc["residual_norm"] is not None and doc["residual_norm"] < 1e-8    # a certified equilibrium
+    assert max(doc["target_error"]) < 1.5 and doc["objective"] < 1.5        # about 1 mm from the targets
+
+
+def test_a_forward_solve_along_a_friction_path_counts_its_newton_iterations(tmp_path):
+    """The path's steps are Newton solves too: ``timing.iterations`` counts
+    them (it said 0 after following 10 steps)."""
+    out = tmp_path / "r.json"
+    p = cli("solve", ROOT / "problems" / "gripper_friction.yaml", "--method", "forward", "-c", "grip=10",
+            "--out", out)
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["friction_path"]["steps_done"] == 10
+    assert doc["timing"]["iterations"] >= doc["friction_path"]["steps_done"] // 2 > 0
+    assert doc["equilibrium"]["newton_iterations"] == doc["timing"]["iterations"]
+
+
+def test_a_winch_at_an_interior_optimum_is_not_called_held_by_its_bound():
+    """The gripper's optimum has the winch `right` 0.24 mm inside [0, 25]
+    with a zero gradient (clip, which holds nothing inside a bound, ends at
+    the same contractions): reparam no longer says "bound active: right"."""
+    import re
+    reparam = cli("solve", ROOT / "problems" / "gripper.yaml")
+    clip = cli("solve", ROOT / "problems" / "gripper.yaml", "--method", "clip")
+    assert reparam.returncode == 0 and clip.returncode == 0, reparam.stderr + clip.stderr
+    assert "bound active" not in reparam.stdout and "bound active" not in clip.stdout, reparam.stdout
+    right = [float(re.search(r"right=(\S+),", p.stdout).group(1)) for p in (reparam, clip)]
+    assert 0.1 < right[0] < 0.5 and abs(right[0] - right[1]) < 1e-3
+
+
+def test_a_winch_held_inside_its_bound_says_how_far():
+    from types import SimpleNamespace
+    import numpy as np
+    from plush_opt.control.gradient import _bound_note
+    model = SimpleNamespace(winch_names=("a", "b", "c"), lower=np.zeros(3), upper=np.full(3, 20.0))
+    last = SimpleNamespace(active_bounds=("a", "b", "c"), contraction=np.array([0.0, 0.08, 19.9]),
+                           gradient=np.array([1.0, 1e-3, -1e-12]), objective=1.0)
+    # a on its bound; b held 0.08 inside with a gradient that matters; c's gradient is negligible
+    assert _bound_note(last, model, 1e-7) == ("; bound active: a, b (held 0.08 inside its lower bound 0 "
+                                              "by the reparametrised bounds)")

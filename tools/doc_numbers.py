@@ -1,0 +1,171 @@
+"""Write the numbers the docs quote from the code that produces them.
+
+    .venv/bin/python tools/doc_numbers.py            # rewrite every block
+    .venv/bin/python tools/doc_numbers.py --check    # exit 1 if a cheap block is stale
+    .venv/bin/python tools/doc_numbers.py --only accuracy-pick   # one block (expensive ones too)
+
+A block in a doc is the text between ``<!-- doc-numbers: NAME -->`` and
+``<!-- /doc-numbers: NAME -->``; this script computes NAME's text and puts
+it there (a block may appear in several docs). Cheap blocks (seconds) are
+checked by ``tests/test_doc_numbers.py``; expensive ones carry the command
+and the date they were made, and ``--check`` leaves them out unless named
+with ``--only``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+sys.path.insert(0, str(ROOT / "tools"))
+
+
+def api_tour() -> str:
+    """docs/api.md's four calls, with the contractions control returns."""
+    import plush_opt
+    p = plush_opt.load(ROOT / "problems" / "gripper.yaml")
+    result = p.control(method="reparam")
+    shown = ", ".join(f'"{n}": {v:.3f}...' for n, v in result.contractions.items())
+    return f"""```python
+import plush_opt
+
+p = plush_opt.load("problems/gripper.yaml")   # scene -> mesh -> model -> targets, built once
+eq = p.equilibrium({{"left": 10.0}})            # the pose at these contractions
+eq.x, eq.converged, eq.status                 # flat pose [x0, y0, x1, y1, ...], certificate, reason
+
+result = p.control(method="reparam")          # contractions that bring the body to the targets
+result.contractions                           # {{{shown}}}
+result.objective, result.x, result.reason     # O (length^2), the certified pose, why it stopped
+result.save("r.json")                         # the result file of docs/problem-format.md
+```"""
+
+
+def friction_sweep() -> str:
+    """The acceptance sweep's counts (tools/bench_friction.py, one run)."""
+    import bench_friction as bf
+    from plush_opt import load
+    from plush_opt.fem.friction import FrictionModel
+    from plush_opt.solve.friction_path import follow, start_state
+    problem = load(bf.PROBLEM, max_area=bf.MAX_AREA)
+    fm = FrictionModel(problem.model)
+    start = start_state(fm)
+    path = bf.sweep_path(problem)
+    count = bf.Counter(fm)
+    states = follow(fm, start, path)
+    count.close()
+    ok = sum(s.converged for s in states)
+    done = "every step converged and checked" if ok == len(path) else f"{ok} of {len(path)} steps converged"
+    return (f"`tools/bench_friction.py` (`problems/gripper_friction.yaml` at {problem.mesh.n_nodes:,} nodes, "
+            f"grip 0 -> {bf.TO:g} -> 0 mm in {bf.STEPS} + {bf.STEPS} steps from the start state): "
+            f"{count.factor} factorisations and {count.evaluate} evaluations for the {len(path)} steps, "
+            f"{done}; loop area of the bar's left tip {bf.loop_area(problem, [start] + states):.4f} mm^2. "
+            "Its times depend on the host: run it (the dated measurements in docs/benchmarks.md, "
+            "\"Friction sweep\", were made on earlier code).")
+
+
+def friction_loops(pictures: bool = False) -> str:
+    """The hysteresis loops of `plush-opt sweep` on gripper_friction.yaml (and,
+    with ``pictures``, docs/img/gripper_friction_loop.png from the same run)."""
+    from plush_opt import load
+    from plush_opt.apps.sweep import run_sweep, sweep_path
+    from plush_opt.apps.sweep_plot import loop_area, plot_sweep
+    p = load(ROOT / "problems" / "gripper_friction.yaml")
+    _, states = run_sweep(p, sweep_path(p, "grip", 15.0, 0.0, 10, {}))
+    assert all(s.converged for s in states), "the sweep did not converge"
+    if pictures:
+        plot_sweep(p, states, "grip", DOCS / "img" / "gripper_friction_loop.png")
+    w = p.winch_names.index("grip")
+    c = np.array([s.contraction[w] for s in states])
+    X = p.mesh.X
+    d = np.array([[np.linalg.norm(s.nodes[n] - X[n]) for n in p.mesh.point_nodes] for s in states])
+    areas = [abs(loop_area(c, d[:, k])) for k in range(d.shape[1])]
+    at12 = [i for i, v in enumerate(c) if abs(v - 12.0) < 1e-9]
+    d_in, d_back = (float(d[i, 0]) for i in at12)
+    n0 = p.mesh.point_nodes[0]
+    back = float(np.linalg.norm(states[-1].nodes[n0] - states[0].nodes[n0]))
+    t = p.scene.tendons[0]
+    return (f"On `problems/gripper_friction.yaml` (mu = {t.friction:g}, attachment radius "
+            f"{t.attachment_radius:g} mm, {p.mesh.n_nodes:,} nodes), `plush-opt sweep "
+            f"problems/gripper_friction.yaml --winch grip --to 15 --back 0 --steps 10 --plot S.png` (grip 0 -> 15 "
+            f"-> 0 in 10 + 10 steps) gives the loops of `docs/img/gripper_friction_loop.png`, areas "
+            f"{', '.join(f'{a:.3g}' for a in areas)} mm^2 for its points "
+            f"{', '.join(f'({q[0]:g}, {q[1]:g})' for q in p.scene.points)} (displacement against contraction; "
+            f"0 without friction, `tests/test_friction.py`): the first point has moved {d_in:.2f} mm at grip 12 "
+            f"on the way in against {d_back:.2f} mm on the way back, and returns to within {back:.2g} mm "
+            "of where it started.")
+
+
+def accuracy_pick() -> str:
+    """What `--accuracy 1` picks for the gripper, and control on it (expensive)."""
+    import plush_opt
+    from plush_opt.io import load_scene
+    from plush_opt.solve.accuracy import choose_mesh
+    scene = load_scene(ROOT / "problems" / "gripper.yaml")
+    mesh, report = choose_mesh(scene, 1.0)
+    p = plush_opt.from_scene(dataclasses.replace(scene, element=mesh.element.name), mesh)
+    result = p.control(method="reparam")
+    via = report["bound_via"]
+    how = "" if via in (None, report["picked"]) else (
+        f" (its distance to the {report['levels'][via]['n_nodes']:,}-node {report['levels'][via]['element']} "
+        "level plus that level's estimate)")
+    date = datetime.date.today().isoformat()
+    return (f"For the gripper at 1 mm, `--accuracy 1` picks {report['element']} with {report['nodes']:,} "
+            f"nodes, bound {report['estimated_error']:.3f} mm{how}; control (reparam) on it ends at "
+            f"O = {result.objective:.4g} ({result.reason}). Made by `python tools/doc_numbers.py --only "
+            f"accuracy-pick` on {date}; the table below is dated history of earlier code.")
+
+
+BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True),
+          "friction-loops": (friction_loops, True), "accuracy-pick": (accuracy_pick, False)}
+
+
+#: Blocks whose function also draws the picture the text describes (not with --check).
+PICTURES = ("friction-loops",)
+
+
+def _pattern(name: str):
+    return re.compile(rf"(<!-- doc-numbers: {re.escape(name)} -->\n).*?(\n<!-- /doc-numbers: {re.escape(name)} -->)",
+                      re.S)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="exit 1 if a block is stale (cheap blocks only)")
+    ap.add_argument("--only", choices=sorted(BLOCKS), action="append", help="these blocks only")
+    args = ap.parse_args(argv)
+    names = args.only or [n for n, (_, cheap) in BLOCKS.items() if cheap or not args.check]
+    docs = {path: path.read_text() for path in sorted(DOCS.glob("*.md"))}
+    stale = []
+    for name in names:
+        found = [path for path, text in docs.items() if _pattern(name).search(text)]
+        if not found:
+            print(f"no block {name!r} in docs/", file=sys.stderr)
+            return 2
+        make = BLOCKS[name][0]
+        text = make(pictures=not args.check) if name in PICTURES else make()
+        for path in found:
+            new = _pattern(name).sub(lambda m: m.group(1) + text + m.group(2), docs[path])
+            if new != docs[path]:
+                stale.append(f"{path.relative_to(ROOT)}: {name}")
+                docs[path] = new
+    if args.check:
+        for s in stale:
+            print(f"stale: {s} (run tools/doc_numbers.py)")
+        return 1 if stale else 0
+    for path, text in docs.items():
+        if path.read_text() != text:
+            path.write_text(text)
+            print(f"wrote {path.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
