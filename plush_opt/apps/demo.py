@@ -1,6 +1,7 @@
 """``plush-opt demo`` and ``plush-opt examples``: the main job on the
-shipped gripper (what ``make demo`` runs), and a copy of the shipped
-problems, run scripts and board files to play with."""
+shipped gripper (what ``make demo`` runs), with the hexapod standing up on
+the floor for contact, and a copy of the shipped problems, run scripts and
+board files to play with."""
 
 from __future__ import annotations
 
@@ -16,7 +17,8 @@ from .solve_command import solve_problem, write_interrupted, write_trace
 
 def add_demo_parser(sub) -> None:
     p = sub.add_parser("demo", help="the main job on the default problem (what `make demo` runs)",
-                       description="Solve the gripper's pose problem, then play the gripper run "
+                       description="Solve the gripper's pose problem, stand the hexapod up on the "
+                       "floor (contact; with the default problem), then play the gripper run "
                        "script on the board emulator. Works from any folder: the shipped files "
                        "come with the package.")
     p.add_argument("--problem", type=Path, default=None, help="default: the shipped problems/gripper.yaml")
@@ -78,11 +80,30 @@ def cmd_demo(args) -> int:
     say(f"demo: {target_summary(doc['target_error'])}; "
         f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
     say(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
+    if args.problem is None:
+        _demo_contact(data_file("problems", "hexapod_stand.yaml"), out / "hexapod_stand", args.tension_max)
     if not args.no_board:
         code = _demo_run(args.script or data_file("examples", "gripper_run.yaml"), out)
         if code != EXIT_OK:
             return code
     return EXIT_OK if doc["converged"] else EXIT_SOLVER
+
+
+def _demo_contact(problem: Path, out: Path, tension_max) -> None:
+    """Contact: the hexapod lying on the floor stands up to its targets;
+    its result and picture go to ``out``."""
+    from .plot import plot_pose
+    from ..base.files import write_json_atomic
+    say(f"demo: contact: {problem.name}, the hexapod lying on the floor, stands up")
+    p, eq, doc, _ = solve_problem(problem, method="reparam")
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "result.json", doc)
+    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=tension_max)
+    contact = doc["contact"]
+    say(f"demo: contact: {doc['status']}; {target_summary(doc['target_error'])}; the floor carries "
+        f"{contact['total_force'][1]:.4g} N (its weight), smallest gap {contact['min_gap']:.3g} {LENGTH_UNIT}, "
+        f"free: {', '.join(contact['free_motions']) or 'nothing'}")
+    say(f"demo: contact: wrote {out / 'result.json'}, {out / 'pose.png'}")
 
 
 def _demo_run(script: Path, out: Path) -> int:
