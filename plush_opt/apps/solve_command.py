@@ -19,6 +19,7 @@ import numpy as np
 from ..base.errors import SceneError, SettingError, SolverError, interrupt_status, one_line
 from .arguments import add_picture_flags, check_tension_max, contraction_arg, pairs
 from .console import EXIT_OK, EXIT_SOLVER, say, summary_line, use_agg
+from ..control.result import INTERRUPTED
 
 log = logging.getLogger("plush_opt")
 
@@ -171,10 +172,18 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     # an iterate history is a trace only if every iterate is a certified
     # equilibrium (the loop's and the reduced-space bilevel's are)
     history = res.history if all(h.equilibrium is not None for h in res.history) else ()
-    for it in history:
-        log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
-                 ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
-    doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
+    try:
+        for it in history:
+            log.info("iterate %d  O = %.6g  c = %s", it.iteration, it.objective,
+                     ", ".join(f"{n}={v:.4f}" for n, v in zip(p.winch_names, it.contraction)))
+        doc = control_result_dict(res, total_s=time.perf_counter() - t0, extra=extra)
+    except KeyboardInterrupt as exc:
+        # a signal after the run ended: its certified end, marked interrupted
+        name = interrupt_status(exc)[0]
+        done = dataclasses.replace(res, converged=False, reason=INTERRUPTED, status=f"{INTERRUPTED} by {name}")
+        exc.result_document = control_result_dict(done, total_s=time.perf_counter() - t0,
+                                                  extra={"signal": name, **extra})
+        raise
     return p, res.equilibrium, doc, history
 
 

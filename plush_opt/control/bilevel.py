@@ -117,31 +117,31 @@ class BilevelSolver:
         if options.formulation == "reduced":
             return self._solve_reduced(targets, frozen, start, start_info, options, t_start)
         run = FullRun(self.model, targets, options, frozen, start, taken, start_info)
-        try:
+        try:        # (a signal during the final certification too)
             run.entry, run.built = self._entry(frozen, targets, options)
             run.solve()
+            run.certify()
+            return self._result(targets, frozen, run.eq, run.ok, run.reason(), run.status(),
+                                run.history, run.iterations, run.entry.t_build if run.built else 0.0,
+                                run.stats(), t_start)
         except KeyboardInterrupt as exc:      # IPOPT's iterates are not poses: the start is the last certified one
             exc.partial_result = self._interrupted(targets, frozen, start, getattr(run, "history", ()), start_info,
                                                    "full", t_start, exc)
             raise
-        run.certify()
-        return self._result(targets, frozen, run.eq, run.ok, run.reason(), run.status(),
-                            run.history, run.iterations, run.entry.t_build if run.built else 0.0,
-                            run.stats(), t_start)
 
     def _solve_reduced(self, targets, frozen, start, start_info, options, t_start) -> ControlResult:
         run = ReducedRun(self.model, targets, options, frozen, start, t_start)
-        try:
+        try:        # (a signal during the final certification too)
             run.solve()
+            ok, reason, status = run.verdict()
+            return self._result(targets, frozen, run.end.eq, ok, reason, status, run.history,
+                                run.iterations, run.t_build, run.stats(start_info), t_start)
         except KeyboardInterrupt as exc:      # the lowest certified iterate so far
             seen = [h for h in run.history if h.dispatchable]
             best = min(seen, key=lambda h: h.objective).equilibrium if seen else start
             exc.partial_result = self._interrupted(targets, frozen, best, run.history, start_info, "reduced",
                                                    t_start, exc)
             raise
-        ok, reason, status = run.verdict()
-        return self._result(targets, frozen, run.end.eq, ok, reason, status, run.history,
-                            run.iterations, run.t_build, run.stats(start_info), t_start)
 
     def _result(self, targets, frozen, eq, ok, reason, status, history, iterations, t_setup,
                 stats: BilevelStats, t_start) -> ControlResult:

@@ -324,17 +324,16 @@ class Controller:
         The final pose is certified once more by the plant as the end of the
         path of iterates (:meth:`Plant.finish`, with its smallest Hessian
         eigenvalue), so callers need no further solve for the result file."""
-        if not self._finished:
-            try:
-                for _ in self.iterates():
-                    pass
-            except KeyboardInterrupt as exc:      # Ctrl-C, or SIGTERM/SIGHUP as Interrupted
-                # the caller may still report where the run got to
-                exc.partial_result = interrupted_result(self, exc) if self.history else None
-                raise
-        last = self.history[-1]
-        eq = self.plant.finish(self._eq, np.array([it.contraction for it in self.history]),
-                               EquilibriumOptions(eigenvalue=eigenvalue, escape_saddles=False), origin=CONTROL_ORIGIN)
+        try:              # (a signal during the final certification too)
+            for _ in () if self._finished else self.iterates():
+                pass
+            last = self.history[-1]
+            eq = self.plant.finish(self._eq, np.array([it.contraction for it in self.history]),
+                                   EquilibriumOptions(eigenvalue=eigenvalue, escape_saddles=False), origin=CONTROL_ORIGIN)
+        except KeyboardInterrupt as exc:      # Ctrl-C, or SIGTERM/SIGHUP as Interrupted
+            # the caller may still report where the run got to
+            exc.partial_result = interrupted_result(self, exc) if self.history else None
+            raise
         if eq is self._eq and not eigenvalue:
             eq = last.equilibrium            # nothing added: the last iterate as it is
         elif eq is not self._eq:             # the path's certified end: the history ends there
