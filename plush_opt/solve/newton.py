@@ -32,6 +32,13 @@ ENERGY_ROUNDOFF = 1e-13
 ROUNDOFF_BAND = 100.0
 # ... and is taken if it cuts the residual by at least this factor.
 ROUNDOFF_RESIDUAL_CUT = 0.5
+# A step with a kept factor (of a nearby Hessian: the last Newton step's,
+# or one the caller hands in) is taken only while each cuts the residual at
+# least this much: a slower rate would cost more evaluations than the
+# factorisation it saves.
+CHORD_CUT = 0.25
+# ... and at most this many in a row (then a fresh factorisation).
+CHORD_STEPS = 12
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
@@ -140,6 +147,44 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0
 
 
+def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: EquilibriumOptions,
+                 budget: int) -> tuple[np.ndarray, Evaluation, int]:
+    """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
+    Hessian, no factorisation: each is taken whole (never beyond
+    ``Model.max_step``) only if it is admissible, does not raise the energy
+    (Armijo, or at round-off level) and cuts the residual by
+    ``CHORD_CUT``; they stop at the first that does not, when the residual
+    is within tolerance, or after ``min(CHORD_STEPS, budget)``. Returns the
+    pose, its evaluation (with the Hessian if any step was taken, else
+    ``ev`` as given) and the number of steps. The certificate is untouched:
+    the pose they reach is factored afresh."""
+    steps = 0
+    ev1 = ev
+    while steps < min(CHORD_STEPS, budget):
+        g = ev1.gradient
+        norm = float(np.linalg.norm(g))
+        if norm <= options.gtol * ev1.force_scale:
+            break
+        dx = -factor.solve(g)
+        if model.max_step(x, dx) < 1.0:
+            break
+        xt = x + dx
+        et = model.evaluate(xt, c, order=1)
+        if not (et.admissible and np.isfinite(et.energy)):
+            break
+        slack = _energy_slack(model, ev1.energy, x)
+        lower = et.energy <= ev1.energy + options.armijo * float(g @ dx) + slack
+        if not ((lower or et.energy <= ev1.energy + ROUNDOFF_BAND * slack)
+                and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
+            break
+        x, ev1, steps = xt, et, steps + 1
+    if steps:
+        log.debug("newton: %d step(s) with a kept factor, residual %.3e", steps,
+                  np.linalg.norm(ev1.gradient) / ev1.force_scale)
+        return x, model.evaluate(x, c, order=2), steps
+    return x, ev, 0
+
+
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
                           options: EquilibriumOptions):
     """At an indefinite Hessian (``step_factor`` its regularised factor):
@@ -159,16 +204,26 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
-def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
+def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor | None = None) -> Equilibrium:
     """Newton from the pose ``x`` (n_dofs,) at ``c`` (n_winches,): the
     certified :class:`Equilibrium` where it converges, else an honest
-    status (iteration limit, stall, saddle, left the branch, line search)."""
+    status (iteration limit, stall, saddle, left the branch, line search).
+
+    ``chord``: a positive definite factor of a nearby Hessian (the last
+    certified equilibrium's, for a warm start): the first steps reuse it
+    while each cuts the residual by ``CHORD_CUT`` (:func:`_chord_steps`).
+    After a full Newton step that cut the residual as much, its factor is
+    reused the same way. Such steps count as iterations; every converged
+    pose is factored and certified afresh."""
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
         return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
                            np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
                            "newton")
+    it = 0
+    if chord is not None and chord.shift == 0.0 and chord.H.shape == (model.n_dofs, model.n_dofs):
+        x, ev, it = _chord_steps(model, c, x, ev, chord, options, options.max_iterations)
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
@@ -176,7 +231,6 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
     factor = None
-    it = 0
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
@@ -231,5 +285,11 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
+        previous = np.linalg.norm(g)
         x, ev = accepted
+        if (factor is not None and alpha == 1.0 and options.max_iterations > it
+                and np.linalg.norm(ev.gradient) <= CHORD_CUT * previous):
+            # the local phase: the factor just used is good for a few more steps
+            x, ev, kept = _chord_steps(model, c, x, ev, factor, options, options.max_iterations - it)
+            it += kept
     return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
