@@ -34,9 +34,12 @@ ROUNDOFF_BAND = 100.0
 ROUNDOFF_RESIDUAL_CUT = 0.5
 # A step with a kept factor (of a nearby Hessian: the last Newton step's,
 # or one the caller hands in) is taken only while each cuts the residual at
-# least this much: a slower rate would cost more evaluations than the
-# factorisation it saves.
-CHORD_CUT = 0.25
+# least this much: at a slower rate its evaluations cost more than the
+# factorisation it saves (near round-off a rate of 0.3 is still worth it).
+CHORD_CUT = 0.5
+# The factor of a full Newton step is kept only if that step cut the
+# residual this much (the local phase, where the Hessian changes little).
+CHORD_START = 0.25
 # ... and at most this many in a row (then a fresh factorisation).
 CHORD_STEPS = 12
 # A mode whose net displacement is below this fraction of its 1-norm has
@@ -212,8 +215,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     ``chord``: a positive definite factor of a nearby Hessian (the last
     certified equilibrium's, for a warm start): the first steps reuse it
     while each cuts the residual by ``CHORD_CUT`` (:func:`_chord_steps`).
-    After a full Newton step that cut the residual as much, its factor is
-    reused the same way. Such steps count as iterations; every converged
+    After a full Newton step that cut the residual by ``CHORD_START``, its
+    factor is reused the same way. Such steps count as iterations; every converged
     pose is factored and certified afresh."""
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
@@ -288,7 +291,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         previous = np.linalg.norm(g)
         x, ev = accepted
         if (factor is not None and alpha == 1.0 and options.max_iterations > it
-                and np.linalg.norm(ev.gradient) <= CHORD_CUT * previous):
+                and np.linalg.norm(ev.gradient) <= CHORD_START * previous):
             # the local phase: the factor just used is good for a few more steps
             x, ev, kept = _chord_steps(model, c, x, ev, factor, options, options.max_iterations - it)
             it += kept
