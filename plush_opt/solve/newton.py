@@ -7,6 +7,15 @@ non-finite energy, a multiple of the identity added where the Hessian is
 not positive definite, and an escape along the most negative curvature
 direction at a saddle and off a symmetric branch. Its tuning is
 :class:`~plush_opt.solve.certificate.EquilibriumOptions`.
+
+A factorisation is kept where it still serves (a chord step, no new
+factorisation): after a full Newton step that cut the residual by
+``CHORD_START`` (the local phase), and from the start when the caller hands
+in the factor of a nearby certified equilibrium (a control trial from its
+iterate). Each such step must cut the residual by ``CHORD_CUT`` and pass
+the same admissibility and energy tests as a Newton step; they count as
+iterations. The certificate never rests on a kept factor: the pose they
+reach is factored afresh, and only that factor certifies it.
 """
 
 from __future__ import annotations
@@ -188,6 +197,20 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
     return x, ev, 0
 
 
+def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | None, options: EquilibriumOptions,
+                 budget: int) -> tuple[np.ndarray, Evaluation, int]:
+    """After a Newton step to ``accepted`` (pose, evaluation) from a pose
+    with gradient ``g``: in the local phase (a full step with a positive
+    definite ``factor`` that cut the residual by ``CHORD_START``) that
+    factor serves a few more steps (:func:`_chord_steps`); (pose,
+    evaluation, steps taken)."""
+    x, ev = accepted
+    if factor is None or alpha != 1.0 or budget <= 0 or \
+            np.linalg.norm(ev.gradient) > CHORD_START * np.linalg.norm(g):
+        return x, ev, 0
+    return _chord_steps(model, c, x, ev, factor, options, budget)
+
+
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
                           options: EquilibriumOptions):
     """At an indefinite Hessian (``step_factor`` its regularised factor):
@@ -211,13 +234,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     """Newton from the pose ``x`` (n_dofs,) at ``c`` (n_winches,): the
     certified :class:`Equilibrium` where it converges, else an honest
     status (iteration limit, stall, saddle, left the branch, line search).
-
     ``chord``: a positive definite factor of a nearby Hessian (the last
-    certified equilibrium's, for a warm start): the first steps reuse it
-    while each cuts the residual by ``CHORD_CUT`` (:func:`_chord_steps`).
-    After a full Newton step that cut the residual by ``CHORD_START``, its
-    factor is reused the same way. Such steps count as iterations; every converged
-    pose is factored and certified afresh."""
+    certified equilibrium's) for the first steps (module docstring)."""
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
@@ -288,11 +306,6 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
-        previous = np.linalg.norm(g)
-        x, ev = accepted
-        if (factor is not None and alpha == 1.0 and options.max_iterations > it
-                and np.linalg.norm(ev.gradient) <= CHORD_START * previous):
-            # the local phase: the factor just used is good for a few more steps
-            x, ev, kept = _chord_steps(model, c, x, ev, factor, options, options.max_iterations - it)
-            it += kept
+        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, options.max_iterations - it)
+        it += kept
     return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
