@@ -82,6 +82,10 @@ LOW_RANK_DROP = 1e-14
 # above this fraction of the right-hand side (the update loses digits when
 # the sparse part is much softer than the whole: a stiff tendon on a soft body).
 REFINE_ABOVE = 1e-12
+# The Woodbury set-up by forward substitution of the sparse low-rank factor
+# alone (CHOLMOD); False forms Y = A^-1 G with k full solves, as with QDLDL
+# (the reference path: tools/bench_newton.py times the two).
+WOODBURY_HALVES = True
 
 
 class NotPositiveDefinite(Exception):
@@ -365,7 +369,7 @@ class _WoodburySolve:
 
     def __init__(self, body: "Factor", H: LowRankHessian, shift: float):
         self._body, self._H, self._shift = body, H, shift
-        self._halves = body._halves
+        self._halves = body._halves if WOODBURY_HALVES else None
         self._checked = False       # the first solve's residual decides on refinement
         self._refine = True
         D, V = _low_rank_eigen(H.M)

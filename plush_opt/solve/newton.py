@@ -10,9 +10,12 @@ direction at a saddle and off a symmetric branch. Its tuning is
 
 A factorisation is kept where it still serves (a chord step, no new
 factorisation): after a full Newton step that cut the residual by
-``CHORD_START`` (the local phase), and from the start when the caller hands
-in the factor of a nearby certified equilibrium (a control trial from its
-iterate). Each such step must cut the residual by ``CHORD_CUT`` and pass
+``CHORD_START`` (the local phase; not when following a branch, with
+``regularise`` off, where every Hessian on the way must be seen), and from
+the start when the caller hands in the factor of a nearby certified
+equilibrium (a control trial from its iterate). Where the pose they reach
+has a Hessian that is not positive definite, they are undone and the solve
+goes on without them. Each such step must cut the residual by ``CHORD_CUT`` and pass
 the same admissibility and energy tests as a Newton step; they count as
 iterations. The certificate never rests on a kept factor: the pose they
 reach is factored afresh, and only that factor certifies it.
@@ -51,6 +54,11 @@ CHORD_CUT = 0.5
 CHORD_START = 0.25
 # ... and at most this many in a row (then a fresh factorisation).
 CHORD_STEPS = 12
+# They go on below the tolerance, to this fraction of it: a converging
+# Newton step lands decades below it, and callers that difference poses
+# (finite differences, sensitivities checked against re-solves) rely on
+# that; a step with a kept factor costs a fraction of one.
+CHORD_DEPTH = 1e-3
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
@@ -166,7 +174,7 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
     ``Model.max_step``) only if it is admissible, does not raise the energy
     (Armijo, or at round-off level) and cuts the residual by
     ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is within tolerance, or after ``min(CHORD_STEPS, budget)``. Returns the
+    is ``CHORD_DEPTH`` times the tolerance, or after ``min(CHORD_STEPS, budget)``. Returns the
     pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
@@ -175,7 +183,7 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
     while steps < min(CHORD_STEPS, budget):
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
-        if norm <= options.gtol * ev1.force_scale:
+        if norm <= CHORD_DEPTH * options.gtol * ev1.force_scale:
             break
         dx = -factor.solve(g)
         if model.max_step(x, dx) < 1.0:
@@ -195,6 +203,16 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
                   np.linalg.norm(ev1.gradient) / ev1.force_scale)
         return x, model.evaluate(x, c, order=2), steps
     return x, ev, 0
+
+
+def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
+    """Kept-factor steps from the start with the caller's ``chord`` factor
+    (a positive definite one of this model): (pose, evaluation, steps,
+    where they began or None)."""
+    if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
+        return x, ev, 0, None
+    xs, es, steps = _chord_steps(model, c, x, ev, chord, options, options.max_iterations)
+    return xs, es, steps, ((x, ev) if steps else None)
 
 
 def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | None, options: EquilibriumOptions,
@@ -242,19 +260,20 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
                            np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
                            "newton")
-    it = 0
-    if chord is not None and chord.shift == 0.0 and chord.H.shape == (model.n_dofs, model.n_dofs):
-        x, ev, it = _chord_steps(model, c, x, ev, chord, options, options.max_iterations)
+    x, ev, it, undo = _start_with(model, c, x, ev, chord, options)
+    keep = options.regularise     # kept-factor steps after Newton steps (module docstring)
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
-    factor = None
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
+        if factor is None and undo is not None:    # kept-factor steps led there: undone
+            (x, ev), undo, keep = undo, None, False
+            continue
         small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
             converged = True
@@ -306,6 +325,6 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
-        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, options.max_iterations - it)
-        it += kept
+        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep * (options.max_iterations - it))
+        it, undo = it + kept, accepted if kept else None
     return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
