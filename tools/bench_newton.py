@@ -18,6 +18,12 @@ a reparam control run: the median CPU time of an iterate after the first
 (the starting solve left out), the factorisations per iterate, the
 iterates and the objective (the variants must agree on it). Prints a
 Markdown table.
+
+    python tools/bench_newton.py --peak-memory 30000
+
+instead builds the model and solves once from rest in this process (the
+shipped code, nothing switched) and prints the process's peak resident
+memory.
 """
 
 from __future__ import annotations
@@ -81,12 +87,27 @@ def _control(model, targets) -> dict:
             "factorisations_per_iterate": count["n"] / max(len(times), 1), "objective": res.objective}
 
 
+def _peak_memory(name: str, nodes: int) -> None:
+    import resource
+    scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element="P1")
+    model = from_scene(scene, mesh_for_nodes(scene, nodes)).model
+    c = model.scene.contraction if name != "gripper" else np.full(model.n_winches, 10.0)
+    out = _forward(model, c)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024      # Linux: kB
+    print(f"{name} @ {model.n_nodes} nodes: forward from rest {out['cpu']:.2f} s CPU, "
+          f"{out['iterations']} iterations, {out['factorisations']} factorisations; peak memory {peak:.0f} MB")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problem", default="gripper")
     ap.add_argument("--nodes", type=int, nargs="+", default=[1000, 10000])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--peak-memory", type=int, metavar="NODES",
+                    help="one forward solve at about NODES nodes; print the peak resident memory")
     args = ap.parse_args(argv)
+    if args.peak_memory:
+        return _peak_memory(args.problem, args.peak_memory)
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")

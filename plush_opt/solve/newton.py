@@ -15,9 +15,9 @@ factorisation): after a full Newton step that cut the residual by
 the start when the caller hands in the factor of a nearby certified
 equilibrium (a control trial from its iterate). Where the pose they reach
 has a Hessian that is not positive definite, they are undone and the solve
-goes on without them. Each such step must cut the residual by ``CHORD_CUT`` and pass
-the same admissibility and energy tests as a Newton step; they count as
-iterations. The certificate never rests on a kept factor: the pose they
+goes on without them. Each such step must cut the residual by
+``CHORD_CUT`` and pass the same admissibility and energy tests as a Newton
+step; they count as iterations. The certificate never rests on a kept factor: the pose they
 reach is factored afresh, and only that factor certifies it.
 """
 
@@ -174,8 +174,8 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
     ``Model.max_step``) only if it is admissible, does not raise the energy
     (Armijo, or at round-off level) and cuts the residual by
     ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is ``CHORD_DEPTH`` times the tolerance, or after ``min(CHORD_STEPS, budget)``. Returns the
-    pose, its evaluation (with the Hessian if any step was taken, else
+    is ``CHORD_DEPTH`` times the tolerance, or after
+    ``min(CHORD_STEPS, budget)``. Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
     steps = 0
