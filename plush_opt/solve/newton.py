@@ -10,14 +10,14 @@ direction at a saddle and off a symmetric branch. Its tuning is
 
 A factorisation is kept where it still serves (a chord step, no new
 factorisation): after a full Newton step that cut the residual by
-``CHORD_START`` (the local phase; not when following a branch, with
-``regularise`` off, where every Hessian on the way must be seen), and from
-the start when the caller hands in the factor of a nearby certified
-equilibrium (a control trial from its iterate). Where the pose they reach
-has a Hessian that is not positive definite, they are undone and the solve
-goes on without them. Each such step must cut the residual by
-``CHORD_CUT`` and pass the same admissibility and energy tests as a Newton
-step; they count as iterations. The certificate never rests on a kept factor: the pose they
+``CHORD_START`` (the local phase), and from the start when the caller
+hands in the factor of a nearby certified equilibrium (a control trial
+from its iterate). Where the pose they reach has a Hessian that is not
+positive definite, they are undone and the solve goes on without them.
+Each such step must cut the residual by ``CHORD_CUT`` and pass the same
+admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
+follow one factorisation. They are not iterations: ``iterations`` (and
+``max_iterations``) count Newton steps, each with its own factorisation. The certificate never rests on a kept factor: the pose they
 reach is factored afresh, and only that factor certifies it.
 """
 
@@ -167,20 +167,20 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0
 
 
-def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: EquilibriumOptions,
-                 budget: int) -> tuple[np.ndarray, Evaluation, int]:
+def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
+                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
     """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
     Hessian, no factorisation: each is taken whole (never beyond
     ``Model.max_step``) only if it is admissible, does not raise the energy
     (Armijo, or at round-off level) and cuts the residual by
     ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is ``CHORD_DEPTH`` times the tolerance, or after
-    ``min(CHORD_STEPS, budget)``. Returns the pose, its evaluation (with the Hessian if any step was taken, else
+    is ``CHORD_DEPTH`` times the tolerance, or after ``CHORD_STEPS``.
+    Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
     steps = 0
     ev1 = ev
-    while steps < min(CHORD_STEPS, budget):
+    while steps < CHORD_STEPS:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
         if norm <= CHORD_DEPTH * options.gtol * ev1.force_scale:
@@ -207,26 +207,26 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor, options: Eq
 
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
     """Kept-factor steps from the start with the caller's ``chord`` factor
-    (a positive definite one of this model): (pose, evaluation, steps,
-    where they began or None)."""
+    (a positive definite one of this model): (pose, evaluation, where they
+    began or None)."""
     if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
-        return x, ev, 0, None
-    xs, es, steps = _chord_steps(model, c, x, ev, chord, options, options.max_iterations)
-    return xs, es, steps, ((x, ev) if steps else None)
+        return x, ev, None
+    xs, es, steps = _chord_steps(model, c, x, ev, chord, options)
+    return xs, es, ((x, ev) if steps else None)
 
 
 def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | None, options: EquilibriumOptions,
-                 budget: int) -> tuple[np.ndarray, Evaluation, int]:
+                 allowed: bool) -> tuple[np.ndarray, Evaluation, int]:
     """After a Newton step to ``accepted`` (pose, evaluation) from a pose
     with gradient ``g``: in the local phase (a full step with a positive
     definite ``factor`` that cut the residual by ``CHORD_START``) that
     factor serves a few more steps (:func:`_chord_steps`); (pose,
     evaluation, steps taken)."""
     x, ev = accepted
-    if factor is None or alpha != 1.0 or budget <= 0 or \
+    if not allowed or factor is None or alpha != 1.0 or \
             np.linalg.norm(ev.gradient) > CHORD_START * np.linalg.norm(g):
         return x, ev, 0
-    return _chord_steps(model, c, x, ev, factor, options, budget)
+    return _chord_steps(model, c, x, ev, factor, options)
 
 
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
@@ -260,8 +260,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
                            np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
                            "newton")
-    x, ev, it, undo = _start_with(model, c, x, ev, chord, options)
-    keep = options.regularise     # kept-factor steps after Newton steps (module docstring)
+    x, ev, undo = _start_with(model, c, x, ev, chord, options)
+    keep, it = True, 0            # kept-factor steps allowed (until they led to an indefinite H)
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
@@ -325,6 +325,6 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
-        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep * (options.max_iterations - it))
-        it, undo = it + kept, accepted if kept else None
+        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
+        undo = accepted if kept else None
     return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
