@@ -46,7 +46,7 @@ lock: | system-deps
 	rm -rf $(LOCK_VENV)
 	$(PYTHON) -m venv $(LOCK_VENV)
 	$(LOCK_VENV)/bin/python -m pip install -q --upgrade pip
-	$(LOCK_VENV)/bin/python -m pip install -q '.[cholmod,dev]'
+	$(LOCK_VENV)/bin/python -m pip install -q '.[cholmod,dev,bench]'
 	{ echo "# Versions the test suite passes with; made by \`make lock\`, used as pip constraints."; \
 	  $(LOCK_VENV)/bin/python -m pip freeze --exclude plush_opt --exclude plush-opt; } > requirements.lock
 	rm -rf $(LOCK_VENV) build

@@ -61,3 +61,41 @@ def test_bench_rejects_bad_sizes(tmp_path):
     p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", "--sizes", "a,b",
                         "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "--sizes" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_bench_times_the_parts_inside_the_same_solve(tmp_path):
+    """The forward ratios come from one solve timed whole and by parts: the
+    parts never exceed the whole, and a certified solve factors at least once."""
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench",
+                        str(ROOT / "problems" / "hexapod_leg.yaml"), "--sizes", "150",
+                        "--inverse-max-nodes", "10", "--repeats", "1", "--out", str(tmp_path)],
+                       capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    row = json.loads((tmp_path / "bench.json").read_text())["rows"][0]
+    parts = row["forward_parts"]
+    assert parts["factorisations"] >= 1 and parts["evaluations"] >= parts["factorisations"]
+    assert parts["evaluate_s"] + parts["factorise_s"] <= parts["total_s"]
+    assert row["forward_ratio"] >= 1.0 and row["forward_factor_ratio"] >= 1.0
+
+
+def test_bench_peers_compares_the_same_problem(tmp_path):
+    """``--peers``: each installed peer solves the same problem to the same
+    pose (displacements agree to 1e-6 of their size), in one run."""
+    from plush_opt.apps.bench_peers import available_peers
+    peers = available_peers()
+    if not peers:
+        pytest.skip("neither FElupe nor scikit-fem installed (the [bench] extra)")
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", "--peers", "--sizes", "200",
+                        "--repeats", "1", "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    rows = json.loads((tmp_path / "peers.json").read_text())["rows"]
+    assert [r["solver"] for r in rows] == ["plush_opt"] + peers
+    assert all(r["converged"] and r["max_difference"] < 1e-6 for r in rows), rows
+    assert all(r["nodes"] == rows[0]["nodes"] for r in rows)
+    assert "ours / this" in (tmp_path / "peers.md").read_text()
+
+
+def test_bench_peers_rejects_what_it_cannot_compare(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", "--peers", "--sizes", "file",
+                        "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert p.returncode == 2 and "--sizes" in p.stderr and "Traceback" not in p.stderr

@@ -99,3 +99,41 @@ def test_an_ipopt_equilibrium_builds_its_nlp_once_and_solves_as_a_fresh_one():
 def test_tuning_options_are_validated(bad):
     with pytest.raises(ValueError, match=next(iter(bad))):
         EquilibriumOptions(**bad)
+
+
+def _counting_factorisations(model):
+    """Count the model's factorisations (a wrapper on its factoriser)."""
+    count = {"n": 0}
+    plain = model.factorizer.factor
+
+    def factor(H, shift=0.0):
+        count["n"] += 1
+        return plain(H, shift)
+    model.factorizer.factor = factor
+    return count
+
+
+def test_a_kept_factor_saves_factorisations_never_the_certificate():
+    """Newton started with the factor of a nearby equilibrium (a chord)
+    reaches the same equilibrium with fewer factorisations, and certifies
+    it with a factor of its own Hessian."""
+    from plush_opt.solve.sensitivity import state_sensitivity
+    _, _, model, _ = built("gripper")
+    near = solve_equilibrium(model, [9.8, 0.0, 5.0])
+    c = np.array([9.802, 0.0, 5.0])       # a control loop's last, short steps
+    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
+    count = _counting_factorisations(model)
+    try:
+        plain = solve_equilibrium(model, c, guess)
+        n_plain, count["n"] = count["n"], 0
+        kept = solve_equilibrium(model, c, guess, chord=near.factor)
+        n_kept = count["n"]
+    finally:
+        del model.factorizer.factor
+    assert plain.converged and kept.converged, (plain.status, kept.status)
+    assert n_kept < n_plain, (n_kept, n_plain)
+    assert kept.factor is not near.factor and kept.relative_residual <= 1e-10
+    assert np.abs(kept.x - plain.x).max() <= 1e-7 * body_size(model)
+    H = model.evaluate(kept.x, kept.contraction).hessian
+    b = np.ones(model.n_dofs)
+    assert np.linalg.norm(H @ kept.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)

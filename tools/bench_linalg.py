@@ -6,7 +6,12 @@ Newton does).
     python tools/bench_linalg.py --modes --element P1 P2 --nodes 5000 10000 15000 20000 --repeats 12
 
 ``--modes`` compares CHOLMOD's simplicial LDL^T and supernodal LL^T instead
-(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``). ``--forms`` compares
+(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``), of the assembled
+Hessian; with ``--taken`` of the form Newton factors (a low-rank form: its
+sparse body and the Woodbury set-up), with ``--peer`` of the body under
+gravity without tendons (the ``plush-opt bench --peers`` problem):
+
+    python tools/bench_linalg.py --modes --taken --peer --problems gripper --nodes 10000 20000 30000 40000 ``--forms`` compares
 the Hessian's forms with finite attachments (assembled, rank_one, split:
 docs/model.md, "The tendon terms as a low-rank update"; the crossover
 behind ``model.SPLIT_MIN_DISC_NODES``):
@@ -62,13 +67,23 @@ def _best_seconds(fns: dict, repeats: int) -> dict:
     return best
 
 
-def _hessian(name: str, nodes: int, element: str = "P1"):
-    scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
-    mesh = mesh_for_nodes(scene, nodes)
-    model = build_model(scene, mesh)
+def _hessian(name: str, nodes: int, element: str = "P1", taken: bool = False, peer: bool = False):
+    """(nodes, Hessian at a loaded equilibrium): assembled, or with
+    ``taken`` the form Newton factors (a low-rank form stays one); with
+    ``peer`` of the problem's body under gravity without tendons (the
+    ``bench --peers`` problem)."""
+    if peer:
+        from plush_opt.apps.bench_peers import peer_problem
+        _, mesh, prob = peer_problem(ROOT / "problems" / f"{name}.yaml", nodes, element)
+        model = prob.model
+    else:
+        scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
+        mesh = mesh_for_nodes(scene, nodes)
+        model = build_model(scene, mesh)
     c = model.lower + CONTRACTION_FRACTION * (model.upper - model.lower)
     eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
-    return mesh.n_nodes, model.evaluate(eq.x, c).hessian
+    ev = model.evaluate(eq.x, c)
+    return mesh.n_nodes, (ev.hessian_form if taken else ev.hessian)
 
 
 def _version(pkg: str) -> str:
@@ -108,12 +123,16 @@ def bench(name: str, nodes: int, repeats: int, backends) -> dict:
     return {"problem": name, "nodes": n_nodes, "nnz": H.nnz, **_best_seconds(fns, repeats)}
 
 
-def bench_modes(name: str, nodes: int, element: str, repeats: int) -> dict:
-    n_nodes, H = _hessian(name, nodes, element)
+def bench_modes(name: str, nodes: int, element: str, repeats: int, taken: bool = False,
+                peer: bool = False) -> dict:
+    n_nodes, H = _hessian(name, nodes, element, taken, peer)
     b = np.random.default_rng(0).standard_normal(H.shape[0])
     fns = {mode: (lambda fz: lambda: fz.factor(H).solve(b))(linalg.Factorizer("cholmod", mode))
            for mode in ("simplicial", "supernodal")}
-    return {"problem": name, "element": element, "nodes": n_nodes, "dofs": H.shape[0], "nnz": H.nnz,
+    nnz = H.body.nnz if isinstance(H, linalg.LowRankHessian) else H.nnz
+    label = " (gravity, no tendons)" if peer else " (low-rank)" if isinstance(H, linalg.LowRankHessian) else ""
+    return {"problem": name + label,
+            "element": element, "nodes": n_nodes, "dofs": H.shape[0], "nnz": nnz,
             **_best_seconds(fns, repeats)}
 
 
@@ -156,7 +175,7 @@ def main_forms(args):
 
 
 def main_modes(args):
-    _table(args, bench_modes,
+    _table(args, lambda *a: bench_modes(*a, taken=args.taken, peer=args.peer),
            "| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
            "simplicial / supernodal |",
            lambda r: (f"| {r['problem']} | {r['element']} | {r['nodes']} | {r['dofs']} | {r['nnz']} | "
@@ -172,6 +191,10 @@ def main(argv=None):
     ap.add_argument("--modes", action="store_true", help="CHOLMOD simplicial against supernodal")
     ap.add_argument("--forms", action="store_true", help="the Hessian's forms with finite attachments")
     ap.add_argument("--element", nargs="+", default=["P1"], choices=("P1", "P2"))
+    ap.add_argument("--taken", action="store_true",
+                    help="with --modes: the Hessian in the form Newton factors (a low-rank form: its body + Woodbury)")
+    ap.add_argument("--peer", action="store_true",
+                    help="with --modes: the problem's body under gravity without tendons (bench --peers)")
     args = ap.parse_args(argv)
     if args.modes:
         return main_modes(args)

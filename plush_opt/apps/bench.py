@@ -107,6 +107,45 @@ def _build_times(problem: Path, nodes: int, element: str, repeats: int) -> dict:
     return {"build_uncached_s": float(np.median(uncached)), "build_cached_s": float(np.median(cached))}
 
 
+def _solve_with_parts(model, c, x0, options, repeats: int) -> tuple[dict, object]:
+    """One solve timed whole and by parts inside it (CPU seconds: one BLAS
+    thread, so other processes on a shared machine do not count): the
+    model's evaluations and the factorisations (each factorisation's
+    call, pivot test and low-rank set-up included), and how many. The run
+    of median total time among ``repeats``; (parts, its equilibrium)."""
+    fz = model.factorizer
+    plain_eval, plain_factor = model.evaluate, fz.factor
+    runs = []
+    for _ in range(repeats):
+        parts = {"evaluate_s": 0.0, "factorise_s": 0.0, "evaluations": 0, "factorisations": 0}
+
+        def evaluate(*args, **kwargs):
+            t = time.process_time()
+            try:
+                return plain_eval(*args, **kwargs)
+            finally:
+                parts["evaluate_s"] += time.process_time() - t
+                parts["evaluations"] += 1
+
+        def factor(*args, **kwargs):
+            t = time.process_time()
+            try:
+                return plain_factor(*args, **kwargs)
+            finally:
+                parts["factorise_s"] += time.process_time() - t
+                parts["factorisations"] += 1
+        model.evaluate, fz.factor = evaluate, factor
+        try:
+            t = time.process_time()
+            eq = solve_equilibrium(model, c, x0, options)
+            parts["total_s"] = time.process_time() - t
+        finally:
+            del model.evaluate, fz.factor
+        runs.append((parts, eq))
+    runs.sort(key=lambda run: run[0]["total_s"])
+    return runs[len(runs) // 2]
+
+
 def _factor_times(model, hessian, repeats: int) -> dict:
     """The factorisation the model takes, and CHOLMOD's two modes side by side."""
     row = {"factor_mode": None}
@@ -158,8 +197,12 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     row.update(_factor_times(model, form, repeats))
     row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
     row["forward_iterations"] = fwd.iterations
-    row["forward_ratio"] = (row["forward_s"] / (fwd.iterations * (row["hessian_s"] + row["factor_s"]))
-                            if fwd.iterations else None)
+    # the parts timed inside one and the same solve (CPU time)
+    parts, _ = _solve_with_parts(model, c, None, NO_EIG, repeats)
+    row["forward_parts"] = parts
+    row["forward_factorisations"] = parts["factorisations"]
+    row["forward_ratio"] = parts["total_s"] / (parts["evaluate_s"] + parts["factorise_s"])
+    row["forward_factor_ratio"] = (parts["total_s"] / parts["factorise_s"] if parts["factorisations"] else None)
     row["forward_certified"] = _certified(fwd)
     row["min_eigenvalue"] = fwd.factor.min_eigenvalue() if fwd.factor is not None else None
 
@@ -293,22 +336,28 @@ def render_markdown(report: dict) -> str:
         "",
         "## Forward model",
         "",
+        "The two ratios are timed inside one and the same solve (CPU time): the whole over the "
+        "time spent in the model's evaluations and the factorisations (Python overhead, line "
+        "search bookkeeping and solves above 1), and the whole over the factorisations alone "
+        "(their calls, pivot tests and low-rank set-up).",
+        "",
         "A scene with friction at via points (marked *) is timed here without it (its model's "
         "single-spring equilibrium): with friction a pose depends on its path, which "
         "`tools/bench_friction.py` times.",
         "",
         "| problem | element | nodes | elements | build, no cache [s] | build, cached [s] | Hessian [ms] | "
-        "factorisation [ms] (mode) | forward from rest [ms] (iterations) | forward / (its x (H + F)) | "
+        "factorisation [ms] (mode) | forward from rest [ms] (iterations; factorisations) | "
+        "forward / (evaluations + factorisations) | forward / factorisations | "
         "warm re-solve [ms] (its; without predictor) | certified |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
         lines.append(
             f"| {r['problem']}{'*' if r.get('friction') else ''} | {_element(r)} | {r['nodes']} | {r['elements']} | "
             f"{_s(r.get('build_uncached_s'), 2)} | "
             f"{_s(r.get('build_cached_s'), 3)} | {_ms(r['hessian_s'])} | {_ms(r['factor_s'])} ({r['factor_mode']}) | "
-            f"{_ms(r['forward_s'])} ({r['forward_iterations']}) | "
-            f"{'—' if r['forward_ratio'] is None else format(r['forward_ratio'], '.2f')} | "
+            f"{_ms(r['forward_s'])} ({r['forward_iterations']}; {r.get('forward_factorisations', '—')}) | "
+            f"{_s(r['forward_ratio'], 2)} | {_s(r.get('forward_factor_ratio'), 2)} | "
             f"{_ms(r['resolve_s'])} ({r['resolve_iterations']}; {r['resolve_without_predictor_iterations']}) | "
             f"{'yes' if r['forward_certified'] and r['resolve_certified'] else 'NO'} |")
     lines += _factor_lines(report["rows"])
@@ -387,7 +436,38 @@ def add_bench_parser(sub) -> None:
     p.add_argument("--contact", action="store_true",
                    help="measure what contact costs instead (contact.md, contact.json): a slab on the floor "
                         "against it pinned, at --sizes (node counts), and hexapod_stand's control iterate")
+    p.add_argument("--peers", action="store_true",
+                   help="instead: the forward solve against FElupe and scikit-fem (the [bench] extra) on the "
+                        "first problem's body and mesh under gravity, at each size; writes peers.md and peers.json")
     p.set_defaults(func=cmd_bench)
+
+
+def _cmd_peers(args, problems, sizes, elements, command, quiet) -> int:
+    """``--peers``: our forward solve against FElupe and scikit-fem (apps/bench_peers.py)."""
+    from ..base.errors import SceneError
+    from .bench_peers import available_peers, bench_peers, render_peers
+    if any(not isinstance(s, int) or s == 0 for s in sizes):
+        raise SceneError(f"--sizes: --peers takes node counts only, got {args.sizes!r}")
+    if elements != ("P1",):
+        raise SceneError(f"--elements: --peers compares linear triangles (P1) only, got {args.elements!r}")
+    if not available_peers():
+        raise SceneError("--peers: neither FElupe nor scikit-fem is installed (`pip install 'plush_opt[bench]'`)")
+    progress = quiet or (lambda msg: print(f"bench: {msg}", file=sys.stderr, flush=True))
+    if not args.problems:                  # (default: the gripper, the figure the issue of speed is set against)
+        from ..base.data_files import data_file
+        problems = [data_file("problems") / "gripper.yaml"]
+    rows = bench_peers(Path(problems[0]), sizes, args.repeats, progress)
+    report = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
+              "repeats": args.repeats, "rows": rows}
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out / "peers.json", report)
+    m = report["machine"]
+    head = ["# Against FElupe and scikit-fem", "", f"Command: `{command}`  ",
+            f"Machine: {m['cpu']}, {m['cores']} cores; sparse LDL^T by {m['linear_solver']}.  ",
+            f"Date: {report['date']}."]
+    write_text_atomic(args.out / "peers.md", "\n".join(head + render_peers(rows, command, args.repeats)) + "\n")
+    progress(f"wrote {args.out / 'peers.md'} and {args.out / 'peers.json'}")
+    return 0
 
 
 def _parse_size(token: str):
@@ -423,6 +503,8 @@ def cmd_bench(args) -> int:
     if args.inverse_max_nodes is not None and args.inverse_max_nodes < 0:
         raise SceneError(f"--inverse-max-nodes: expected >= 0, got {args.inverse_max_nodes}")
     command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
+    if args.contact and args.peers:
+        raise SceneError("--contact and --peers: give one of them (each is a bench of its own)")
     if args.contact:
         from .bench_contact import run_contact_bench
         if any(not isinstance(n, int) or n == 0 for n in sizes):
@@ -439,8 +521,9 @@ def cmd_bench(args) -> int:
     if missing or not problems:
         raise SceneError(f"{missing[0]}: no such problem file" if missing else
                          "no problem files to benchmark (none given, none shipped)")
-    command = "plush-opt bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else "plush-opt bench"
     quiet = (lambda msg: None) if getattr(args, "quiet", False) else None
+    if getattr(args, "peers", False):
+        return _cmd_peers(args, problems, sizes, elements, command, quiet)
     run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet, elements=elements,
               inverse_max_nodes=args.inverse_max_nodes)
     return 0

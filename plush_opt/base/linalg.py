@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import connected_components
 
 from .errors import SettingError, SolverError
 
@@ -81,6 +82,10 @@ LOW_RANK_DROP = 1e-14
 # above this fraction of the right-hand side (the update loses digits when
 # the sparse part is much softer than the whole: a stiff tendon on a soft body).
 REFINE_ABOVE = 1e-12
+# The Woodbury set-up by forward substitution of the sparse low-rank factor
+# alone (CHOLMOD); False forms Y = A^-1 G with k full solves, as with QDLDL
+# (the reference path: tools/bench_newton.py times the two).
+WOODBURY_HALVES = True
 
 
 class NotPositiveDefinite(Exception):
@@ -165,8 +170,9 @@ class Factorizer:
             raise NotPositiveDefinite(f"non-positive pivot ({exc})") from None
         # D of a supernodal LL^T is diag(L)^2 (read off a simplicial copy of
         # the factor: a small fraction of the factorisation's cost)
-        _check_pivots(f.D())
-        return Factor(f, H, shift)
+        d = f.D()
+        _check_pivots(d)
+        return Factor(f, H, shift, _CholmodHalves(f, d, self.mode_used == "simplicial"))
 
     def _factor_qdldl(self, H, shift) -> "Factor":
         # One qdldl solver holds one numeric factor, refactored in place;
@@ -307,11 +313,52 @@ def assembled(H) -> sp.csc_matrix:
     return H.assemble() if isinstance(H, LowRankHessian) else H
 
 
+class _CholmodHalves:
+    """The two triangular halves of a CHOLMOD factor A = P^T L D L^T P
+    (a supernodal LL^T: D = I): ``forward(B)`` = L^-1 P B (B dense or
+    sparse), ``backward(V)`` = P^T L^-T D^-1 V, and ``dinv`` = 1 / diag(D);
+    so A^-1 = backward o forward and B^T A^-1 B = Z^T diag(dinv) Z with
+    Z = forward(B)."""
+
+    def __init__(self, f, d: np.ndarray, simplicial: bool):
+        self._f, self._ldl = f, simplicial
+        self.dinv = 1.0 / d if simplicial else np.ones_like(d)
+
+    def forward(self, B):
+        return self._f.solve_L(self._f.apply_P(B), use_LDLt_decomposition=self._ldl)
+
+    def backward(self, V: np.ndarray) -> np.ndarray:
+        f = self._f
+        return f.apply_Pt(f.solve_DLt(V) if self._ldl else f.solve_Lt(V, use_LDLt_decomposition=False))
+
+
+def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """M's eigenpairs (lam, V) above round-off, block by block: M is block
+    diagonal (a segment's 2 x 2 coupling, a tendon's own entry), so V is
+    exactly as sparse as its blocks and so is Q^T V."""
+    k = M.shape[0]
+    lam, V = np.zeros(k), np.zeros((k, k))
+    if k:
+        n_blocks, label = connected_components(sp.csr_matrix(M != 0), directed=False)
+        for b in range(n_blocks):
+            idx = np.flatnonzero(label == b)
+            lam[idx], V[np.ix_(idx, idx)] = np.linalg.eigh(M[np.ix_(idx, idx)])
+    keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
+    return lam[keep], V[:, keep]
+
+
 class _WoodburySolve:
     """Solves with H + shift I = A + G D G^T, A = body + shift I factored,
     G D G^T = Q^T M Q (M's eigenpairs, those below round-off dropped).
     With Y = A^-1 G |D|^1/2 and T = sign(D) + |D|^1/2 G^T A^-1 G |D|^1/2:
     x = A^-1 b - Y T^-1 Y^T b.
+
+    With a CHOLMOD body factor (:class:`_CholmodHalves`) the set-up is k
+    forward substitutions of the sparse G alone, Z = L^-1 P G |D|^1/2 and
+    T = sign(D) + Z^T D_A^-1 Z, and a solve is one forward and one
+    backward substitution: x = P^T L^-T D_A^-1 (y - Z T^-1 Z^T D_A^-1 y),
+    y = L^-1 P b (the cost of one plain solve). Otherwise Y is formed
+    (k solves).
 
     Inertia (Haynsworth, A positive definite): H + shift I has
     #pos(T) - #pos(D) negative eigenvalues and #zero(T) zero ones, so it is
@@ -322,12 +369,22 @@ class _WoodburySolve:
 
     def __init__(self, body: "Factor", H: LowRankHessian, shift: float):
         self._body, self._H, self._shift = body, H, shift
-        lam, V = np.linalg.eigh(H.M)
-        keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
-        D, V = lam[keep], V[:, keep]
-        G = np.asarray(H.QT @ V) * np.sqrt(np.abs(D)) if D.size else np.zeros((H.shape[0], 0))
-        self._Y = body.solve(G).reshape(H.shape[0], -1)
-        T = np.diag(np.sign(D)) + G.T @ self._Y
+        self._halves = body._halves if WOODBURY_HALVES else None
+        self._checked = False       # the first solve's residual decides on refinement
+        self._refine = True
+        D, V = _low_rank_eigen(H.M)
+        scale = np.sqrt(np.abs(D))
+        n = H.shape[0]
+        if self._halves is not None:
+            G = (H.QT @ sp.csr_matrix(V * scale)).tocsc() if D.size else sp.csc_matrix((n, 0))
+            self._Z = sp.csc_matrix(self._halves.forward(G)) if D.size else sp.csc_matrix((n, 0))
+            W = sp.diags(self._halves.dinv) @ self._Z
+            T = np.diag(np.sign(D)) + (self._Z.T @ W).toarray()
+            self._WT = W.T.tocsr()
+        else:
+            G = np.asarray(H.QT @ V) * scale if D.size else np.zeros((n, 0))
+            self._Y = body.solve(G).reshape(n, -1)
+            T = np.diag(np.sign(D)) + G.T @ self._Y
         t, self._U = np.linalg.eigh((T + T.T) / 2)
         if D.size and (np.count_nonzero(t > 0) != np.count_nonzero(D > 0)
                        or not np.min(np.abs(t)) > PIVOT_MARGIN * np.max(np.abs(t))):
@@ -335,19 +392,31 @@ class _WoodburySolve:
                                       "negative eigenvalue(s), or one near zero")
         self._t = t
 
+    def _inner(self, w: np.ndarray) -> np.ndarray:
+        """T^-1 w (k,) or (k, m)."""
+        return self._U @ ((self._U.T @ w).T / self._t).T
+
     def _once(self, b: np.ndarray) -> np.ndarray:
+        if self._halves is not None:
+            y = self._halves.forward(b)
+            return self._halves.backward(y - self._Z @ self._inner(self._WT @ y))
         u = self._body.solve(b)
-        z = self._U @ ((self._U.T @ (self._Y.T @ b)).T / self._t).T
-        return u - self._Y @ z
+        return u - self._Y @ self._inner(self._Y.T @ b)
 
     def __call__(self, b: np.ndarray) -> np.ndarray:
+        """H^-1 b, refined once by its residual where the first solve with
+        this factor left one above ``REFINE_ABOVE`` of its right-hand side
+        (after a first solve that did not, later ones skip the residual)."""
         b = np.asarray(b, dtype=np.float64)
         x = self._once(b)
+        if self._checked and not self._refine:
+            return x
         r = b - (self._H @ x + self._shift * x)
         size = np.linalg.norm(b, axis=0)
-        if np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * size):
-            x = x + self._once(r)
-        return x
+        refine = bool(np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * size))
+        if not self._checked:
+            self._checked, self._refine = True, refine
+        return x + self._once(r) if refine else x
 
 
 def _operator(H) -> spla.LinearOperator:
@@ -359,10 +428,11 @@ class Factor:
     """An LDL^T factor of ``H + shift I``: solve, and the smallest eigenvalue.
     ``H`` is a CSC matrix or a :class:`LowRankHessian`."""
 
-    def __init__(self, chol, H, shift):
+    def __init__(self, chol, H, shift, halves: "_CholmodHalves | None" = None):
         self._chol = chol
         self.H = H
         self.shift = shift
+        self._halves = halves
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._chol(b)

@@ -30,7 +30,7 @@ import numpy as np
 
 from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from ..base.errors import SolverError
-from ..base.linalg import assembled
+from ..base.linalg import LowRankHessian
 from ..fem.model import Model
 
 log = logging.getLogger(__name__)
@@ -54,15 +54,15 @@ GROW, CUT = 2.0, 0.5
 
 
 def solve_on_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
-                    ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
+                    ipopt: IpoptEquilibrium | None = None, chord=None) -> Equilibrium:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0`` (:func:`follow_branch` without where the
     branch ended)."""
-    return follow_branch(model, c0, x0, c1, guess, options, ipopt)[0]
+    return follow_branch(model, c0, x0, c1, guess, options, ipopt, chord)[0]
 
 
 def follow_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
-                  ipopt: IpoptEquilibrium | None = None) -> tuple[Equilibrium, float | None]:
+                  ipopt: IpoptEquilibrium | None = None, chord=None) -> tuple[Equilibrium, float | None]:
     """The equilibrium at ``c1`` on the stable branch through the certified
     equilibrium ``x0`` at ``c0``, and, where the branch ends before ``c1``,
     the fraction of the move c0 -> c1 at which a sub-step found no stable
@@ -75,7 +75,9 @@ def follow_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOpti
     :class:`IpoptEquilibrium`, if given). A converged answer whose smallest
     Hessian eigenvalue is round-off (the pose on the fold or bifurcation
     ending the branch) is returned not converged. Only a converged answer
-    carries that eigenvalue (with ``options.eigenvalue``).
+    carries that eigenvalue (with ``options.eigenvalue``). ``chord``: the
+    factor of the equilibrium at c0, reused by the direct solve's first
+    steps while they converge fast (:func:`~plush_opt.solve.newton.solve_newton`).
     """
     options = options or EquilibriumOptions()
     c0 = np.asarray(c0, dtype=np.float64).reshape(-1)
@@ -90,7 +92,7 @@ def follow_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOpti
     # symmetric branch (a Lanczos run each); only where the branch seems to
     # end is that looked for (a pitchfork: the path goes on, buckled)
     strict = _strict(options)
-    direct = solve_equilibrium(model, c1, guess, strict)
+    direct = solve_equilibrium(model, c1, guess, strict, chord=chord)
     if direct.converged:
         return _at_the_end(direct, time.perf_counter() - t0, options.eigenvalue), None
     if not _left(direct):
@@ -162,9 +164,9 @@ def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium
     of inverse iteration say it may be round-off, the eigenvalue is computed
     (shift-invert Lanczos with the factor) and kept."""
     eq = replace(eq, t_wall=t_wall)
-    H = assembled(eq.factor.H)
+    rows = _abs_row_sums(eq.factor.H)
     roundoff = ROUNDOFF_EIGENVALUE * np.finfo(float).eps
-    if not eigenvalue and _inverse_estimate(eq.factor) > SAFETY * roundoff * float(np.abs(H.data).sum()):
+    if not eigenvalue and _inverse_estimate(eq.factor) > SAFETY * roundoff * float(rows.sum()):
         return eq                     # (the sum of |H_ij| bounds |H|_inf from above)
     try:
         lam = eq.factor.min_eigenvalue()
@@ -172,12 +174,24 @@ def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium
         log.warning("smallest Hessian eigenvalue not computed: %s", exc)
         return eq
     eq = replace(eq, min_eigenvalue=lam)
-    margin = roundoff * float(abs(H).sum(axis=1).max())
+    margin = roundoff * float(rows.max())
     if lam > margin:
         return eq
     return replace(eq, converged=False,
                    status=(f"{LEFT_BRANCH}: smallest Hessian eigenvalue {lam:.2e} is round-off "
                            f"(below {margin:.1e}): the branch ends here"))
+
+
+def _abs_row_sums(H) -> np.ndarray:
+    """Each row's sum of |H_ij|, (n,): exact for a sparse H; for a
+    :class:`~plush_opt.base.linalg.LowRankHessian` the bound
+    |body| 1 + |Q^T| |M| |Q| 1 from above (the triangle inequality), with no
+    assembly of the dense blocks."""
+    if isinstance(H, LowRankHessian):
+        ones = np.ones(H.shape[0])
+        return (np.asarray(abs(H.body) @ ones).ravel()
+                + np.asarray(abs(H.QT) @ (np.abs(H.M) @ (abs(H.Q) @ ones))).ravel())
+    return np.asarray(abs(H).sum(axis=1)).ravel()
 
 
 def _inverse_estimate(factor) -> float:

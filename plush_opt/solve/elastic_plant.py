@@ -32,7 +32,9 @@ class ElasticPlant(Plant):
         here = self._state
         if here is None:
             raise ValueError("trial: nothing committed (commit the equilibrium the search is at)")
-        return solve_on_branch(self.model, here.contraction, here.x, contraction, guess, options, self.ipopt)
+        # the committed equilibrium's factor starts the trial's Newton (a chord)
+        return solve_on_branch(self.model, here.contraction, here.x, contraction, guess, options, self.ipopt,
+                               chord=here.factor)
 
     def sensitivity(self, eq, columns=None):
         return state_sensitivity(self.model, eq, columns)

@@ -34,12 +34,14 @@ __all__ = ["BACKENDS", "LEFT_BRANCH", "Equilibrium", "EquilibriumOptions", "Ipop
 
 
 def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOptions | None = None,
-                      ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
+                      ipopt: IpoptEquilibrium | None = None, chord=None) -> Equilibrium:
     """Equilibrium of ``model`` at ``contraction`` (n_winches,), from ``x0``
     (flat or (n_nodes, 2); default the rest pose). ``x0`` must be admissible.
 
     ``ipopt`` : the IPOPT backend's solver of this model, which keeps the
-    NLPs it built (default: a new one, built for this solve alone)."""
+    NLPs it built (default: a new one, built for this solve alone).
+    ``chord`` : the factor of a nearby certified equilibrium (Newton's
+    first steps reuse it while they converge fast: :func:`solve_newton`)."""
     options = options or EquilibriumOptions()
     c = np.array(contraction, dtype=np.float64).reshape(-1)
     if c.shape != (model.n_winches,):
@@ -53,4 +55,4 @@ def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOp
         elif ipopt.model is not model:
             raise ValueError("ipopt: an IpoptEquilibrium of another model")
         return ipopt.solve(c, x, options)
-    return solve_newton(model, c, x, options)
+    return solve_newton(model, c, x, options, chord)

@@ -7,6 +7,18 @@ non-finite energy, a multiple of the identity added where the Hessian is
 not positive definite, and an escape along the most negative curvature
 direction at a saddle and off a symmetric branch. Its tuning is
 :class:`~plush_opt.solve.certificate.EquilibriumOptions`.
+
+A factorisation is kept where it still serves (a chord step, no new
+factorisation): after a full Newton step that cut the residual by
+``CHORD_START`` (the local phase), and from the start when the caller
+hands in the factor of a nearby certified equilibrium (a control trial
+from its iterate). Where the pose they reach has a Hessian that is not
+positive definite, they are undone and the solve goes on without them.
+Each such step must cut the residual by ``CHORD_CUT`` and pass the same
+admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
+follow one factorisation. They are not iterations: ``iterations`` (and
+``max_iterations``) count Newton steps, each with its own factorisation. The certificate never rests on a kept factor: the pose they
+reach is factored afresh, and only that factor certifies it.
 """
 
 from __future__ import annotations
@@ -32,6 +44,21 @@ ENERGY_ROUNDOFF = 1e-13
 ROUNDOFF_BAND = 100.0
 # ... and is taken if it cuts the residual by at least this factor.
 ROUNDOFF_RESIDUAL_CUT = 0.5
+# A step with a kept factor (of a nearby Hessian: the last Newton step's,
+# or one the caller hands in) is taken only while each cuts the residual at
+# least this much: at a slower rate its evaluations cost more than the
+# factorisation it saves (near round-off a rate of 0.3 is still worth it).
+CHORD_CUT = 0.5
+# The factor of a full Newton step is kept only if that step cut the
+# residual this much (the local phase, where the Hessian changes little).
+CHORD_START = 0.25
+# ... and at most this many in a row (then a fresh factorisation).
+CHORD_STEPS = 12
+# They go on below the tolerance, to this fraction of it: a converging
+# Newton step lands decades below it, and callers that difference poses
+# (finite differences, sensitivities checked against re-solves) rely on
+# that; a step with a kept factor costs a fraction of one.
+CHORD_DEPTH = 1e-3
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
@@ -140,6 +167,68 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0
 
 
+def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
+                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
+    """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
+    Hessian, no factorisation: each is taken whole (never beyond
+    ``Model.max_step``) only if it is admissible, does not raise the energy
+    (Armijo, or at round-off level) and cuts the residual by
+    ``CHORD_CUT``; they stop at the first that does not, when the residual
+    is ``CHORD_DEPTH`` times the tolerance, or after ``CHORD_STEPS``.
+    Returns the pose, its evaluation (with the Hessian if any step was taken, else
+    ``ev`` as given) and the number of steps. The certificate is untouched:
+    the pose they reach is factored afresh."""
+    steps = 0
+    ev1 = ev
+    while steps < CHORD_STEPS:
+        g = ev1.gradient
+        norm = float(np.linalg.norm(g))
+        if norm <= CHORD_DEPTH * options.gtol * ev1.force_scale:
+            break
+        dx = -factor.solve(g)
+        if model.max_step(x, dx) < 1.0:
+            break
+        xt = x + dx
+        et = model.evaluate(xt, c, order=1)
+        if not (et.admissible and np.isfinite(et.energy)):
+            break
+        slack = _energy_slack(model, ev1.energy, x)
+        lower = et.energy <= ev1.energy + options.armijo * float(g @ dx) + slack
+        if not ((lower or et.energy <= ev1.energy + ROUNDOFF_BAND * slack)
+                and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
+            break
+        x, ev1, steps = xt, et, steps + 1
+    if steps:
+        log.debug("newton: %d step(s) with a kept factor, residual %.3e", steps,
+                  np.linalg.norm(ev1.gradient) / ev1.force_scale)
+        return x, model.evaluate(x, c, order=2), steps
+    return x, ev, 0
+
+
+def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
+    """Kept-factor steps from the start with the caller's ``chord`` factor
+    (a positive definite one of this model): (pose, evaluation, where they
+    began or None)."""
+    if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
+        return x, ev, None
+    xs, es, steps = _chord_steps(model, c, x, ev, chord, options)
+    return xs, es, ((x, ev) if steps else None)
+
+
+def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | None, options: EquilibriumOptions,
+                 allowed: bool) -> tuple[np.ndarray, Evaluation, int]:
+    """After a Newton step to ``accepted`` (pose, evaluation) from a pose
+    with gradient ``g``: in the local phase (a full step with a positive
+    definite ``factor`` that cut the residual by ``CHORD_START``) that
+    factor serves a few more steps (:func:`_chord_steps`); (pose,
+    evaluation, steps taken)."""
+    x, ev = accepted
+    if not allowed or factor is None or alpha != 1.0 or \
+            np.linalg.norm(ev.gradient) > CHORD_START * np.linalg.norm(g):
+        return x, ev, 0
+    return _chord_steps(model, c, x, ev, factor, options)
+
+
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
                           options: EquilibriumOptions):
     """At an indefinite Hessian (``step_factor`` its regularised factor):
@@ -159,27 +248,39 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
-def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium:
+def _why_not(model: Model, c, x, converged: bool, status: str) -> str:
+    """``status``, or for a body without pins that found no equilibrium,
+    the net force along a free rigid motion that explains it (it slides)."""
+    if converged or not model.unpinned:
+        return status
+    return model.unbalanced(x, c) or status
+
+
+def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor | None = None) -> Equilibrium:
     """Newton from the pose ``x`` (n_dofs,) at ``c`` (n_winches,): the
     certified :class:`Equilibrium` where it converges, else an honest
-    status (iteration limit, stall, saddle, left the branch, line search)."""
+    status (iteration limit, stall, saddle, left the branch, line search).
+    ``chord``: a positive definite factor of a nearby Hessian (the last
+    certified equilibrium's) for the first steps (module docstring)."""
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
-        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
-                           np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0,
-                           "newton")
+        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0, or a gap "
+                           "<= 0)", np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0, "newton")
+    x, ev, undo = _start_with(model, c, x, ev, chord, options)
+    keep, it = True, 0            # kept-factor steps allowed (until they led to an indefinite H)
     escapes = 0
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
-    factor = None
-    it = 0
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
+        if factor is None and undo is not None:    # kept-factor steps led there: undone
+            (x, ev), undo, keep = undo, None, False
+            continue
         small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
             converged = True
@@ -231,7 +332,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions) -> Equilibrium
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
-        x, ev = accepted
-    if not converged and model.unpinned:
-        status = model.unbalanced(x, c) or status
-    return certified(model, c, x, ev, factor, converged, status, it, t0, options, "newton", escapes)
+        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
+        undo = accepted if kept else None
+    return certified(model, c, x, ev, factor, converged, _why_not(model, c, x, converged, status), it, t0,
+                     options, "newton", escapes)

@@ -1,0 +1,137 @@
+"""What the factorisation savings buy: the forward solve from rest and the
+control loop with and without them, interleaved in one run (CPU times, one
+BLAS thread).
+
+    OPENBLAS_NUM_THREADS=1 python tools/bench_newton.py --nodes 1000 10000 --repeats 3
+
+Variants (module constants switched between runs, nothing else changes):
+
+- ``reference``: the Woodbury set-up with k full solves
+  (``linalg.WOODBURY_HALVES = False``) and no kept-factor steps
+  (``newton.CHORD_STEPS = 0``);
+- ``halves``: the set-up by forward substitution alone;
+- ``now``: that, and Newton's kept-factor (chord) steps, in the forward solve
+  and from the committed equilibrium's factor in each control trial.
+
+For each: the forward solve (CPU s, Newton iterations, factorisations), and
+a reparam control run: the median CPU time of an iterate after the first
+(the starting solve left out), the factorisations per iterate, the
+iterates and the objective (the variants must agree on it). Prints a
+Markdown table.
+
+    python tools/bench_newton.py --peak-memory 30000
+
+instead builds the model and solves once from rest in this process (the
+shipped code, nothing switched) and prints the process's peak resident
+memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from plush_opt.base import linalg
+from plush_opt.control.gradient import Controller
+from plush_opt.fem.mesh import mesh_for_nodes
+from plush_opt.io import load_scene
+from plush_opt.problem import from_scene
+from plush_opt.solve import newton
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+
+ROOT = Path(__file__).resolve().parent.parent
+VARIANTS = {"reference": (False, 0), "halves": (True, 0), "now": (True, newton.CHORD_STEPS)}
+
+
+def _counting(model) -> dict:
+    count = {"n": 0}
+    plain = model.factorizer.factor
+
+    def factor(H, shift=0.0):
+        count["n"] += 1
+        return plain(H, shift)
+    model.factorizer.factor = factor
+    return count
+
+
+def _forward(model, c) -> dict:
+    count = _counting(model)
+    try:
+        t = time.process_time()
+        eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
+        cpu = time.process_time() - t
+    finally:
+        del model.factorizer.factor
+    assert eq.converged, eq.status
+    return {"cpu": cpu, "iterations": eq.iterations, "factorisations": count["n"]}
+
+
+def _control(model, targets) -> dict:
+    ctl = Controller(model, targets)
+    steps = ctl.iterates()
+    next(steps)                                   # the starting solve
+    count = _counting(model)
+    times = []
+    try:
+        t = time.process_time()
+        for _ in steps:
+            times.append(time.process_time() - t)
+            t = time.process_time()
+    finally:
+        del model.factorizer.factor
+    res = ctl.result(eigenvalue=False)
+    return {"iterate_cpu": float(np.median(times)) if times else None, "iterates": len(times),
+            "factorisations_per_iterate": count["n"] / max(len(times), 1), "objective": res.objective}
+
+
+def _peak_memory(name: str, nodes: int) -> None:
+    import resource
+    scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element="P1")
+    model = from_scene(scene, mesh_for_nodes(scene, nodes)).model
+    c = model.scene.contraction if name != "gripper" else np.full(model.n_winches, 10.0)
+    out = _forward(model, c)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024      # Linux: kB
+    print(f"{name} @ {model.n_nodes} nodes: forward from rest {out['cpu']:.2f} s CPU, "
+          f"{out['iterations']} iterations, {out['factorisations']} factorisations; peak memory {peak:.0f} MB")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--problem", default="gripper")
+    ap.add_argument("--nodes", type=int, nargs="+", default=[1000, 10000])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--peak-memory", type=int, metavar="NODES",
+                    help="one forward solve at about NODES nodes; print the peak resident memory")
+    args = ap.parse_args(argv)
+    if args.peak_memory:
+        return _peak_memory(args.problem, args.peak_memory)
+    print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
+          "median | factorisations per iterate | iterates | objective |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS)
+    for nodes in args.nodes:
+        scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
+        problem = from_scene(scene, mesh_for_nodes(scene, nodes))
+        model = problem.model
+        c = model.scene.contraction if args.problem != "gripper" else np.full(model.n_winches, 10.0)
+        runs = {name: [] for name in VARIANTS}
+        try:
+            for _ in range(args.repeats):
+                for name, (halves, chord) in VARIANTS.items():
+                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS = halves, chord
+                    runs[name].append({**_forward(model, c), **_control(model, problem.targets)})
+        finally:
+            linalg.WOODBURY_HALVES, newton.CHORD_STEPS = saved
+        for name, rs in runs.items():
+            med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
+            r = rs[-1]
+            print(f"| {model.n_nodes} | {name} | {1e3 * med('cpu'):.1f} | {r['iterations']} | {r['factorisations']} | "
+                  f"{1e3 * med('iterate_cpu'):.1f} | {r['factorisations_per_iterate']:.2f} | {r['iterates']} | "
+                  f"{r['objective']:.10g} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
