@@ -248,6 +248,10 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
+#: the status of a solve asked to start at a pose no term admits
+NOT_ADMISSIBLE = "initial pose not admissible (some element has J <= 0)"
+
+
 def _why_not(model: Model, c, x, converged: bool, status: str) -> str:
     """``status``, or for a body without pins that found no equilibrium,
     the net force along a free rigid motion that explains it (it slides)."""
@@ -265,8 +269,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
-        return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0, or a gap "
-                           "<= 0)", np.inf, np.inf, np.nan, False, None, 0, time.perf_counter() - t0, "newton")
+        return Equilibrium(x, c, False, NOT_ADMISSIBLE, np.inf, np.inf, np.nan, False, None, 0,
+                           time.perf_counter() - t0, "newton")
     x, ev, undo = _start_with(model, c, x, ev, chord, options)
     keep, it = True, 0            # kept-factor steps allowed (until they led to an indefinite H)
     escapes = 0
