@@ -247,8 +247,13 @@ def _dask(fn, inputs, scheduler, record, progress) -> int:
         if progress is not None:
             progress.start(len(inputs), "dask", slots)
         futures = client.map(call_item, [fn] * len(inputs), range(len(inputs)), inputs, pure=False)
+        index = {future.key: i for i, future in enumerate(futures)}
         for future in as_completed(futures):
-            record(future.result())
+            try:
+                record(future.result())
+            except Exception as exc:  # noqa: BLE001 - a lost worker (KilledWorker) fails its input alone
+                record(ItemResult(index[future.key], FAILED,
+                                  error=one_line(f"the dask worker failed: {type(exc).__name__}: {exc}")))
         return slots
     except KeyboardInterrupt:
         client.cancel(futures)
