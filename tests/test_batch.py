@@ -152,3 +152,29 @@ def test_calibration_from_several_starts_is_the_same_in_parallel():
     assert best == 0
     # the whole result is the best start's fit made again: the same cost, bit for bit
     assert fit_cost(meas, result, None) == outcomes[best].cost
+
+
+@pytest.mark.slow
+def test_ctrl_c_ends_the_workers_and_writes_what_finished(tmp_path):
+    import csv
+    import signal
+    import subprocess
+    import sys
+    out = tmp_path / "s"
+    p = subprocess.Popen([sys.executable, "-m", "plush_opt", "study", str(GRIPPER), "--vary",
+                          "material.youngs_modulus=0.01:0.08:40", "--max-area", "150", "--sweep-steps", "2",
+                          "--jobs", "2", "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    seen = []
+    for line in p.stderr:           # one line per finished variant (not a terminal: no bar)
+        seen.append(line)
+        if ": ok (" in line:
+            break
+    p.send_signal(signal.SIGINT)
+    rest = p.stderr.read()
+    assert p.wait(timeout=120) == 130, "".join(seen) + rest
+    assert "plush-opt: interrupted (SIGINT)" in rest and "Traceback" not in rest
+    rows = list(csv.DictReader((out / "study.csv").open()))
+    assert len(rows) == 40
+    statuses = [r["status"] for r in rows]
+    assert statuses.count("interrupted") > 0 and any(s.startswith("ok") for s in statuses)
+    assert "Interrupted" in (out / "report.md").read_text()

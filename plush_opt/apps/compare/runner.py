@@ -43,14 +43,15 @@ class _Problem:
 # Running
 # --------------------------------------------------------------------------
 
-def _level(scene, factor, element=None, graded=False):
+def _level(scene, factor, element=None, graded=False, timed=True):
     t0 = time.perf_counter()
     if element is not None and element != scene.element:
         scene = dataclasses.replace(scene, element=element)
     max_area = None if scene.outline is None else base_area(scene) * factor
     p = from_scene(scene, build_mesh(scene, max_area, graded=graded))
-    # the first factorisation does CHOLMOD's symbolic analysis: setup, not solve
-    solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
+    if timed:
+        # the first factorisation does CHOLMOD's symbolic analysis: setup, not the timed solve
+        solve_equilibrium(p.model, scene.contraction, options=EquilibriumOptions(eigenvalue=False))
     return p, time.perf_counter() - t0
 
 
@@ -179,11 +180,12 @@ def _reference(problem: _Problem, runs: list, settings: CompareSettings) -> None
     scene = problem.scene
     if problem.reference is None:
         if scene.outline is None:       # an explicit mesh cannot be refined: it is its own reference
-            problem.reference = problem.check = _level(scene, settings.main_factor)[0]
+            problem.reference = problem.check = _level(scene, settings.main_factor, timed=False)[0]
         else:
             # graded: uniform meshes converge slowly at reentrant corners (docs/accuracy.md)
-            problem.reference = _level(scene, settings.reference_factor, "P2", graded=True)[0]
-            problem.check = _level(scene, settings.check_factor, "P2", graded=True)[0]
+            # nothing is timed on them: no setup solve
+            problem.reference = _level(scene, settings.reference_factor, "P2", graded=True, timed=False)[0]
+            problem.check = _level(scene, settings.check_factor, "P2", graded=True, timed=False)[0]
     ref, chk = problem.reference, problem.check
     cache: dict = {}
     for run in runs:
@@ -255,9 +257,10 @@ def level_runs(job: tuple, settings: CompareSettings) -> tuple[list, list[str]]:
 
 def reference_errors(job: tuple, settings: CompareSettings) -> tuple[list, tuple]:
     """One input of the comparison's second batch: the P2 reference of one
-    problem file (path, runs) and each run's errors against it. Returns per
-    run (model_error, fine_target_error, reference_difference) and the
-    (reference, check) meshes."""
+    problem file and the errors against it of runs (path, runs) that ended
+    at the same contractions. Returns per run (model_error,
+    fine_target_error, reference_difference) and the (reference, check)
+    meshes."""
     path, runs = job
     scene = load_scene(path)
     problem = _Problem(Path(path), scene, {}, scene.contraction.copy(), scene.frozen.copy())
@@ -317,7 +320,8 @@ def run_compare(problem_paths, out_dir, coarse: bool = False, progress=None,
     dict with ``runs`` (list of :class:`Run`), ``problems`` (names),
     ``files`` (paths written), ``failed`` ((file, error) of problems whose
     runs could not be made) and ``batches`` (the two BatchResults: one
-    input per problem and mesh level, then one per problem's reference).
+    input per problem and mesh level, then one per problem and contractions
+    reached, for the errors against its reference).
     Interrupted: the problems that finished are written, then the
     interruption is raised.
     """
@@ -386,29 +390,48 @@ def _run_levels(paths, scenes, settings, say, jobs, scheduler, progress):
     return first, runs_of, failed
 
 
+def _groups(runs: list) -> list[list[int]]:
+    """Indices of the runs that ended at the same contractions, in run
+    order (the reference solves once per group, from the first one's pose)."""
+    groups: dict = {}
+    for i, r in enumerate(runs):
+        if r.contraction is not None:
+            groups.setdefault(tuple(np.round(r.contraction, 12)), []).append(i)
+    return list(groups.values())
+
+
 def _run_references(paths, scenes, runs_of, failed, settings, jobs, scheduler, progress):
-    """The second batch: one input per problem whose runs were made, the
-    errors against its reference. Returns (batch, problems, their runs);
+    """The second batch: one input per problem and set of runs that ended
+    at the same contractions (largest meshes first), their errors against
+    the problem's reference. Returns (batch, problems, their runs);
     ``failed`` gets the problems whose reference failed."""
-    ok = [k for k in range(len(paths)) if k not in failed]
+    work = [(k, g) for k in range(len(paths)) if k not in failed for g in _groups(runs_of[k])]
+    size = {k: max((r.n_nodes for r in runs_of[k]), default=0) for k in range(len(paths))}
+    ordered, where = _largest_first(work, lambda w: size[w[0]])
     second = _batch(functools.partial(reference_errors, settings=settings),
-                    [(paths[k], runs_of[k]) for k in ok], jobs, scheduler, progress,
-                    "compare: references", lambda i: paths[ok[i]].name)
-    all_runs, problems = [], []
-    for k, item in zip(ok, second.items):
+                    [(paths[k], [runs_of[k][i] for i in g]) for k, g in ordered], jobs, scheduler,
+                    progress, "compare: references", lambda i: paths[ordered[i][0]].name)
+    meshes: dict = {}
+    for j, (k, group) in enumerate(work):
+        item = second.items[where[j]]
         if not item.ok:
-            failed[k] = f"{item.status}" + (f": {item.error}" if item.error else "")
+            failed.setdefault(k, f"{item.status}" + (f": {item.error}" if item.error else ""))
             continue
-        errors, (reference, check) = item.value
-        runs = runs_of[k]
-        for run, (model_error, fine, difference) in zip(runs, errors):
+        errors, meshes[k] = item.value
+        for i, (model_error, fine, difference) in zip(group, errors):
+            run = runs_of[k][i]
             run.model_error, run.fine_target_error, run.reference_difference = model_error, fine, difference
+    all_runs, problems = [], []
+    for k, scene in enumerate(scenes):
+        if k in failed:
+            continue
+        runs = runs_of[k]
         # only poses a robot may be sent to belong on the front
         front = pareto_front([(r.t_solve, r.fine_target_error) if r.stable and r.bound_violation == 0
                               else (float("nan"), float("nan")) for r in runs])
         for i in front:
             runs[i].pareto = True
-        scene = scenes[k]
+        reference, check = meshes.get(k, (None, None))
         problems.append(_Problem(paths[k], scene, {}, scene.contraction.copy(), scene.frozen.copy(),
                                  reference, check))
         all_runs += runs
