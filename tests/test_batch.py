@@ -116,9 +116,11 @@ def test_variants_are_checked_before_anything_runs(tmp_path):
     ("tendons.frictio=0,1", "tendons.frictio: unknown key"),
     ("tendons.list[9].friction=0", "tendons.list[9]: the file's list has 4 entries"),
     ("youngs_modulus", "expected KEY=A:B:N"),
+    ("tendons.friction=0 --sweep-winch nope", "--sweep-winch nope: no winch named 'nope'"),
 ])
 def test_study_refuses_bad_vary_with_one_line(tmp_path, vary, message):
-    line = one_error_line(cli("study", GRIPPER, "--vary", vary, "--out", tmp_path / "s"))
+    vary, *more = vary.split(" ")
+    line = one_error_line(cli("study", GRIPPER, "--vary", vary, *more, "--out", tmp_path / "s"))
     assert message in line, line
     assert not (tmp_path / "s" / "study.csv").exists()
 

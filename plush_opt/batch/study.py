@@ -299,6 +299,10 @@ def run_study(path, varies: list[Vary], options: StudyOptions | None = None, *, 
     after writing them."""
     options = options or StudyOptions()
     todo = variants(path, varies)
+    names = [w.name for w in scene_from_dict(copy.deepcopy(todo[0].document), todo[0].source).winches]
+    if options.sweep_winch is not None and options.sweep_winch not in names:
+        raise SceneError(f"--sweep-winch {options.sweep_winch}: no winch named {options.sweep_winch!r} "
+                         f"(winches: {', '.join(names)})")
     if progress is not None and getattr(progress, "describe", None) is not None:
         progress.describe = lambda i: todo[i].label
     batch = run_batch(functools.partial(solve_variant, options=options), todo, jobs=jobs,
