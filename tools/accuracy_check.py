@@ -25,12 +25,22 @@ For each problem file it writes two tables (markdown) to ``--out``:
 The errors are the largest distance (length units) over the compared
 points (the targets, else the tendon stoppers and the scene's points) and
 the probe contractions (the file's, and mid-range for a control problem).
+
+The P2 levels and each tolerance's check of its pick are independent
+solves run as batches (plush_opt.batch, ``--jobs N``, default the number
+of cores): every P2 level is solved from the coarsest level's poses
+(solved again inside the same input, so no input waits for another), not
+from the previous level's, and the tables do not depend on ``--jobs``. The
+P1 levels a pick needs are solved here, one after the other, as
+``choose_mesh`` does. The picks weigh solve times, which depend on the
+machine's load.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import platform
 import sys
 import time
@@ -38,13 +48,17 @@ from pathlib import Path
 
 import numpy as np
 
-from plush_opt.solve.accuracy import (LEVEL_OPTIONS, MAX_RATIO, REFINEMENTS, SAFETY, choose_mesh,
-                                default_levels, equilibrium_at, probe_contractions, probe_points, sweep)
+from plush_opt.batch import run_batch
+from plush_opt.batch.progress import Progress
+from plush_opt.solve.accuracy import (LEVEL_OPTIONS, MAX_RATIO, REFINEMENTS, SAFETY, _solve_level,
+                                choose_mesh, default_levels, equilibrium_at, probe_contractions,
+                                probe_points, sweep)
 from plush_opt.io import load_scene
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import build_model
 from plush_opt.fem.objective import Targets
-from plush_opt.base.files import atomic_path
+from plush_opt.base.errors import SceneError
+from plush_opt.base.files import atomic_path, write_text_atomic
 
 OPTIONS = LEVEL_OPTIONS
 #: Changes below this fraction of the largest error of any point are round-off, not divergence.
@@ -62,12 +76,42 @@ def contractions(scene, file_only: bool) -> np.ndarray:
     return cs[:1] if file_only else cs
 
 
+def solve_level(job: tuple, scene, cs, points):
+    """One input of the levels' batch: ``job`` (element, resolution, the
+    element's coarsest resolution) solved from the coarsest level's poses
+    (that one solved here first; itself from rest)."""
+    element, res, coarsest = job
+    s = dataclasses.replace(scene, element=element)
+    start = None if res == coarsest else _solve_level(s, coarsest, cs, points, None, OPTIONS)
+    return _solve_level(s, res, cs, points, start, OPTIONS)
+
+
+def solve_levels(scene, refinements: int, cs, jobs, progress) -> dict:
+    """Every level of the P2 sweep (``refinements``) as one batch, largest
+    first; {(element, resolution): Level}. A level that failed is a
+    SceneError naming it."""
+    levels = default_levels(scene, "P2", refinements)
+    work = [("P2", res, levels[0]) for res in levels]
+    # nodes grow as 4^refinements / max_area
+    work.sort(key=lambda j: -(4.0 ** j[1].refinements / j[1].max_area))
+    points, _ = probe_points(scene)
+    if progress is not None:
+        progress.describe = lambda i: f"{work[i][0]} max_area {work[i][1].max_area:.4g} x{work[i][1].refinements}"
+    batch = run_batch(functools.partial(solve_level, scene=scene, cs=cs, points=points), work,
+                      jobs=jobs, progress=progress)
+    batch.raise_if_interrupted()
+    for job, item in zip(work, batch.items):
+        if not item.ok:
+            raise SceneError(f"{scene.source}: accuracy: level {job[0]} max_area {job[1].max_area:g} "
+                             f"refined {job[1].refinements}x: {item.error}")
+    return {(job[0], job[1]): item.value for job, item in zip(work, batch.items)}
+
+
 def convergence_rows(scene, refinements: int, cs, solved: dict):
-    """The default sweep's P2 levels; returns (levels, rows, monotone) with
-    the reference the finest level, and per point the level from which it
-    converges monotonically: over all levels, and within the worse family.
-    The levels solved are added to ``solved`` (the ``--accuracy`` picks
-    reuse them)."""
+    """The default sweep's P2 levels (taken from ``solved``, see
+    :func:`solve_levels`); returns (levels, rows, monotone) with the
+    reference the finest level, and per point the level from which it
+    converges monotonically: over all levels, and within the worse family."""
     points, _ = probe_points(scene)
     levels = sweep(scene, "P2", default_levels(scene, "P2", refinements), cs, points, 0.0, OPTIONS,
                    solved=solved)
@@ -118,11 +162,13 @@ def monotone_from(errors: np.ndarray, floor: float) -> int:
     return 0 if rising.size == 0 else int(rising[-1] + 1)
 
 
-def chosen_error(scene, report, ref_level, cs, points) -> float:
+def chosen_error(job: tuple, scene, ref_level, cs, points) -> float:
     """Largest distance of the chosen mesh's predicted points from the
     reference's. Each probe is solved from rest, not from the previous
     probe's pose (a jump from one winch pulled to another can end on
-    another equilibrium than the sweep's levels found)."""
+    another equilibrium than the sweep's levels found). ``job`` is (TOL,
+    the pick's report): one input of the picks' batch."""
+    _, report = job
     s = dataclasses.replace(scene, element=report["element"])
     mesh = build_mesh(s, max_area=report["max_area"], graded=report.get("graded", False),
                       refinements=report.get("refinements") or 0)
@@ -149,12 +195,14 @@ def save_levels(path: Path, solved: dict) -> None:
                  y=np.array([lv.y for lv in levels]))
 
 
-def check(path: Path, tols, refinements: int, file_only: bool = False, save: Path | None = None) -> str:
+def check(path: Path, tols, refinements: int, file_only: bool = False, save: Path | None = None,
+          jobs: int | None = None, progress: bool = True) -> str:
     scene = load_scene(path)
     points, kind = probe_points(scene)
     cs = contractions(scene, file_only)
     t0 = time.perf_counter()
-    solved: dict = {}
+    solved = solve_levels(scene, refinements, cs, jobs, Progress(f"accuracy_check {path.name}: levels")
+                          if progress else None)
     levels, rows, monotone = convergence_rows(scene, refinements, cs, solved)
     ref = levels[-1]
     out = [f"## {scene.name} ({path.name})", "",
@@ -180,9 +228,14 @@ def check(path: Path, tols, refinements: int, file_only: bool = False, save: Pat
                         for p, (k, w) in zip(points, monotone)), "",
             "| TOL | element | nodes | estimated error | true error | reference >= 4x finer | one solve s | within TOL |",
             "|---|---|---|---|---|---|---|---|"]
-    for tol in tols:
-        _, report = choose_mesh(scene, tol, contractions=cs, solved=solved)
-        true = chosen_error(scene, report, ref, cs, points)
+    picks = [(tol, choose_mesh(scene, tol, contractions=cs, solved=solved)[1]) for tol in tols]
+    checked = run_batch(functools.partial(chosen_error, scene=scene, ref_level=ref, cs=cs, points=points),
+                        picks, jobs=jobs)
+    checked.raise_if_interrupted()
+    for (tol, report), item in zip(picks, checked.items):
+        if not item.ok:
+            raise SceneError(f"{scene.source}: accuracy: the pick for {tol:g}: {item.error}")
+        true = item.value
         four = ref.mesh.n_nodes >= 4 * report["nodes"]
         ok = "yes" if true <= tol else "NO"
         met = "" if report["reached"] else " (not met: said so)"
@@ -205,6 +258,8 @@ def main(argv=None) -> int:
     ap.add_argument("--file-contraction", action="store_true",
                     help="compare at the file's contractions only (not also mid-range)")
     ap.add_argument("--out", type=Path, default=Path("accuracy_check.md"))
+    ap.add_argument("--jobs", "-j", type=int, default=None,
+                    help="worker processes (default: the number of cores; 1: one after the other)")
     ap.add_argument("--save", type=Path, default=None,
                     help="a folder to write each problem's levels to (NAME_levels.npz: element, "
                          "max_area, refinements, family (its coarse max_area), nodes, t_solve, y)")
@@ -215,8 +270,8 @@ def main(argv=None) -> int:
              f"{' --file-contraction' if args.file_contraction else ''}` "
              f"(Python {platform.python_version()}).", ""]
     for path in args.problems:
-        parts.append(check(path, args.tols, args.refinements, args.file_contraction, args.save))
-        args.out.write_text("\n".join(parts) + "\n")      # what exists so far, if interrupted
+        parts.append(check(path, args.tols, args.refinements, args.file_contraction, args.save, args.jobs))
+        write_text_atomic(args.out, "\n".join(parts) + "\n")      # what exists so far, if interrupted
         print(f"accuracy_check: {path.name} done", file=sys.stderr)
     print(f"accuracy_check: wrote {args.out}", file=sys.stderr)
     return 0

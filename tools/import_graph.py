@@ -34,6 +34,7 @@ LAYERS = [
     ("solve", ("solve",)),
     ("control", ("control", "fit")),
     ("api", ("problem",)),
+    ("batch", ("batch",)),
     ("board", ("board",)),
     ("apps", ("apps", "__init__", "__main__")),
 ]

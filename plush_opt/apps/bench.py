@@ -11,6 +11,7 @@ definite Hessian). Writes ``bench.json`` and ``bench.md``.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import platform
@@ -332,7 +333,10 @@ def render_markdown(report: dict) -> str:
         f"scipy {m['scipy']}, CasADi {m['casadi']}, scikit-sparse {m['scikit-sparse']}; sparse LDL^T by {m['linear_solver']}.  ",
         f"Date: {report['date']}. Times are medians over {report['repeats']} repeats (5x that for "
         "single evaluations) in one run; the machine is shared and noisy, so compare figures "
-        "within a table, not across runs.",
+        "within a table, not across runs."
+        + (f" {report['jobs']} cases ran at once (--jobs): each time was taken beside the others."
+           if report.get("jobs", 1) > 1 else ""),
+        *(f"Failed: {line}" for line in report.get("failed", ())),
         "",
         "## Forward model",
         "",
@@ -401,27 +405,48 @@ def render_markdown(report: dict) -> str:
     return "\n".join(lines)
 
 
+def _say(msg: str) -> None:
+    print(f"bench: {msg}", file=sys.stderr, flush=True)
+
+
+def _bench_case(case: tuple, repeats: int, inverse_max_nodes, quiet: bool) -> dict:
+    """One input of the bench's batch: (problem, size, element)."""
+    problem, size, element = case
+    return bench_one(Path(problem), size, repeats, (lambda msg: None) if quiet else _say, element,
+                     inverse_max_nodes)
+
+
 def run_bench(problems, sizes, out: Path, repeats: int = 5, command: str = "", progress=None,
-              elements=("P1",), inverse_max_nodes: int | None = None) -> dict:
+              elements=("P1",), inverse_max_nodes: int | None = None, jobs: int = 1) -> dict:
     """Bench every problem at every size with every element (a size
-    ``("accuracy", TOL)`` once: it picks its own element)."""
-    progress = progress or (lambda msg: print(f"bench: {msg}", file=sys.stderr, flush=True))
-    rows = []
-    for problem in problems:
-        for size in sizes:
-            for element in (elements[:1] if isinstance(size, tuple) else elements):
-                rows.append(bench_one(Path(problem), size, repeats, progress, element, inverse_max_nodes))
+    ``("accuracy", TOL)`` once: it picks its own element). ``jobs`` > 1
+    benches that many cases at once (plush_opt.batch): quicker, but each
+    time is then taken beside the others (the report says how many); a case
+    that fails is reported and the others run."""
+    from ..batch import run_batch
+    progress = progress or _say
+    cases = [(str(problem), size, element) for problem in problems for size in sizes
+             for element in (elements[:1] if isinstance(size, tuple) else elements)]
+    batch = run_batch(functools.partial(_bench_case, repeats=repeats, inverse_max_nodes=inverse_max_nodes,
+                                        quiet=progress is not _say), cases, jobs=jobs)
+    rows = [item.value for item in batch.items if item.ok]
+    failed = [f"{Path(c[0]).name} size {c[1]} {c[2]}: {item.status}" + (f": {item.error}" if item.error else "")
+              for c, item in zip(cases, batch.items) if not item.ok]
+    for line in failed:
+        progress(line)
     report = {"command": command, "machine": machine(), "date": time.strftime("%Y-%m-%d %H:%M"),
               "repeats": repeats, "sizes": [list(s) if isinstance(s, tuple) else s for s in sizes],
-              "elements": list(elements), "rows": rows}
+              "elements": list(elements), "jobs": batch.jobs, "failed": failed, "rows": rows}
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "bench.json", report)
     write_text_atomic(out / "bench.md", render_markdown(report))
     progress(f"wrote {out / 'bench.md'} and {out / 'bench.json'}")
+    batch.raise_if_interrupted()
     return report
 
 
 def add_bench_parser(sub) -> None:
+    from .batch_flags import jobs_arg
     p = sub.add_parser("bench", help="measure build, evaluation, factorisation and solve times",
                        description="Benchmark the shipped problems (or those given) at several mesh sizes.")
     p.add_argument("problems", nargs="*", type=Path, help="problem files (default: the shipped problems/*.yaml)")
@@ -439,6 +464,8 @@ def add_bench_parser(sub) -> None:
     p.add_argument("--peers", action="store_true",
                    help="instead: the forward solve against FElupe and scikit-fem (the [bench] extra) on the "
                         "first problem's body and mesh under gravity, at each size; writes peers.md and peers.json")
+    p.add_argument("--jobs", "-j", type=jobs_arg, default=1, metavar="N",
+                   help="cases benched at once (default 1: every time taken alone on the machine)")
     p.set_defaults(func=cmd_bench)
 
 
@@ -524,6 +551,6 @@ def cmd_bench(args) -> int:
     quiet = (lambda msg: None) if getattr(args, "quiet", False) else None
     if getattr(args, "peers", False):
         return _cmd_peers(args, problems, sizes, elements, command, quiet)
-    run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet, elements=elements,
-              inverse_max_nodes=args.inverse_max_nodes)
-    return 0
+    report = run_bench(problems, sizes, args.out, args.repeats, command, progress=quiet, elements=elements,
+                       inverse_max_nodes=args.inverse_max_nodes, jobs=args.jobs)
+    return 3 if report["failed"] else 0

@@ -2,6 +2,7 @@
 
     plush-opt calibrate MEAS.yaml --out FITTED.yaml [--fit youngs_modulus,assembly_offset]
         [--report REP.json] [--plot DIR] [--holdout 6,7] [--huber 3] [--max-area A]
+        [--starts N [--jobs J | --dask ADDRESS]]
 
 Prints a summary (fitted values with standard errors, RMS marker error per
 pose before and after, chi^2) and writes the input problem file with only
@@ -16,6 +17,7 @@ import sys
 from pathlib import Path
 
 from ..base.errors import SceneError
+from .batch_flags import add_batch_flags, batch_kwargs, progress_for
 
 EXIT_NOT_FITTED = 3               # the command line's "solver did not converge" status
 
@@ -47,6 +49,10 @@ def add_calibrate_parser(sub):
                    help="robust Huber loss per marker, threshold K sigma (outlier markers count less)")
     p.add_argument("--max-area", type=float, default=None,
                    help="mesh with triangles up to this area instead of the problem file's")
+    p.add_argument("--starts", type=int, default=1, metavar="N",
+                   help="fit from N starting points (the scene's values first, moduli and stiffnesses "
+                   "spread 1/3x-3x around them) in worker processes and keep the best")
+    add_batch_flags(p)
     p.set_defaults(func=cmd_calibrate)
 
 
@@ -59,13 +65,28 @@ def cmd_calibrate(args) -> int:
 
     if args.max_area is not None and not args.max_area > 0:
         raise SceneError(f"--max-area: expected an area > 0, got {args.max_area:g}")
+    from ..fit.starts import MAX_STARTS
+    if not 1 <= args.starts <= MAX_STARTS:
+        raise SceneError(f"--starts: expected 1..{MAX_STARTS}, got {args.starts}")
     meas = load_measurements(args.measurements)
-    result = calibrate(meas, args.fit, FitOptions(huber=args.huber, holdout=args.holdout),
-                       max_area=args.max_area)
+    options = FitOptions(huber=args.huber, holdout=args.holdout)
+    starts = None
+    if args.starts == 1:
+        result = calibrate(meas, args.fit, options, max_area=args.max_area)
+    else:
+        from ..batch.multistart import calibrate_from_starts, starts_table
+        result, outcomes, best = calibrate_from_starts(
+            meas, args.fit, options, args.starts, max_area=args.max_area,
+            progress=progress_for(args, "calibrate: starts"), **batch_kwargs(args))
+        starts = {"best": best, "starts": [{**vars(o), "cost": o.cost if o.cost == o.cost else None}
+                                           for o in outcomes]}
+        print("\n".join(starts_table(outcomes, best)))
     if result.identifiable:
         write_text_atomic(args.out, fitted_text(meas, result))
     doc = report_dict(meas, result, fitted_file=str(args.out) if result.identifiable else None,
                       huber=args.huber)
+    if starts is not None:
+        doc["starts"] = starts
     if args.report:
         write_json_atomic(args.report, doc)
     if args.plot:

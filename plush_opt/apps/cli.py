@@ -12,7 +12,7 @@ exit status, never a traceback (``--debug`` shows it):
 The commands live beside it: ``solve`` (solve_command.py), ``run``
 (run_command.py), ``demo`` and ``examples`` (demo.py), ``export``
 (export_command.py), ``bench``, ``sweep``, ``gui``, ``compare`` and
-``calibrate`` in their own modules; what they print and the exit codes in
+``calibrate`` and ``study`` in their own modules; what they print and the exit codes in
 console.py, the shared options in arguments.py.
 """
 
@@ -28,7 +28,7 @@ from .console import configure_output, describe_error
 from .signals import handle_signals
 
 #: Output folders checked before any work: command -> option of a folder.
-OUTPUT_FOLDERS = {"bench": "out", "compare": "out"}
+OUTPUT_FOLDERS = {"bench": "out", "compare": "out", "study": "out"}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .gui import add_gui_parser
     from .run_command import add_run_parser
     from .solve_command import add_solve_parser
+    from .study import add_study_parser
     from .sweep import add_sweep_parser
     parser = CliParser(prog="plush-opt", description="Optimisation-centric control of plush robots.")
     parser.add_argument("--version", action="version", version=f"plush-opt {__version__}")
@@ -58,6 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_gui_parser(sub)
     add_compare_parser(sub)
     add_calibrate_parser(sub)
+    add_study_parser(sub)
     for command in sub.choices.values():   # -q/-v also after the command: `plush-opt solve -v ...`
         add_verbosity(command, default=False)
     return parser

@@ -23,11 +23,12 @@ READBACK_TOL = 1e-8
 
 def calibrate(meas: Measurements, fit_spec=None, options: FitOptions | None = None, *,
               max_area: float | None = None, mesh=None,
-              equilibrium: EquilibriumOptions | None = None) -> FitResult:
+              equilibrium: EquilibriumOptions | None = None, start: Values | None = None) -> FitResult:
     """Fit the parameters named by ``fit_spec`` (default: Young's modulus
     and every tendon's assembly offset) to ``meas``.
 
-    Starts from the scene's values (winch zero offsets from 0), on the
+    Starts from ``start`` (default: the scene's values, winch zero offsets
+    from 0; see :func:`~plush_opt.fit.starts.starting_values`), on the
     scene's mesh (or one of triangles up to ``max_area``, or ``mesh``).
     """
     options = options or FitOptions()
@@ -41,7 +42,8 @@ def calibrate(meas: Measurements, fit_spec=None, options: FitOptions | None = No
         raise SceneError(f"--huber: expected a threshold > 0 (in sigma units), got {options.huber:g}")
     params = parse_fit(meas.scene, fit_spec)
     mesh = build_mesh(meas.scene, max_area) if mesh is None else mesh
-    predictor = Predictor(meas, mesh, params, Values.of_scene(meas.scene), equilibrium)
+    predictor = Predictor(meas, mesh, params, Values.of_scene(meas.scene) if start is None else start,
+                          equilibrium)
     return fit(predictor, options)
 
 

@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..batch_flags import add_batch_flags, batch_kwargs, progress_for
 from .runner import pareto_front, run_compare
 from .settings import METHODS, TOLERANCES, CompareSettings, Run
 
@@ -66,23 +67,30 @@ def add_compare_parser(subparsers):
                    help="output folder (default out/compare)")
     p.add_argument("--coarse", action="store_true",
                    help="a quick run: coarser meshes, two tolerance presets")
+    add_batch_flags(p)
     p.set_defaults(func=cmd_compare)
     return p
 
 
 def cmd_compare(args) -> int:
     """``plush-opt compare``: progress on stderr, the files written on stdout.
-    Exit status 0, or 3 if a method returned a pose outside the bounds or not
-    stable (which would be a bug)."""
+    The problem files run side by side (``--jobs``, ``--dask``). Exit status
+    0, or 3 if a problem's runs failed (the others are written) or a method
+    returned a pose outside the bounds or not stable (which would be a bug)."""
     import sys
 
     def progress(line):
         if not getattr(args, "quiet", False):
             print(line, file=sys.stderr, flush=True)
 
-    res = run_compare(args.problem, args.out, coarse=args.coarse, progress=progress)
+    res = run_compare(args.problem, args.out, coarse=args.coarse, progress=progress,
+                      batch_progress=progress_for(args, "compare"), **batch_kwargs(args))
     for f in res["files"]:
         print(f)
+    if res["failed"]:
+        print("plush-opt: compare: " + "; ".join(f"{p.name}: {e}" for p, e in res["failed"]),
+              file=sys.stderr)
+        return 3
     bad = [r for r in res["runs"] if r.contraction is not None
            and (r.bound_violation > 0 or not r.stable)]
     if bad:
