@@ -86,16 +86,20 @@ def node_forces(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm 
              "normal_force": [float(f[0]), float(f[1])], "friction_force": [float(t[0]), float(t[1])]}
             for (node, label), (f, gap, t) in sorted(out.items()) if np.any(f != 0) or np.any(t != 0)]
 
+#: how far (in d_hat) :func:`min_gap` looks for the nearest pair when no floor bounds it
+GAP_SEARCH = 4.0
+
+
 def min_gap(term: ContactTerm, x: np.ndarray) -> float:
-    """The smallest gap of any pair at flat pose ``x`` (inf: none within
-    the body's reach)."""
-    gaps = [np.inf]
-    if term.ground is not None:
-        gaps.append(float(np.min(term.ground_gaps(x))))
+    """The smallest gap of any pair at flat pose ``x``: the floor's, or a
+    closer obstacle or self pair (searched within the floor's gap, or
+    :data:`GAP_SEARCH` d_hat without a floor); inf when nothing is that near."""
+    floor = float(np.min(term.ground_gaps(x))) if term.ground is not None else np.inf
+    gap = floor
     if term.obstacles or term.self_contact:
-        far = np.inf if not np.isfinite(gaps[-1]) else max(gaps[-1], term.distance)
-        pairs = term.pairs(x, radius=far if np.isfinite(far) else 4 * term.distance)
+        reach = max(floor, term.distance) if np.isfinite(floor) else GAP_SEARCH * term.distance
+        pairs = term.pairs(x, radius=reach)
         if len(pairs.weight):
             s, _, _ = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=0)
-            gaps.append(float(np.sqrt(np.min(s))))
-    return float(min(gaps))
+            gap = min(gap, float(np.sqrt(np.min(s))))
+    return float(gap)
