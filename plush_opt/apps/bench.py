@@ -28,20 +28,12 @@ from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from ..base.linalg import Factorizer
 from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
+from .timing import median_time
 from ..base.files import write_json_atomic, write_text_atomic
 from ..io import load_scene
 from ..solve.sensitivity import state_sensitivity
 
 NO_EIG = EquilibriumOptions(eigenvalue=False)
-
-
-def _median_time(fn, repeats: int) -> tuple[float, object]:
-    times, out = [], None
-    for _ in range(repeats):
-        t = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times)), out
 
 
 def machine() -> dict:
@@ -150,13 +142,13 @@ def _solve_with_parts(model, c, x0, options, repeats: int) -> tuple[dict, object
 def _factor_times(model, hessian, repeats: int) -> dict:
     """The factorisation the model takes, and CHOLMOD's two modes side by side."""
     row = {"factor_mode": None}
-    row["factor_s"], _ = _median_time(lambda: model.factorizer.factor(hessian), 5 * repeats)
+    row["factor_s"], _ = median_time(lambda: model.factorizer.factor(hessian), 5 * repeats)
     row["factor_mode"] = f"{model.factorizer.backend} {model.factorizer.mode_used}"
     if model.factorizer.backend == "cholmod":
         for mode in ("simplicial", "supernodal"):
             fz = Factorizer("cholmod", mode)
             fz.factor(hessian)                          # symbolic analysis, once
-            row[f"factor_{mode}_s"], _ = _median_time(lambda: fz.factor(hessian), 5 * repeats)
+            row[f"factor_{mode}_s"], _ = median_time(lambda: fz.factor(hessian), 5 * repeats)
     return row
 
 
@@ -190,13 +182,13 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     progress(f"{label}: Hessian, factorisation, forward solve")
     eq = solve_equilibrium(model, c, options=NO_EIG)
     ev = model.evaluate(eq.x, c)
-    row["hessian_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 2), 5 * repeats)
-    row["energy_s"], _ = _median_time(lambda: model.evaluate(eq.x, c, 0), 5 * repeats)
+    row["hessian_s"], _ = median_time(lambda: model.evaluate(eq.x, c, 2), 5 * repeats)
+    row["energy_s"], _ = median_time(lambda: model.evaluate(eq.x, c, 0), 5 * repeats)
     form = ev.hessian_form
     row["hessian_form"] = "low_rank" if model.low_rank else "assembled"
     row["low_rank_k"] = form.M.shape[0] if model.low_rank else None
     row.update(_factor_times(model, form, repeats))
-    row["forward_s"], fwd = _median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
+    row["forward_s"], fwd = median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
     row["forward_iterations"] = fwd.iterations
     # the parts timed inside one and the same solve (CPU time)
     parts, _ = _solve_with_parts(model, c, None, NO_EIG, repeats)
@@ -212,7 +204,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     dc[0] = 0.5
     dxdc = state_sensitivity(model, fwd)
     x_pred = fwd.x + dxdc @ dc
-    row["resolve_s"], warm = _median_time(lambda: solve_equilibrium(model, c + dc, x_pred, NO_EIG), repeats)
+    row["resolve_s"], warm = median_time(lambda: solve_equilibrium(model, c + dc, x_pred, NO_EIG), repeats)
     row["resolve_iterations"] = warm.iterations
     row["resolve_certified"] = _certified(warm)
     cold = solve_equilibrium(model, c + dc, fwd.x, NO_EIG)
@@ -223,7 +215,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     elif targets.n_targets:
         for method in ("reparam", "clip"):
             progress(f"{label}: inverse solve ({method})")
-            t_run, res = _median_time(lambda: run_control(model, targets, method), max(1, repeats // 2))
+            t_run, res = median_time(lambda: run_control(model, targets, method), max(1, repeats // 2))
             steps = np.diff([h.t_wall for h in res.history])
             row[f"inverse_{method}_s"] = t_run
             row[f"inverse_{method}_iterates"] = res.stats.iterations
@@ -250,7 +242,7 @@ def _bench_bilevel(model, targets, repeats, progress, label) -> dict:
     t_first = time.perf_counter()
     first = run()                      # the reduced space builds its small IPOPT problem per solve
     t_first = time.perf_counter() - t_first
-    t_run, res = _median_time(run, max(1, repeats // 2))
+    t_run, res = median_time(run, max(1, repeats // 2))
     info = res.stats.details
     # reduced space (the default): evaluations = the Newton solves and the
     # sensitivities at the points IPOPT asks for (every one certified, so

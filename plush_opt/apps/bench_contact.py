@@ -15,11 +15,11 @@ Three measurements, medians of ``repeats`` runs, written to
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 
 import numpy as np
 
+from .timing import median_time
 from ..base.data_files import data_file
 from ..base.files import write_text_atomic
 from ..fem.mesh import area_for_nodes
@@ -54,15 +54,6 @@ def slab(on_floor: bool):
     return scene_from_dict(doc, "slab.yaml")
 
 
-def _median(fn, repeats: int):
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times)), out
-
-
 def floor_row(nodes: int, repeats: int) -> dict:
     """The slab at about ``nodes`` nodes: forward solve on the floor and
     pinned, and the contact term's own costs."""
@@ -73,17 +64,17 @@ def floor_row(nodes: int, repeats: int) -> dict:
         model = Model(scene, mesh)
         c = scene.contraction
         solve_equilibrium(model, c, options=NO_EIG)                # warm the kernels
-        seconds, eq = _median(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
+        seconds, eq = median_time(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
         row[key] = {"nodes": mesh.n_nodes, "solve_s": seconds, "newton_iterations": eq.iterations,
                     "converged": bool(eq.converged)}
         if on_floor:
             term = model.contact
             x = eq.x
             row["boundary_nodes"] = int(len(term.boundary.nodes))
-            row["contact_eval_s"], _ = _median(lambda: term.evaluate(x, c, 2), repeats)
+            row["contact_eval_s"], _ = median_time(lambda: term.evaluate(x, c, 2), repeats)
             dx = np.random.default_rng(0).standard_normal(x.size) * 0.1
-            row["contact_step_bound_s"], _ = _median(lambda: model.max_step(x, dx), repeats)
-            row["full_eval_s"], _ = _median(lambda: model.evaluate(x, c, 2), repeats)
+            row["contact_step_bound_s"], _ = median_time(lambda: model.max_step(x, dx), repeats)
+            row["full_eval_s"], _ = median_time(lambda: model.evaluate(x, c, 2), repeats)
     row["ratio"] = row["floor"]["solve_s"] / row["pinned"]["solve_s"]
     return row
 
@@ -92,7 +83,7 @@ def hexapod_row(repeats: int) -> dict:
     """``hexapod_stand``'s control run from rest: time per iterate."""
     problem = load(data_file("problems") / "hexapod_stand.yaml")
     problem.control()                                              # warm the kernels
-    seconds, result = _median(problem.control, repeats)
+    seconds, result = median_time(problem.control, repeats)
     iterations = max(result.stats.iterations, 1)
     return {"nodes": problem.model.n_nodes, "control_s": seconds, "iterations": result.stats.iterations,
             "per_iterate_s": seconds / iterations, "certified": bool(result.equilibrium.converged)}
