@@ -201,8 +201,8 @@ class Model:
                                                          self.tendons if self.has_tendons else None,
                                                          self.contact)
                                              if t is not None)
-        # a body only contact holds may keep rigid motions free: its Hessians get a gauge
         self._describe_terms(scene)
+        # a body only contact holds may keep rigid motions free: its Hessians get a gauge
         self.unpinned = self.contact is not None and len(self.pin_nodes) == 0
         self.hessian_layout = HessianLayout(
             self.n_dofs, self.elem_dofs, self.pin_dofs, self.tendon_points, self.tendons.seg_dofs,
