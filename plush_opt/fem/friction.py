@@ -21,7 +21,7 @@ import numpy as np
 from ..base.linalg import Factorizer
 from .hessian_layout import ViaSegments
 from .free_motion import GaugedFactorizer
-from .model import Evaluation, Model, gauged, sum_terms, unbalanced_at
+from .model import Evaluation, HeldTerms, Model, sum_terms
 from .segments import KERNELS, SegmentTerm, via_weights
 
 __all__ = ["KERNELS", "FixedRest", "FrictionModel", "SegmentTerm", "friction_tendons", "via_weights"]
@@ -124,9 +124,8 @@ class FrictionModel:
         c = np.asarray(c, dtype=np.float64).reshape(-1)
         if c.shape != (self.n_winches,):
             raise ValueError(f"contraction has {c.size} entries, the scene has {self.n_winches} winches")
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        ev = sum_terms(self.terms[:-1] + (held,), self.hessian_layout, x, c, order)
-        return gauged(ev, x) if self.unpinned and order == 2 else ev
+        return sum_terms(self.terms[:-1] + (held,), self.hessian_layout,
+                         np.asarray(x, dtype=np.float64).reshape(-1), c, order, gauge=self.unpinned)
 
     def mixed(self, x, c, r) -> np.ndarray:
         """d2E/dx dc with the rest lengths held at r, dense (n_dofs, n_winches)."""
@@ -142,29 +141,14 @@ class FrictionModel:
         return FixedRest(self, self.segment_term.held(np.asarray(r, dtype=np.float64).copy()))
 
 
-class FixedRest:
+class FixedRest(HeldTerms):
     """A :class:`FrictionModel` with its segment term held at fixed rest
     lengths: the interface :func:`~plush_opt.solve.equilibrium.solve_equilibrium`
     expects of a model. ``r``: the held rest lengths (n_segments,)."""
 
     def __init__(self, fm: FrictionModel, held: SegmentTerm):
+        super().__init__(fm, fm.terms[:-1] + (held,), fm.hessian_layout, fm.factorizer)
         self.fm, self.held, self.r = fm, held, held.rest
-        self.n_dofs, self.n_winches, self.X = fm.n_dofs, fm.n_winches, fm.X
-        self.factorizer = fm.factorizer
-        self.unpinned = fm.unpinned
-        self.energy_roundoff_scale = fm.energy_roundoff_scale
-        self.has_gravity, self.f_gravity, self.rest_area = fm.has_gravity, fm.f_gravity, fm.rest_area
 
     def evaluate(self, x, c, order: int = 2) -> Evaluation:
-        return self.fm.evaluate_held(self.held, x, c, order)
-
-    def unbalanced(self, x, c) -> str | None:
-        """Why there is no equilibrium near ``x`` (see :meth:`Model.unbalanced`)."""
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        c = np.asarray(c, dtype=np.float64).reshape(-1)
-        return unbalanced_at(sum_terms(self.fm.terms[:-1] + (self.held,), self.fm.hessian_layout, x, c, 2), x)
-
-    def max_step(self, x, dx) -> float:
-        """The base model's :meth:`~plush_opt.fem.model.Model.max_step` (the
-        segment term forbids no pose)."""
-        return self.fm.base.max_step(x, dx)
+        return self.fm.evaluate_held(self.held, x, c, order)      # (checks c's size)

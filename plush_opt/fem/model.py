@@ -76,11 +76,13 @@ class Evaluation:
         return assembled(self.hessian_form)
 
 
-def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order: int) -> Evaluation:
+def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order: int,
+              gauge: bool = False) -> Evaluation:
     """The sum of ``terms`` at flat pose ``x`` (n_dofs,) and contractions
     ``c`` (n_winches,): E (order 0), plus grad_x E (order 1), plus the
     Hessian (order 2), every term's parts assembled once by ``layout``.
-    Energies and gradients are added in the order of ``terms``.
+    Energies and gradients are added in the order of ``terms``. ``gauge``
+    (a body without pins): the Hessian gets the gauge of :func:`gauged`.
 
     Where x is not finite or a term finds it inadmissible (or the energy is
     not finite), E = +inf and no derivatives are returned."""
@@ -103,7 +105,8 @@ def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order:
     hessian = {}
     for part in parts:
         hessian.update(part.hessian)
-    return Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
+    ev = Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
+    return gauged(ev, x) if gauge else ev
 
 
 def gauged(ev: Evaluation, x: np.ndarray) -> Evaluation:
@@ -130,6 +133,37 @@ def unbalanced_at(ev: Evaluation, x: np.ndarray) -> str | None:
     if ev.hessian_form is None:
         return None
     return free_motion.unbalanced(ev.hessian, x, ev.gradient, ev.force_scale)
+
+
+class HeldTerms:
+    """What :func:`~plush_opt.solve.equilibrium.solve_equilibrium` needs of
+    a model, for ``terms`` (a model's terms with some held at a state: the
+    segment term at its rest lengths, the friction of a contact step)
+    summed in ``layout``; sizes and scales are ``model``'s, the
+    factorisations ``factorizer``'s."""
+
+    def __init__(self, model, terms: tuple[Term, ...], layout: HessianLayout, factorizer):
+        self.terms, self.layout, self.factorizer = tuple(terms), layout, factorizer
+        self.n_dofs, self.n_winches, self.X = model.n_dofs, model.n_winches, model.X
+        self.unpinned = model.unpinned
+        self.energy_roundoff_scale = model.energy_roundoff_scale
+        self.has_gravity, self.f_gravity, self.rest_area = model.has_gravity, model.f_gravity, model.rest_area
+
+    def evaluate(self, x, c, order: int = 2) -> Evaluation:
+        return sum_terms(self.terms, self.layout, np.asarray(x, dtype=np.float64).reshape(-1),
+                         np.asarray(c, dtype=np.float64).reshape(-1), order, gauge=self.unpinned)
+
+    def max_step(self, x, dx) -> float:
+        """The smallest of the terms' (see :meth:`Model.max_step`)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        dx = np.asarray(dx, dtype=np.float64).reshape(-1)
+        return float(min((term.max_step(x, dx) for term in self.terms), default=1.0))
+
+    def unbalanced(self, x, c) -> str | None:
+        """Why there is no equilibrium near ``x`` (see :meth:`Model.unbalanced`)."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        return unbalanced_at(sum_terms(self.terms, self.layout, x, np.asarray(c, dtype=np.float64).reshape(-1),
+                                       2), x)
 
 
 class Model:
@@ -331,9 +365,8 @@ class Model:
         :mod:`~plush_opt.fem.free_motion` on the rigid motions the contact
         leaves free (``hessian_form``; ``hessian`` too).
         """
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        ev = sum_terms(self.terms, self.hessian_layout, x, self._c(c), order)
-        return gauged(ev, x) if self.unpinned and order == 2 else ev
+        return sum_terms(self.terms, self.hessian_layout, np.asarray(x, dtype=np.float64).reshape(-1),
+                         self._c(c), order, gauge=self.unpinned)
 
     def free_motions(self, x, c, extra: tuple[Term, ...] = ()) -> list[str]:
         """The rigid motions the contact leaves free at flat pose ``x`` (an

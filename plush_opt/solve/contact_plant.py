@@ -21,7 +21,7 @@ import numpy as np
 
 from ..base.errors import SceneError
 from ..fem.contact_friction import ContactFrictionTerm, Lag, lag_at
-from ..fem.model import Evaluation, Model, gauged, sum_terms, unbalanced_at
+from ..fem.model import HeldTerms, Model
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .plant_base import Plant, moved_note
 from .sensitivity import implicit_derivative
@@ -62,33 +62,14 @@ class ContactEquilibrium(Equilibrium):
     origin: str = START
 
 
-class StepModel:
+class StepModel(HeldTerms):
     """The model of one step: the scene's terms plus the friction lagged at
     ``lag`` (what :func:`~plush_opt.solve.equilibrium.solve_equilibrium`
     minimises)."""
 
     def __init__(self, model: Model, lag: Lag):
-        self.model = model
         self.friction = ContactFrictionTerm(model.contact, lag)
-        self.terms = model.terms + (self.friction,)
-        self.n_dofs, self.n_winches, self.X = model.n_dofs, model.n_winches, model.X
-        self.factorizer = model.factorizer
-        self.unpinned = model.unpinned
-        self.energy_roundoff_scale = model.energy_roundoff_scale
-        self.has_gravity, self.f_gravity, self.rest_area = model.has_gravity, model.f_gravity, model.rest_area
-
-    def evaluate(self, x, c, order: int = 2) -> Evaluation:
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        ev = sum_terms(self.terms, self.model.hessian_layout, x, np.asarray(c, dtype=np.float64), order)
-        return gauged(ev, x) if self.unpinned and order == 2 else ev
-
-    def max_step(self, x, dx) -> float:
-        return self.model.max_step(x, dx)
-
-    def unbalanced(self, x, c) -> str | None:
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        return unbalanced_at(sum_terms(self.terms, self.model.hessian_layout, x,
-                                       np.asarray(c, dtype=np.float64), 2), x)
+        super().__init__(model, model.terms + (self.friction,), model.hessian_layout, model.factorizer)
 
 
 def step(model: Model, state: ContactState, contraction, options: EquilibriumOptions | None,
