@@ -48,3 +48,5 @@ def test_demo_solves_and_plays_on_the_emulator(tmp_path):
     rows = [json.loads(line) for line in (tmp_path / "run.jsonl").read_text().splitlines()]
     assert rows[-1]["status"] == "completed"
     assert any(r.get("measured") for r in rows)
+    # the hexapod stands on its feet: one patch on the floor per foot
+    assert "demo: contact: 2 patch(es) on the floor" in p.stdout + p.stderr

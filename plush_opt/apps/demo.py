@@ -103,6 +103,9 @@ def _demo_contact(problem: Path, out: Path, tension_max) -> None:
     say(f"demo: contact: {doc['status']}; {target_summary(doc['target_error'])}; the floor carries "
         f"{contact['total_force'][1]:.4g} N (its weight), smallest gap {contact['min_gap']:.3g} {LENGTH_UNIT}, "
         f"free: {', '.join(contact['free_motions']) or 'nothing'}")
+    feet = [f"{patch['force'][1]:.4g} N at x = {patch['at'][0]:.3g}" for patch in contact["patches"]
+            if patch["with"] == "ground"]
+    say(f"demo: contact: {len(feet)} patch(es) on the floor: {'; '.join(feet)}")
     say(f"demo: contact: wrote {out / 'result.json'}, {out / 'pose.png'}")
 
 

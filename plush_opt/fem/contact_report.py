@@ -30,8 +30,9 @@ def report(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm | Non
     """The result's top-level ``contact`` block at flat pose ``x``:
     ``min_gap``, ``total_force`` (the sum of every contact force on the
     body), ``total_by`` (that sum per thing touched: "ground", an
-    obstacle's name, "self") and ``nodes`` (:func:`node_forces`; with
-    ``friction``, the lagged friction of the step that reached ``x``)."""
+    obstacle's name, "self"), ``patches`` (:func:`patches`: per finger)
+    and ``nodes`` (:func:`node_forces`; with ``friction``, the lagged
+    friction of the step that reached ``x``)."""
     nodes = node_forces(term, x, friction)
     total = np.zeros(2)
     by: dict[str, np.ndarray] = {}
@@ -44,7 +45,47 @@ def report(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm | Non
             "total_force": [float(total[0]), float(total[1])],
             # (an extra) the same sum per thing touched: the grip on an object
             "total_by": {name: [float(f[0]), float(f[1])] for name, f in sorted(by.items())},
+            "patches": patches(term, x, nodes),
             "nodes": nodes}
+
+
+def patches(term: ContactTerm, x: np.ndarray, nodes: list[dict]) -> list[dict]:
+    """The contact forces per patch: each connected stretch of the body's
+    boundary whose nodes all touch one thing, as a finger holding an
+    object is one patch. Per patch: ``with``, ``nodes`` (its mesh nodes in
+    order of index), ``force`` [fx, fy] (normal plus friction, summed) and
+    ``at`` [x, y] (the force-weighted mean position of its nodes at ``x``).
+    ``nodes`` is :func:`node_forces` at ``x``; patches are sorted by thing,
+    then by their first node."""
+    pos = x.reshape(-1, 2)
+    local = {int(n): k for k, n in enumerate(term.boundary.nodes)}
+    found = []
+    for label in sorted({e["with"] for e in nodes}):
+        force = {e["node"]: np.asarray(e["normal_force"]) + np.asarray(e["friction_force"])
+                 for e in nodes if e["with"] == label}
+        # union-find over the boundary segments whose both ends touch this thing
+        root = {n: n for n in force}
+
+        def find(n):
+            while root[n] != n:
+                root[n] = root[root[n]]
+                n = root[n]
+            return n
+
+        for a, b in term.boundary.segments:
+            if int(a) in force and int(b) in force:
+                root[find(int(a))] = find(int(b))
+        groups: dict[int, list[int]] = {}
+        for n in sorted(force, key=lambda n: local.get(n, n)):
+            groups.setdefault(find(n), []).append(n)
+        for members in groups.values():
+            members = sorted(members)
+            f = np.sum([force[n] for n in members], axis=0)
+            size = np.array([np.linalg.norm(force[n]) for n in members])
+            at = (size @ pos[members]) / size.sum() if size.sum() > 0 else pos[members].mean(axis=0)
+            found.append({"with": label, "nodes": members, "force": [float(f[0]), float(f[1])],
+                          "at": [float(at[0]), float(at[1])]})
+    return sorted(found, key=lambda p: (p["with"], p["nodes"][0]))
 
 
 def node_forces(term: ContactTerm, x: np.ndarray, friction: ContactFrictionTerm | None = None) -> list[dict]:
