@@ -276,7 +276,7 @@ class Controller:
             self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
             return None
         self.converged, self.reason = False, "no_decrease"
-        failed = STALLED_ON_FRICTION if self.plant.path_dependent else LINE_SEARCH_FAILED
+        failed = stalled_on(self.plant.path_cause) if self.plant.path_dependent else LINE_SEARCH_FAILED
         self.status = failed + _bound_note(last, self.model, self.options.gtol)
         return None
 
@@ -417,13 +417,17 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
 
 #: The status of a line search that found no decrease.
 LINE_SEARCH_FAILED = "cannot decrease the objective further: line search failed"
-#: The same where the pose depends on the path
-#: (friction at via points): the objective is not smooth in the contractions
-#: there, and the step the sensitivities propose can raise it at any length.
-STALLED_ON_FRICTION = (
-    "stalled: no trial step lowered O (friction at via points: O is not smooth in the contractions, "
-    "the sensitivities hold for the current stick/slip state only); the pose is the best certified "
-    "iterate, not a proven optimum")
+
+
+def stalled_on(cause: str) -> str:
+    """The status of a line search that found no decrease where the pose
+    depends on the path (``cause``: the plant's ``path_cause``, e.g.
+    "friction at via points"): the objective is not smooth in the
+    contractions there, and the step the sensitivities propose can raise
+    it at any length."""
+    return (f"stalled: no trial step lowered O ({cause}: O is not smooth in the contractions, "
+            "the sensitivities hold for the current stick/slip state only); the pose is the best certified "
+            "iterate, not a proven optimum")
 
 
 #: A held winch within this fraction of its range from its bound is "at" it.

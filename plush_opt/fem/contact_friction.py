@@ -2,8 +2,8 @@
 smoothed static friction (docs/model.md, "Contact", "Friction").
 
 A boundary node pressed on the floor or on an obstacle edge with normal
-force lambda resists moving along that surface, away from where it was in
-the committed state (its anchor), with the potential
+force lambda resists moving along that surface, away from its anchor, with
+the potential
 
     D = sum over pairs of mu * lambda * f0(|u|),   u = t . (p - anchor),
 
@@ -15,6 +15,13 @@ beyond, it slides against the constant force mu lambda. lambda and t are
 and the step solved again until they agree (:class:`Lag`, the plant's
 consistency loop). Self-contact is frictionless, and so are the pairs of an
 obstacle's corner with a body segment (friction acts at body nodes).
+
+The anchor is where the node touched down, carried along as it slides so
+that it trails the node by at most eps (:func:`carried_anchor`): the
+friction force a committed state holds is still there when the next step
+starts. (IPC's anchor is the previous time step's position: in a
+quasi-static path that drops every held force at each step and lets the
+body creep by up to eps / 2 per step.)
 """
 
 from __future__ import annotations
@@ -37,7 +44,7 @@ SLIP_FRACTION = 1e-2
 class Lag:
     """The friction's lagged data: what a step holds fixed.
 
-    anchor : (b, 2) the boundary nodes' positions in the committed state.
+    anchor : (b, 2) the boundary nodes' anchors (:func:`carried_anchor`).
     node : (k,) the boundary node (index into ``ContactTerm.boundary.nodes``)
         of each frictional pair; label : (k,) what it touches (0 the
         ground, 1 + i obstacle i).
@@ -61,10 +68,10 @@ class Lag:
                     and np.all(np.abs(self.tangent - other.tangent) <= rtol))
 
 
-def lag_at(term: ContactTerm, anchor_x: np.ndarray, x: np.ndarray) -> Lag:
-    """The lagged data at pose ``x`` for a step from the committed pose
-    ``anchor_x`` (both flat): every boundary node the floor or an obstacle
-    edge pushes, with the push's size and the surface's tangent."""
+def lag_at(term: ContactTerm, anchor: np.ndarray, x: np.ndarray) -> Lag:
+    """The lagged data at flat pose ``x`` for a step whose boundary nodes
+    are anchored at ``anchor`` (b, 2): every boundary node the floor or an
+    obstacle edge pushes, with the push's size and the surface's tangent."""
     nodes, labels, tangents, normals = [], [], [], []
     if term.ground is not None:
         _, parts = term.ground_part(x, 1)
@@ -87,8 +94,23 @@ def lag_at(term: ContactTerm, anchor_x: np.ndarray, x: np.ndarray) -> Lag:
         normals.append(size[keep])
     cat = (lambda parts, shape, dtype=np.float64:
            np.concatenate(parts) if parts else np.zeros(shape, dtype=dtype))
-    return Lag(anchor=term.points(anchor_x), node=cat(nodes, 0, np.int64), label=cat(labels, 0, np.int64),
+    return Lag(anchor=np.asarray(anchor, dtype=np.float64), node=cat(nodes, 0, np.int64), label=cat(labels, 0, np.int64),
                tangent=cat(tangents, (0, 2)), normal=cat(normals, 0))
+
+
+def carried_anchor(term: ContactTerm, lag: Lag, x: np.ndarray) -> np.ndarray:
+    """(b, 2) the anchors a state at flat pose ``x``, reached holding
+    ``lag``, hands to the next step: a node that touches keeps its slip u
+    clipped to [-eps, eps] (so its friction force is unchanged: the smoothed
+    force is mu * lambda beyond eps), a node that does not is anchored where
+    it is. A node with pairs on two things keeps the last pair's slip."""
+    p = term.points(x)
+    anchor = p.copy()
+    if len(lag.node):
+        eps = SLIP_FRACTION * term.distance
+        u = np.einsum("ij,ij->i", p[lag.node] - lag.anchor[lag.node], lag.tangent)
+        anchor[lag.node] = p[lag.node] - np.clip(u, -eps, eps)[:, None] * lag.tangent
+    return anchor
 
 
 class ContactFrictionTerm(Term):

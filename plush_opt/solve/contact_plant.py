@@ -5,7 +5,7 @@ Its committed state is a :class:`ContactState`: the pose and contractions
 the robot's history reached, and the friction's lagged data of the step
 that reached it. :meth:`ContactFrictionPlant.drive` follows a straight
 contraction path from it in steps; each step holds every contact node's
-anchor (where it was in the state before), solves the equilibrium with the
+anchor (carried from the state before: its friction force goes on), solves the equilibrium with the
 friction lagged at a pose, updates the lag at the pose found and solves
 again until the normal forces agree (:func:`step`). A step without an
 equilibrium (an incline steeper than the friction angle: the body slides)
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..base.errors import SceneError
-from ..fem.contact_friction import ContactFrictionTerm, Lag, lag_at
+from ..fem.contact_friction import ContactFrictionTerm, Lag, carried_anchor, lag_at
 from ..fem.model import HeldTerms, Model
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .plant_base import Plant, moved_note
@@ -42,7 +42,8 @@ FRESH_PATH = ("friction at contacts: the pose reached from the scene's start sta
 @dataclass(frozen=True)
 class ContactState:
     """A committed state: pose ``x`` (n_dofs,), ``contraction`` (n_winches,)
-    and the ``lag`` its step held (anchors: the state before)."""
+    and the ``lag`` its step held (its anchors those of the state before;
+    :func:`~plush_opt.fem.contact_friction.carried_anchor` gives the next's)."""
 
     x: np.ndarray
     contraction: np.ndarray
@@ -78,13 +79,14 @@ def step(model: Model, state: ContactState, contraction, options: EquilibriumOpt
     it holds, and why it failed (None when it converged with a settled lag)."""
     term = model.contact
     x = state.x if guess is None else guess
-    lag = lag_at(term, state.x, x)
+    anchor = carried_anchor(term, state.lag, state.x)
+    lag = lag_at(term, anchor, x)
     failed = None
     for _ in range(MAX_LAG_ITERATIONS):
         eq = solve_equilibrium(StepModel(model, lag), contraction, x, options)
         if not model.admissible(eq.x):
             return eq, lag, eq.status
-        new = lag_at(term, state.x, eq.x)
+        new = lag_at(term, anchor, eq.x)
         settled = new.close_to(lag, LAG_RTOL)
         if eq.converged and settled:
             return eq, lag, None
@@ -140,6 +142,7 @@ class ContactFrictionPlant(Plant):
 
     path_dependent = True
     history_note = FRESH_PATH
+    path_cause = "friction at contacts"
 
     def __init__(self, model: Model, state: ContactState | None = None):
         super().__init__(model, state)
@@ -153,7 +156,7 @@ class ContactFrictionPlant(Plant):
         anchored at its rest position."""
         if "start" not in self._built:
             X, zero = self.model.X, np.zeros(self.model.n_winches)
-            rest = ContactState(X, zero, lag_at(self.model.contact, X, X))
+            rest = ContactState(X, zero, lag_at(self.model.contact, self.model.contact.points(X), X))
             self._built["start"] = follow(self.model, rest, zero[None], options, "the rest pose")
         return self._built["start"]
 
@@ -223,7 +226,7 @@ def cone_violation(model: Model, lag: Lag, x: np.ndarray) -> str | None:
     """Whether a friction force at ``x`` (held at ``lag``) leaves its cone
     |f_t| <= mu lambda of the normal force at ``x`` itself, in words."""
     friction = ContactFrictionTerm(model.contact, lag)
-    now = lag_at(model.contact, x, x)
+    now = lag_at(model.contact, model.contact.points(x), x)
     f = np.linalg.norm(friction.forces(x), axis=1)
     normal = np.zeros(len(lag.node))
     index = {(int(n), int(lab)): k for k, (n, lab) in enumerate(zip(now.node, now.label))}

@@ -42,6 +42,7 @@ class FrictionPlant(Plant):
 
     path_dependent = True
     history_note = FRESH_PATH
+    path_cause = "friction at via points"
 
     def __init__(self, model: Model, include_frictionless: bool = False, state: FrictionState | None = None):
         super().__init__(model, state)

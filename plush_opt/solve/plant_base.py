@@ -24,6 +24,8 @@ class Plant(abc.ABC):
         more than a pose).
     history_note : for a path-dependent plant, one sentence saying which
         history :meth:`equilibrium` assumes (for messages); else None.
+    path_cause : for a path-dependent plant, what makes it so, in words
+        ("friction at via points"); else None.
     state : the committed state (None: nothing committed; the scene's
         start state). Its type is the plant's own.
 
@@ -33,6 +35,7 @@ class Plant(abc.ABC):
 
     path_dependent = False
     history_note: str | None = None
+    path_cause: str | None = None
 
     def __init__(self, model: Model, state=None):
         self.model = model

@@ -1,0 +1,78 @@
+"""Friction at contacts keeps its force across committed states: a state
+held by friction does not creep when the path goes on, and the plant's
+sensitivity is the derivative of going on from a committed state."""
+
+import numpy as np
+import pytest
+
+from plush_opt.fem.contact_friction import SLIP_FRACTION, carried_anchor, lag_at
+from plush_opt.io.problem_file import scene_from_dict
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.fem.model import Model
+from plush_opt.solve.plant import make_plant
+from plush_opt.solve.contact_plant import StepModel
+from plush_opt.solve.equilibrium import solve_equilibrium
+
+from shipped import ROOT
+from test_contact_scenes import _block_on
+
+PROBLEMS = ROOT / "problems"
+
+
+def test_a_block_held_on_a_slope_by_friction_stays_put_step_after_step():
+    model, plant = _block_on(10.0, 0.3)
+    eq = plant.drive(np.zeros(1))
+    assert eq.converged, eq.status
+    start = eq.x.copy()
+    for _ in range(5):                   # the robot commits and goes on at the same contractions
+        plant.commit(eq)
+        eq = plant.drive(np.zeros(1))
+        assert eq.converged, eq.status
+    # each step used to drop the held friction force and let it slide by up to eps / 2
+    eps = SLIP_FRACTION * model.contact.distance
+    assert np.abs(eq.x - start).max() <= 1e-2 * eps
+
+
+def _hexapod(friction: float):
+    import yaml
+    doc = yaml.safe_load((PROBLEMS / "hexapod_stand.yaml").read_text())
+    doc["contact"]["friction"] = friction
+    scene = scene_from_dict(doc, "hexapod_friction.yaml")
+    model = Model(scene, build_mesh(scene))
+    return model, make_plant(model)
+
+
+@pytest.mark.parametrize("contraction", [[0.0, 0.0], [6.0, 5.0]])
+def test_the_sensitivity_is_that_of_going_on_from_the_committed_state(contraction):
+    model, plant = _hexapod(0.5)
+    eq = plant.drive(np.array(contraction))
+    assert eq.converged, eq.status
+    plant.commit(eq)
+    S = plant.sensitivity(eq)
+    # the step that goes on from the committed state: its anchors carried, its lag held
+    lag = eq.contact.lag
+    onward = StepModel(model, lag_at(model.contact, carried_anchor(model.contact, lag, eq.x), eq.x))
+    again = solve_equilibrium(onward, eq.contraction, eq.x)
+    # going on at the same contractions barely moves: only by what the lag's
+    # settling tolerance leaves (it used to drop every held friction force)
+    assert np.abs(again.x - eq.x).max() <= 0.05 * SLIP_FRACTION * model.contact.distance
+    h = 1e-6
+    for j in range(model.n_winches):
+        c = np.array(contraction); c[j] += h
+        moved = solve_equilibrium(onward, c, again.x)
+        assert moved.converged, moved.status
+        fd = (moved.x - again.x) / h
+        assert np.abs(fd - S[:, j]).max() <= 1e-3 * np.abs(S[:, j]).max(), j
+
+
+@pytest.mark.slow
+def test_control_with_friction_at_contacts_names_its_cause():
+    from plush_opt.problem import Problem
+    from plush_opt.fem.objective import Targets
+    model, plant = _hexapod(0.5)
+    problem = Problem(model.scene, model.mesh, model, Targets.from_mesh(model.mesh, model.scene))
+    result = problem.control()
+    assert result.equilibrium.converged            # the pose it returns is certified
+    assert "via points" not in result.status
+    if not result.converged:
+        assert "friction at contacts" in result.status, result.status
