@@ -107,6 +107,7 @@ typedef struct {
   long count;     // encoder count the firmware has been shown
   double duty;    // last applied drive, -1..1
   int braked;     // IN1 = IN2 = HIGH
+  double braked_at;  // simulated time the brake last engaged, s (-1: never)
   long min_count, max_count;        // extremes of the encoder count since power-up
   long window_min, window_max;      // ... since the last window reset (SIGUSR1)
   long closed_min, closed_max;      // ... of the window that reset closed
@@ -330,7 +331,9 @@ static avr_cycle_count_t motor_step(avr_t* avr, avr_cycle_count_t when, void* pa
   if (g_enc_addr) preset_encoders();
   for (int a = 0; a < g_opt.winches; ++a) {
     Motor* m = &g_motor[a];
+    const int was_braked = m->braked;
     m->duty = motor_drive(a, &m->braked);
+    if (m->braked && !was_braked) m->braked_at = sim_s();
     double goal = 0.0;  // speed the drive sustains
     if (fabs(m->duty) > g_opt.deadzone)
       goal = copysign((fabs(m->duty) - g_opt.deadzone) / (1.0 - g_opt.deadzone), m->duty) * g_opt.speed;
@@ -466,6 +469,7 @@ static void write_state(double wall) {
   LIST("speed", "%.1f", m->v)
   LIST("drive", "%.3f", m->duty)
   LIST("enabled", "%s", m->braked ? "false" : "true")
+  LIST("braked_time", "%.6f", m->braked_at)
   LIST("min_ticks", "%ld", m->min_count)
   LIST("max_ticks", "%ld", m->max_count)
   LIST("window_min", "%ld", m->window_min)
@@ -509,6 +513,7 @@ int main(int argc, char** argv) {
   int rc = parse_args(argc, argv, &o);
   if (rc != 0) return rc < 0 ? 0 : rc;
   g_opt = o;
+  for (int a = 0; a < MAX_MOTORS; ++a) g_motor[a].braked_at = -1.0;  // never braked yet
 
   avr_global_logger_set(log_to_stderr);
   elf_firmware_t fw;

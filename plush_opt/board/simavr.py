@@ -89,7 +89,9 @@ class SimavrBoard(_emulator.Emulator):
     the chip: ``time`` (simulated s), ``wall_time``, ``position`` (true
     motor positions, float ticks from power-up), ``ticks`` (encoder
     counts shown to the firmware), ``speed``, ``drive`` (PWM duty from
-    -1 to 1), ``enabled`` (not braked), ``min_ticks``/``max_ticks``,
+    -1 to 1), ``enabled`` (not braked), ``braked_time`` (simulated s at
+    which each motor's brake last engaged, -1 if never),
+    ``min_ticks``/``max_ticks``,
     ``last_rx_time`` (simulated time of the last byte from the host),
     ``rx_bytes``/``tx_bytes``/``dropped_bytes``. The firmware's internal
     state (targets, limits, stop counts) is only read through the protocol.
