@@ -169,7 +169,7 @@ def test_the_sweep_plot_says_mm_and_tells_coinciding_curves_apart():
     ax = fig.axes[0]
     assert ax.get_xlabel() == "contraction of grip [mm]" and ax.get_ylabel() == "displacement [mm]"
     legend = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert legend[1].endswith("(same curve as point 0)") and "same curve" not in legend[0] + legend[2]
+    assert legend[1].endswith("(over point 0's curve, within 0 mm)") and "over point" not in legend[0] + legend[2]
     lines = ax.get_lines()
     assert len({(str(line.get_linestyle()), line.get_marker()) for line in lines}) == 3
     assert "units" not in " ".join(legend + [ax.get_xlabel(), ax.get_ylabel()])
