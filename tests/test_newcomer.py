@@ -94,6 +94,17 @@ def test_a_pose_that_is_not_converged_is_marked_in_red(gripper):
     plt.close(bad)
 
 
+def test_solve_plot_of_a_run_that_did_not_converge_marks_its_picture(monkeypatch, tmp_path):
+    import plush_opt.apps.plot as plot
+    from plush_opt.apps.cli import main
+    drawn = {}
+    monkeypatch.setattr(plot, "plot_pose", lambda *a, **kw: drawn.update(kw))
+    code = main(["solve", str(ROOT / "problems" / "gripper.yaml"), "--max-iterations", "1",
+                 "--plot", str(tmp_path / "p.png")])
+    assert code == 3
+    assert drawn["converged"] is False and drawn["status"].startswith("iteration limit (1) reached")
+
+
 # -- short reprs --------------------------------------------------------------------
 
 def test_results_print_in_a_line_without_arrays(gripper, gripped):
