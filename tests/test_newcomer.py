@@ -121,6 +121,13 @@ def test_results_print_in_a_line_without_arrays(gripper, gripped):
             result.history[-1])
 
 
+def test_a_problems_targets_and_mesh_print_short(gripper):
+    assert repr(gripper.targets).startswith("Targets(triangles=[")
+    assert "to=[[-74, 80], [50, 124], [-26, 142]], weight=[1, 1, 1])" in repr(gripper.targets)
+    assert repr(gripper.mesh).startswith(f"Mesh(X=<array ({gripper.mesh.n_nodes}, 2) float64>, triangles=<array (")
+    assert len(repr(gripper.mesh)) < 600
+
+
 def test_friction_and_contact_states_print_short():
     from plush_opt.fem.contact_friction import Lag
     from plush_opt.solve.contact_plant import ContactEquilibrium, ContactState

@@ -30,8 +30,8 @@ def value_repr(value) -> str:
     if isinstance(value, Real):
         return f"{float(value):.{DIGITS}g}"
     if isinstance(value, np.ndarray):
-        if value.size <= SHOWN and value.ndim <= 1:
-            return "[" + ", ".join(value_repr(v) for v in value.tolist()) + "]"
+        if value.size <= SHOWN and value.ndim >= 1:
+            return value_repr(value.tolist())
         return f"<array {value.shape} {value.dtype}>"
     if isinstance(value, (tuple, list)):
         if len(value) > SHOWN or any(dataclasses.is_dataclass(v) for v in value):
