@@ -8,6 +8,9 @@ The public API (docs/api.md)::
     result = p.control(method="reparam")               # a ControlResult
     result.contractions, result.objective, result.x
     result.save("r.json")                              # the spec's result file
+    q = p.with_targets([{"at": [78, 122], "to": [60, 100]}])   # the problem file's target format
+    plush_opt.plot(p, result, "pose.png")              # the picture of `plush-opt solve --plot`
+    plush_opt.export(p, result, "vtk")                 # pose.vtu (+ trace.pvd), as `solve --vtk`
 
 Everything else lives in the modules named in docs/architecture.md.
 """
@@ -23,6 +26,7 @@ _API = {
     "HardwareError": "base.errors", "PlushError": "base.errors", "SceneError": "base.errors",
     "SolverError": "base.errors",
     "Problem": "problem", "from_scene": "problem", "load": "problem",
+    "plot": "apps.plot", "export": "apps.export",
 }
 
 __all__ = sorted(_API) + ["__version__"]

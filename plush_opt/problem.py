@@ -21,6 +21,9 @@ from .fem.model import Model, build_model
 from .fem.objective import Targets
 from .io.scene import Scene
 
+#: what a bad target given to :meth:`Problem.with_targets` is reported as coming from
+WITH_TARGETS = "with_targets"
+
 
 class Problem:
     """Scene, mesh, model and targets of one problem file.
@@ -156,11 +159,34 @@ class Problem:
             self._bilevel = BilevelSolver(self.model)
         return self._bilevel
 
-    def with_targets(self, targets: Targets) -> "Problem":
-        """The same problem with other targets (model, mesh and solvers shared)."""
+    def with_targets(self, targets) -> "Problem":
+        """The same problem with other targets (model, mesh and solvers shared).
+
+        ``targets``: a list in the problem file's format,
+        ``[{"at": [x, y], "to": [x, y], "weight": w}, ...]`` (``at`` a body
+        point in rest coordinates, ``to`` where it should go, both in length
+        units; ``weight`` > 0, default 1; ``[]`` for none), or a
+        :class:`~plush_opt.fem.objective.Targets`. A bad entry, or a point
+        off the body, is one :class:`SceneError` naming its index and key
+        (``with_targets: targets[1].to: ...``).
+        """
+        if not isinstance(targets, Targets):
+            targets = self._located(targets)
         other = Problem(self.scene, self.mesh, self.model, targets, self.mesh_report)
         other._bilevel, other._plant = self._bilevel, self._plant
         return other
+
+    def _located(self, entries) -> Targets:
+        """Problem-file target entries, checked and located in the mesh."""
+        from .io.problem_file import read_targets
+        found = read_targets(entries, WITH_TARGETS)
+        if not found:
+            return Targets.empty()
+        try:
+            return Targets.at_points(self.mesh, [t.at for t in found], [t.to for t in found],
+                                     [t.weight for t in found])
+        except SceneError as exc:        # a point off the body: say where it came from
+            raise SceneError(f"{WITH_TARGETS}: {exc}") from None
 
 
 def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None = None,

@@ -39,6 +39,7 @@ def test_the_calibration_pictures_have_labelled_axes(fitted):
     ax = Figure().subplots()
     _panel(ax, result.after, 5, meas.positions[5], meas.seen[5], "k", "after")
     assert (ax.get_xlabel(), ax.get_ylabel()) == ("x (mm)", "y (mm)")
+    assert ax.get_title().startswith("after: RMS marker error ") and ax.get_title().endswith(" mm")
 
 
 def test_the_fit_recovers_the_truth_within_its_standard_errors(report):

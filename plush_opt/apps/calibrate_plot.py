@@ -44,7 +44,7 @@ def _panel(ax, pred, i, measured, seen, color, title):
               scale_units="xy", scale=1, color=color, width=0.004,
               label="residual" + (f" x{gain:.3g}" if gain > 1 else ""))
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1)))) if seen.any() else float("nan")
-    ax.set_title(f"{title}: RMS marker error {rms:.3g}")
+    ax.set_title(f"{title}: RMS marker error {rms:.3g} {LENGTH_UNIT}")
     ax.set_xlabel(f"x ({LENGTH_UNIT})")
     ax.set_ylabel(f"y ({LENGTH_UNIT})")
     ax.set_aspect("equal")

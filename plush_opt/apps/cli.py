@@ -65,10 +65,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def overview(parser: argparse.ArgumentParser) -> str:
+    """What a bare ``plush-opt`` prints: each command with its one-line
+    help, and where to start reading."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    commands = [(a.dest, a.help or "") for a in sub._choices_actions]
+    width = max(len(name) for name, _ in commands)
+    lines = [f"plush-opt: {parser.description}", "", "usage: plush-opt COMMAND [options]   "
+             "(plush-opt COMMAND --help for its options)", "", "commands:"]
+    lines += [f"  {name:<{width}}  {text}" for name, text in commands]
+    lines += ["", "New here? docs/quickstart.md goes from a blank problem file to a solved pose and a run "
+              "on the emulator;", "`plush-opt demo` shows the shipped examples."]
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     previous = handle_signals()      # first: a signal during start-up (imports, parsing) ends quietly too
     args = None
     try:
+        argv = sys.argv[1:] if argv is None else list(argv)
+        if not argv:                 # a bare `plush-opt` asked what there is: not a usage error
+            print(overview(build_parser()))
+            return 0
         args = build_parser().parse_args(argv)
         configure_output(args)
         _check_output_folders(args)

@@ -71,7 +71,8 @@ def cmd_demo(args) -> int:
         write_interrupted(out / "result.json", exc)
         raise
     write_json_atomic(out / "result.json", doc)
-    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=args.tension_max)
+    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=args.tension_max,
+              converged=doc["converged"], status=doc["status"])
     plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates")
     write_trace(out / "trace.csv", p.model, p.targets, history)
     say(f"demo: {doc['status']}; {len(history) - 1} iterates, "
@@ -98,7 +99,8 @@ def _demo_contact(problem: Path, out: Path, tension_max) -> None:
     p, eq, doc, _ = solve_problem(problem, method="reparam")
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / "result.json", doc)
-    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=tension_max)
+    plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=tension_max,
+              converged=doc["converged"], status=doc["status"])
     contact = doc["contact"]
     say(f"demo: contact: {doc['status']}; {target_summary(doc['target_error'])}; the floor carries "
         f"{contact['total_force'][1]:.4g} N (its weight), smallest gap {contact['min_gap']:.3g} {LENGTH_UNIT}, "

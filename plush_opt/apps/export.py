@@ -142,6 +142,22 @@ def write_control(folder, model, eq, history=()) -> list[Path]:
     return files
 
 
+def export(problem, pose, folder) -> list[Path]:
+    """Write ``pose`` for ParaView as ``plush-opt solve --vtk DIR`` does and
+    return the files: ``folder/pose.vtu`` (the module docstring's fields),
+    and for a :class:`~plush_opt.control.ControlResult` whose iterates are
+    all certified equilibria (the gradient loop) ``folder/trace.pvd``, one
+    ``.vtu`` per iterate. ``pose``: that result or an
+    :class:`~plush_opt.solve.equilibrium.Equilibrium` of ``problem``;
+    ``folder`` is made if missing."""
+    eq = getattr(pose, "equilibrium", pose)
+    history = tuple(getattr(pose, "history", ()))
+    if not all(h.equilibrium is not None for h in history):
+        history = ()           # IPOPT's iterates are not poses
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    return write_control(folder, problem.model, eq, history)
+
+
 def run_frames(log_path, problem):
     """``(time, x, contraction, equilibrium)`` of each command in a run log,
     the pose recomputed by a fork of the problem's plant: the equilibrium

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import textwrap
+from pathlib import Path
+
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
@@ -23,6 +26,9 @@ LABEL_MERGE = 0.05       # stoppers closer than this fraction of the picture sha
 GROUND_COLOR = "#5a5a5a"
 OBSTACLE_COLOR = "#9fb4c7"
 CONTACT_COLOR = "#1f77b4"
+NOT_CONVERGED = "NOT CONVERGED"
+NOT_CONVERGED_COLOR = "#c00000"
+NOT_CONVERGED_WRAP = 60  # characters a line of the not-converged note: it stays inside the pose axes
 FORCE_LENGTH = 0.08      # the largest contact force is drawn this fraction of the picture long
 
 
@@ -191,19 +197,69 @@ def save_figure(fig, path, **savefig_kwargs) -> None:
         plt.close(fig)
 
 
-def plot_pose(path, model, x, contraction, targets=None, title=None, tension_max=None):
-    """Write a PNG of one pose, with its legend, names and target errors.
-
-    ``tension_max`` (N) fixes the tension colour scale (see :func:`draw_pose`).
-    """
+def pose_figure(model, x, contraction, targets=None, title=None, tension_max=None, *,
+                converged: bool = True, status: str = ""):
+    """The figure of one pose, with its legend, names and target errors
+    (what :func:`plot_pose` writes). ``tension_max`` (N) fixes the tension
+    colour scale (see :func:`draw_pose`). A pose that is not ``converged``
+    says so in red, with ``status``, in its title, across the picture and
+    by a red frame: it must not pass for a solved pose."""
     fig, ax = plt.subplots(figsize=(7, 6.6), dpi=120)
     if title is None:
         title = f"{model.scene.name}: {contraction_label(model, contraction)}"
         if targets is not None and targets.n_targets:
             title += f"\nRMS target error {targets.rms_error(np.asarray(x).reshape(-1)):.3g} {LENGTH_UNIT}"
     draw_pose(ax, model, x, contraction, targets, title=title, tension_max=tension_max, labels=True)
+    if not converged:
+        mark_not_converged(ax, status)
     fig.tight_layout()
+    return fig
+
+
+def mark_not_converged(ax, status: str) -> None:
+    """Mark the pose on ``ax`` as not converged: a red frame, the words
+    ``NOT CONVERGED: status`` in its upper left corner and after its title."""
+    words = "\n".join(textwrap.wrap(f"{NOT_CONVERGED}: {status}" if status else NOT_CONVERGED,
+                                    NOT_CONVERGED_WRAP))
+    for spine in ax.spines.values():
+        spine.set(color=NOT_CONVERGED_COLOR, linewidth=3.0, visible=True)
+    ax.text(0.02, 0.98, words, transform=ax.transAxes, va="top", ha="left", fontsize=9, weight="bold",
+            color=NOT_CONVERGED_COLOR, zorder=9,
+            bbox={"facecolor": "white", "edgecolor": NOT_CONVERGED_COLOR, "alpha": 0.85})
+    title = ax.get_title()
+    ax.set_title(f"{title}\n{NOT_CONVERGED}" if title else NOT_CONVERGED, fontsize=10)
+    ax.title.set_color(NOT_CONVERGED_COLOR)
+
+
+def plot_pose(path, model, x, contraction, targets=None, title=None, tension_max=None, *,
+              converged: bool = True, status: str = ""):
+    """Write a PNG of one pose (:func:`pose_figure`: its legend, names and
+    target errors; a pose that is not ``converged`` marked so, with ``status``)."""
+    fig = pose_figure(model, x, contraction, targets, title, tension_max, converged=converged, status=status)
     save_figure(fig, path, bbox_inches="tight")
+
+
+def plot(problem, pose, path, *, tension_max=None) -> Path:
+    """Write the picture of a pose that ``plush-opt solve --plot`` draws (PNG,
+    atomically) and return ``path``: the deformed body over its rest
+    outline, tendons coloured by tension, pins, targets with their errors,
+    a legend; a pose that is not converged marked so in red with its status.
+
+    Parameters
+    ----------
+    problem : the :class:`~plush_opt.problem.Problem` the pose belongs to.
+    pose : a :class:`~plush_opt.control.ControlResult` (its final pose, with
+        the targets it was run for) or an
+        :class:`~plush_opt.solve.equilibrium.Equilibrium` (with the problem's targets).
+    path : the PNG file.
+    tension_max : top of the tension colour scale (N; default: this pose's
+        largest tension), to compare pictures.
+    """
+    eq = getattr(pose, "equilibrium", pose)
+    targets = getattr(pose, "targets", problem.targets)
+    plot_pose(path, problem.model, eq.x, eq.contraction, targets if targets.n_targets else None,
+              tension_max=tension_max, converged=pose.converged, status=pose.status)
+    return Path(path)
 
 
 def plot_trace(path, history, title=None):

@@ -296,7 +296,7 @@ def cmd_solve(args) -> int:
         use_agg()
         check_output_path(args.plot, "--plot")     # still writable after the solve
         plot_pose(args.plot, p.model, eq.x, eq.contraction, p.targets if p.targets.n_targets else None,
-                  tension_max=args.tension_max)     # atomic itself
+                  tension_max=args.tension_max, converged=doc["converged"], status=doc["status"])  # atomic itself
     if args.trace and history:
         write_trace(args.trace, p.model, p.targets, history)
     if args.vtk:

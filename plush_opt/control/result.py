@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..base.reprs import compact_repr
 from ..solve.equilibrium import Equilibrium
 
 if TYPE_CHECKING:
@@ -69,6 +70,8 @@ class ControlIterate:
     equilibrium_solves: int = 0
     newton_iterations: int = 0
 
+    __repr__ = compact_repr
+
     @property
     def dispatchable(self) -> bool:
         """A certified stable equilibrium: safe to send to the robot now."""
@@ -101,6 +104,8 @@ class ControlStats:
     t_wall: float
     t_setup: float = 0.0
     details: object | None = None
+
+    __repr__ = compact_repr
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,15 @@ class ControlResult:
     stats: ControlStats
     model: "Model" = field(repr=False, compare=False)
     targets: "Targets" = field(repr=False, compare=False)
+
+    def __repr__(self) -> str:
+        """One line: the verdict, O and the contractions (no arrays; the
+        pose is ``x``, the iterates ``history``)."""
+        shown = ", ".join(f"{n!r}: {v:.4g}" for n, v in self.contractions.items())
+        return (f"ControlResult(method={self.method!r}, reason={self.reason!r}, converged={self.converged}, "
+                f"objective={self.objective:.4g}, contractions={{{shown}}}, "
+                f"active_bounds={self.active_bounds!r}, frozen={self.frozen!r}, "
+                f"iterations={self.stats.iterations}, equilibrium_solves={self.stats.equilibrium_solves})")
 
     def __post_init__(self):
         if self.method not in METHODS:

@@ -32,6 +32,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..base.errors import SceneError
+from ..base.reprs import compact_repr
 from .contact import ContactTerm
 from .terms import Term, TermEvaluation
 
@@ -57,6 +58,8 @@ class Lag:
     label: np.ndarray
     tangent: np.ndarray
     normal: np.ndarray
+
+    __repr__ = compact_repr
 
     def close_to(self, other: "Lag", rtol: float) -> bool:
         """Whether ``other`` has the same pairs with normal forces within

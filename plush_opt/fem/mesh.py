@@ -12,6 +12,7 @@ import triangle as _triangle
 from scipy.spatial import cKDTree
 
 from ..base.errors import SceneError, format_point
+from ..base.reprs import compact_repr
 from ..base.geometry import body_area, diameter, distance_to_segments, locate_in_triangles
 from .elements import Element, add_midside_nodes, named
 from .grading import grade
@@ -126,6 +127,8 @@ class Mesh:
         if tol is None:
             tol = POINT_TOL * self.diameter
         return locate_in_triangles(self.X[self.triangles], points, tol)
+
+    __repr__ = compact_repr      # a mesh prints by its arrays' shapes
 
     def __eq__(self, other):
         if not isinstance(other, Mesh):

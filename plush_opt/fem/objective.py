@@ -15,6 +15,7 @@ import scipy.sparse as sp
 
 from .elements import with_nodes
 from ..base.errors import SceneError
+from ..base.reprs import compact_repr
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,8 @@ class Targets:
     beta: np.ndarray
     to: np.ndarray
     weight: np.ndarray
+
+    __repr__ = compact_repr      # arrays by shape once there are more than a few targets
 
     def __post_init__(self):
         width = np.shape(self.nodes)[-1] if np.size(self.nodes) else 3

@@ -155,6 +155,14 @@ def _header_section(ck: Checker, data: dict) -> tuple[str, str]:
     return name, description
 
 
+def read_targets(raw, source: str) -> list[Target]:
+    """Targets given as the problem file's ``targets`` list (``[{"at": [x, y],
+    "to": [x, y], "weight": w}, ...]``, lists or tuples), checked as the
+    loader checks them; a bad entry is one :class:`SceneError`
+    "SOURCE: targets[i].KEY: ..."."""
+    return _targets_section(Checker(source), raw)
+
+
 def _targets_section(ck: Checker, raw) -> list[Target]:
     targets = []
     if raw is None:

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..base.errors import SolverError
+from ..base.reprs import compact_repr
 from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 
@@ -161,6 +162,8 @@ class Equilibrium:
     backend: str
     saddle_escapes: int = 0
     factor: Factor | None = field(default=None, repr=False, compare=False)
+
+    __repr__ = compact_repr      # no pose dumped: arrays by shape
 
     def __post_init__(self):
         # inf <= gtol * inf holds: a residual, force scale or energy that is

@@ -22,6 +22,7 @@ import numpy as np
 from ..base.errors import SceneError
 from ..fem.contact_friction import ContactFrictionTerm, Lag, carried_anchor, lag_at
 from ..fem.model import HeldTerms, Model
+from ..base.reprs import compact_repr
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .plant_base import Plant, moved_note
 from .sensitivity import implicit_derivative
@@ -49,6 +50,8 @@ class ContactState:
     contraction: np.ndarray
     lag: Lag
 
+    __repr__ = compact_repr
+
 
 @dataclass(frozen=True)
 class ContactEquilibrium(Equilibrium):
@@ -61,6 +64,8 @@ class ContactEquilibrium(Equilibrium):
     path: np.ndarray | None = field(default=None, repr=False, compare=False)
     steps_done: int = 0
     origin: str = START
+
+    __repr__ = compact_repr
 
 
 class StepModel(HeldTerms):

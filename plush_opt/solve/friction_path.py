@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..base.reprs import compact_repr
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..fem.friction import FrictionModel
 from ..base.linalg import NotPositiveDefinite
@@ -123,6 +124,8 @@ class FrictionState:
     equilibrium: Equilibrium | None = field(default=None, repr=False, compare=False)
     step_dx: np.ndarray | None = field(default=None, repr=False, compare=False)
     step_dc: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    __repr__ = compact_repr
 
     @property
     def nodes(self) -> np.ndarray:

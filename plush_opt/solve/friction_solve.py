@@ -22,6 +22,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from ..base.reprs import compact_repr
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from .sensitivity import implicit_derivative
 from ..fem.friction import FrictionModel, via_weights
@@ -64,6 +65,8 @@ class FrictionEquilibrium(Equilibrium):
     steps_done: int = 0
     origin: str = ("start state: zero contraction, segment rest lengths proportional to their "
                    "rest lengths (equal tensions), its equilibrium")
+
+    __repr__ = compact_repr
 
 
 def straight_path(start, contraction, steps: int) -> np.ndarray:

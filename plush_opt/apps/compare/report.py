@@ -76,6 +76,47 @@ def _marker(run) -> str:
     return MESH_MARKERS[run.element] if run.sweep == "mesh" else MARKERS[run.sweep]
 
 
+#: mantissas of a log axis' ticks, fewest first: the first set that puts at
+#: least LOG_TICKS_MIN labelled ticks in the view is used
+LOG_SUBS = ((1.0,), (1.0, 2.0, 5.0), tuple(float(m) for m in range(1, 10)))
+LOG_TICKS_MIN = 3
+
+
+def _log_ticks(lo: float, hi: float, subs) -> list[float]:
+    """The ticks m 10^e (m in ``subs``) within [lo, hi], increasing."""
+    out = []
+    for e in range(math.floor(math.log10(lo)) - 1, math.ceil(math.log10(hi)) + 1):
+        out += [t for t in (float(f"{m:g}e{e}") for m in subs) if lo * (1 - 1e-9) <= t <= hi * (1 + 1e-9)]
+    return sorted(out)
+
+
+def readable_log_axis(ax, which: str) -> None:
+    """Readable ticks on ``ax``'s log axis ``which`` ('x' or 'y'), its data
+    plotted: matplotlib's decades where the view spans enough of them, else
+    ticks at 1, 2, 5 or 1..9 times a power of ten, plain numbers, at least
+    two of them (a view between two such ticks widens to them)."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+    axis = ax.xaxis if which == "x" else ax.yaxis
+    ax.autoscale_view()
+    lo, hi = sorted(axis.get_view_interval())
+    if not (lo > 0 and math.isfinite(hi)):
+        return
+    axis.set_minor_formatter(NullFormatter())
+    if len(_log_ticks(lo, hi, LOG_SUBS[0])) >= LOG_TICKS_MIN:
+        return                       # several decades: matplotlib labels them
+    for subs in LOG_SUBS[1:]:
+        ticks = _log_ticks(lo, hi, subs)
+        if len(ticks) >= LOG_TICKS_MIN:
+            break
+    if len(ticks) < 2:               # narrower than two 1..9 ticks: widen to the ticks around it
+        around = _log_ticks(lo / 10, hi * 10, LOG_SUBS[-1])
+        lo, hi = max(t for t in around if t <= lo), min(t for t in around if t >= hi)
+        (ax.set_xlim if which == "x" else ax.set_ylim)(lo, hi)
+        ticks = _log_ticks(lo, hi, LOG_SUBS[-1])
+    axis.set_major_locator(FixedLocator(ticks))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+
+
 def _grid(n):
     from matplotlib.figure import Figure
     cols = min(n, 3)
@@ -87,6 +128,11 @@ def _grid(n):
 
 def plot_anytime(path: Path, problems, runs) -> Path:
     """Objective against wall time, one panel per problem."""
+    return _save(path, *anytime_figure(problems, runs))
+
+
+def anytime_figure(problems, runs):
+    """(figure, legend) of :func:`plot_anytime`."""
     fig, axes = _grid(len(problems))
     for ax, p in zip(axes, problems):
         name = p.scene.name
@@ -110,6 +156,7 @@ def plot_anytime(path: Path, problems, runs) -> Path:
                 ax.plot(t, o, "-", color=c, lw=1.2, marker="o" if r.method == "reparam" else "s",
                         ms=3.5, label=f"{r.method}: iterates (all dispatchable)")
         ax.set_yscale("log")
+        readable_log_axis(ax, "y")
         ax.set_xlabel("wall time [s]")
         ax.set_ylabel("objective O [mm$^2$]")
         nodes = [r.n_nodes for r in runs if r.problem == name and r.sweep == "main"]
@@ -124,6 +171,10 @@ def plot_anytime(path: Path, problems, runs) -> Path:
     legend = fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=3, fontsize=8,
                         frameon=False)
     fig.tight_layout()
+    return fig, legend
+
+
+def _save(path: Path, fig, legend) -> Path:
     # The legend hangs below the axes; the tight box takes it in, however narrow the figure.
     with atomic_path(path) as tmp:      # a full disk leaves no partial picture
         fig.savefig(tmp, bbox_inches="tight", bbox_extra_artists=[legend])
@@ -132,6 +183,11 @@ def plot_anytime(path: Path, problems, runs) -> Path:
 
 def plot_speed_error(path: Path, problems, runs) -> Path:
     """Solve time against fine-mesh target error, with the Pareto front."""
+    return _save(path, *speed_error_figure(problems, runs))
+
+
+def speed_error_figure(problems, runs):
+    """(figure, legend) of :func:`plot_speed_error`."""
     fig, axes = _grid(len(problems))
     for ax, p in zip(axes, problems):
         mine = [r for r in runs if r.problem == p.scene.name
@@ -145,11 +201,11 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
             ax.step([r.t_solve for r in front], [r.fine_target_error for r in front], where="post",
                     color="black", lw=1, label="Pareto front")
         ax.set_xscale("log")
+        readable_log_axis(ax, "x")
         errs = [r.fine_target_error for r in mine if r.fine_target_error > 0]
         if errs and max(errs) > 20 * min(errs):
             ax.set_yscale("log")
-        from matplotlib.ticker import NullFormatter
-        ax.xaxis.set_minor_formatter(NullFormatter())
+            readable_log_axis(ax, "y")
         ax.set_xlabel("solve time [s]")
         ax.set_ylabel("RMS target error, P2 reference [mm]")
         ax.set_title(p.scene.name, fontsize=10)
@@ -165,9 +221,7 @@ def plot_speed_error(path: Path, problems, runs) -> Path:
     legend = fig.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0), ncol=4, fontsize=8,
                         frameon=False)
     fig.tight_layout()
-    with atomic_path(path) as tmp:      # a full disk leaves no partial picture
-        fig.savefig(tmp, bbox_inches="tight", bbox_extra_artists=[legend])
-    return path
+    return fig, legend
 
 
 # -- report ---------------------------------------------------------------

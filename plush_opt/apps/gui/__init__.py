@@ -27,6 +27,8 @@ are used: ``plush-opt --help`` stays quick. See docs/gui.md.
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from pathlib import Path
 
 from .options import GuiOptions
@@ -104,6 +106,24 @@ def _open_board(problem, port, emulator: bool, board_file):
     return board
 
 
+def no_window_reason(backend: str) -> str:
+    """Why matplotlib's ``backend`` cannot open a window, and what to do:
+    a Python without tkinter (matplotlib then falls back to Agg without a
+    word) is not a missing display."""
+    try:
+        import tkinter  # noqa: F401 - only whether it is there
+    except ImportError:
+        return (f"tkinter is not installed: install python3-tk (e.g. `sudo apt install python3-tk`), "
+                f"or set MPLBACKEND=QtAgg with PyQt installed; matplotlib fell back to {backend!r}, "
+                "which cannot open a window (--screenshot FILE.png works without one)")
+    if sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        why = "no display?"
+    else:
+        why = "no display: DISPLAY is not set (run it in a desktop session, or over ssh -X)"
+    return (f"matplotlib backend {backend!r} cannot open a window ({why}); set MPLBACKEND to an "
+            "interactive one (e.g. TkAgg, QtAgg), or use --screenshot FILE.png")
+
+
 def run_gui(problem, *, port=None, emulator=False, board_file=None, options: GuiOptions | None = None,
             screenshot=None, timing=False) -> int:
     """Load ``problem``, attach the board (``port`` or the emulator), run the
@@ -123,9 +143,7 @@ def run_gui(problem, *, port=None, emulator=False, board_file=None, options: Gui
 
     from .view import NON_INTERACTIVE
     if not headless and plt.get_backend().lower() in NON_INTERACTIVE:
-        raise SceneError(f"matplotlib backend {plt.get_backend()!r} cannot open a window "
-                         "(no display?); set MPLBACKEND to an interactive one (e.g. TkAgg, QtAgg), "
-                         "or use --screenshot FILE.png")
+        raise SceneError(no_window_reason(plt.get_backend()))
     from ...problem import load
     from .session import PosingSession
     from .view import PosingWindow

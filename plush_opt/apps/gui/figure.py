@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import textwrap
 import time
 from collections.abc import Callable
 
@@ -34,6 +35,14 @@ KEY_HELP = (
 # colours of the interactive parts (the pose itself uses plush_opt.plot's)
 PREVIEW_COLOR = "#ff7f0e"
 STATUS_FACE = "#f2f2f2"
+# the status strip: its height (figure fraction: two status lines and the
+# message at the default size), its font (points), the text's left margin
+# (fraction of the width), and the monospace font's advance (DejaVu Sans
+# Mono: 0.602 em) that says how many characters fit across
+STRIP_HEIGHT, STATUS_FONT, STATUS_X, MONO_ADVANCE = 0.075, 9, 0.008, 0.602
+STATUS_LINES = 2
+# the pose axes' bottom (figure fraction): their x label clears the strip
+POSE_BOTTOM = 0.145
 
 # the pose axes show the rest body and the targets with this margin, as a
 # fraction of their largest extent (room to drag a point outwards)
@@ -102,7 +111,7 @@ def pose_axes(fig, model, x, contraction, tension_max: float):
     """The big axes on the left: the pose over the rest outline, targets,
     the drag preview, and the tension colour bar. Returns (ax, artists,
     legend handles)."""
-    ax = fig.add_axes([0.055, 0.125, 0.58, 0.83])
+    ax = fig.add_axes([0.055, POSE_BOTTOM, 0.58, 0.955 - POSE_BOTTOM])
     artists = draw_pose(ax, model, x, contraction, None, show_rest=False, colorbar=False)
     artists["tendons"].set_clim(0.0, tension_max)
     outline = model.X.reshape(-1, 2)[boundary_edges(model.mesh.triangles)]
@@ -123,7 +132,7 @@ def pose_axes(fig, model, x, contraction, tension_max: float):
               Line2D([], [], marker="x", ls="", color=TARGET_COLOR, mew=2, label="target"),
               Line2D([], [], marker="o", ls="", mfc="white", mec=TARGET_COLOR,
                      label="its body point")]
-    cax = fig.add_axes([0.645, 0.125, 0.01, 0.83])
+    cax = fig.add_axes([0.645, POSE_BOTTOM, 0.01, 0.955 - POSE_BOTTOM])
     cb = fig.colorbar(artists["tendons"], cax=cax)
     cb.set_label("tendon tension [N]", fontsize=9)
     cb.ax.tick_params(labelsize=8)
@@ -185,20 +194,41 @@ def winch_panel(fig, model, contraction, frozen, legend, on_slider: Callable, on
 
 
 def status_strip(fig):
-    """The status strip at the bottom: (its axes, status text, message text)."""
-    sax = fig.add_axes([0.0, 0.0, 1.0, 0.055])
+    """The status strip at the bottom: (its axes, status text, message
+    text); the status text holds :data:`STATUS_LINES` lines, the message one."""
+    sax = fig.add_axes([0.0, 0.0, 1.0, STRIP_HEIGHT])
     sax.set_axis_off()
     sax.add_patch(Rectangle((0, 0), 1, 1, transform=sax.transAxes, facecolor=STATUS_FACE,
                             edgecolor="#cccccc"))
-    status = sax.text(0.008, 0.68, "", family="monospace", fontsize=9, va="center")
-    message = sax.text(0.008, 0.25, "", family="monospace", fontsize=9, va="center", color="#555555")
+    status = sax.text(STATUS_X, 0.94, "", family="monospace", fontsize=STATUS_FONT, va="top", linespacing=1.15)
+    message = sax.text(STATUS_X, 0.17, "", family="monospace", fontsize=STATUS_FONT, va="center",
+                       color="#555555")
     return sax, status, message
+
+
+def status_columns(fig) -> int:
+    """How many characters of the status strip's monospace font fit across
+    the window as it is now (it follows resizes)."""
+    char = STATUS_FONT * fig.dpi / 72.0 * MONO_ADVANCE
+    return max(20, int(fig.bbox.width * (1.0 - 2 * STATUS_X) / char))
+
+
+def wrap_status(text: str, columns: int, sep: str = "  |  ") -> str:
+    """``text``'s ``sep``-separated parts packed into lines of at most
+    ``columns`` characters (a part longer than a line is wrapped itself)."""
+    lines: list[str] = []
+    for part in text.split(sep):
+        pieces = [part] if len(part) <= columns else textwrap.wrap(part, columns)
+        if lines and len(lines[-1]) + len(sep) + len(pieces[0]) <= columns:
+            lines[-1] += sep + pieces.pop(0)
+        lines += pieces
+    return "\n".join(lines)
 
 
 def region_bboxes(ax, status_ax, sliders, buttons) -> dict:
     """Pixel boxes of the blitted regions (after a draw: they follow resizes)."""
     strip = status_ax.bbox
-    middle = strip.y0 + 0.45 * strip.height        # between the two lines of text
+    middle = strip.y0 + 0.33 * strip.height        # between the status lines and the message
     boxes = {"pose": ax.bbox.frozen(),
              "status": Bbox.from_extents(strip.x0, middle, strip.x1, strip.y1),
              "message": Bbox.from_extents(strip.x0, strip.y0, strip.x1, middle)}

@@ -172,7 +172,7 @@ class PosingWindow:
 
     def update_status(self) -> None:
         """The status strip follows the session; then blit what changed."""
-        self.status_text.set_text(status_line(self.session))
+        self.status_text.set_text(F.wrap_status(status_line(self.session), F.status_columns(self.fig)))
         self.message_text.set_text(self.session.message)
         self.refresh()
 
