@@ -181,7 +181,7 @@ def test_plot_creates_its_folder_and_files_respect_the_umask(tmp_path):
 @pytest.mark.slow
 def test_run_log_path_is_checked_before_the_planner(tmp_path):
     from plush_opt.apps.cli import build_parser
-    from plush_opt.apps.runs import cli_run
+    from plush_opt.apps.run_command import cli_run
     args = ("run", ROOT / "examples" / "gripper_run.yaml", "--dry-run", "--log", tmp_path)
     p = cli(*args)
     assert re.search(r"--log .*: is a directory", one_error_line(p))

@@ -11,7 +11,8 @@ import pytest
 from cli_helpers import cli
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.io import load_scene
-from plush_opt.io.plausibility import LARGE_MESH_NODES, estimated_nodes, plausibility_warnings
+from plush_opt.io.plausibility import (LARGE_MESH_NODES, SOLVE_SECONDS_PER_NODE, estimated_nodes,
+                                      plausibility_warnings)
 from shipped import ROOT
 
 # the docs' finger in metres and pascals, with the docs' smoothing 0.05 (mm-sized)
@@ -81,8 +82,9 @@ def test_a_large_mesh_is_announced_with_its_size(caplog):
     (record,) = caplog.records
     n = estimated_nodes(scene, area)
     assert record.getMessage() == (f"gripper.yaml: mesh.max_area: 0.12 gives about {n:,} P1 nodes (more than "
-                                   f"{LARGE_MESH_NODES:,}): building and solving it can take minutes; a larger "
-                                   "max_area is faster")
+                                   f"{LARGE_MESH_NODES:,}): each equilibrium solve from rest takes about "
+                                   f"{SOLVE_SECONDS_PER_NODE * n:.0f} s on one core, and control or --accuracy "
+                                   "solves many (minutes); a larger max_area is faster")
     assert abs(mesh.n_nodes - n) <= 0.15 * mesh.n_nodes         # the estimate is close
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="plush_opt"):

@@ -284,7 +284,9 @@ def plot_trace(path, history, title=None):
 
 def plot_run_log(path, log_lines, title=None):
     """Commanded and measured contraction of each winch over a scripted run
-    (the JSON-lines log of plush_opt.runs, already parsed)."""
+    (the JSON-lines log of plush_opt.runs, already parsed); a dry run's is a
+    plan, drawn against its planned time."""
+    plan = any(r.get("kind") == "start" and r.get("dry_run") for r in log_lines)
     rows = [r for r in log_lines if r.get("commanded")]
     if not rows:
         raise ValueError("the run log has no commanded contractions")
@@ -294,7 +296,7 @@ def plot_run_log(path, log_lines, title=None):
     for ax, name in zip(axes[:, 0], names):
         t = [r["t"] for r in rows]
         ax.step(t, [r["commanded"][name] for r in rows], where="post", color="#1f77b4",
-                label="commanded")
+                label="planned command" if plan else "commanded")
         meas = [(r["t"], r["measured"][name]) for r in rows if r.get("measured")]
         if meas:
             ax.plot(*zip(*meas), ".", ms=3, color="#ff7f0e", label="measured")
@@ -311,7 +313,7 @@ def plot_run_log(path, log_lines, title=None):
             ax.axvline(t, color="#999", lw=0.6, ls="--")
         axes[0, 0].annotate(kind, (t, 1.02), xycoords=("data", "axes fraction"), fontsize=7,
                             rotation=0, va="bottom")
-    axes[-1, 0].set_xlabel("time [s]")
+    axes[-1, 0].set_xlabel("planned time [s]" if plan else "time [s]")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()

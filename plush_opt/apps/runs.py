@@ -5,8 +5,13 @@ the format is in docs/hardware.md) names a problem file, a board
 calibration, a streaming rate and a list of steps (set, pose, hold, release).
 
 The control problems are solved by a :class:`Planner` passed in (the
-runner never imports a solver); its iterates are streamed to the board at
-most at ``rate`` (the latest iterate wins, the final one is always sent).
+runner never imports a solver). Only certified poses go to the board: a
+pose step sends its final pose, or with ``stream`` every certified iterate
+that moves a winch, in order, at most ``rate`` per second
+(:class:`~plush_opt.apps.run_schedule.PoseDispatch`): the same script sends
+the same commands however fast the planner computes them. A dry run's log
+is a plan: its times are planned times (moves at top speed, holds, the
+stream's period; :class:`~plush_opt.apps.run_schedule.PlannedClock`).
 The board is a :class:`~plush_opt.board.BoardLink` (a serial board, a
 simulator or a dry run, made by :func:`~plush_opt.board.open_board`).
 Every run writes a JSON-lines log, one object per line, flushed and
@@ -17,13 +22,13 @@ board is stopped however the run ends.
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import queue
 import sys
 import threading
 import time
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +37,7 @@ from typing import Protocol
 import numpy as np
 
 from plush_opt.apps.run_log import ProgressLine, RunLog
+from plush_opt.apps.run_schedule import PlannedClock, PoseDispatch
 from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
 from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.base.errors import HardwareError, SceneError, SolverError, interrupt_status, one_line
@@ -49,7 +55,11 @@ class Planner(Protocol):
 
     ``lower``/``upper`` are the scene's winch bounds, in ``winch_names``
     order. Result dicts have the keys ``contraction`` (``{name: value}``),
-    ``objective`` (float), ``converged`` (bool) and ``status`` (str).
+    ``objective`` (float), ``converged`` (bool), ``status`` (str) and
+    ``certified`` (bool: a certified stable equilibrium within bounds, that
+    may go to the robot; a result without it is never sent). The last
+    result of :meth:`pose` is the step's pose; ``"time_limited": true`` on
+    it says the planner stopped at ``max_time`` rather than by its own rules.
     """
 
     winch_names: tuple[str, ...]
@@ -62,7 +72,7 @@ class Planner(Protocol):
     def pose(self, targets: list[dict], freeze: list[str], max_time: float) -> Iterator[dict]:
         """Control iterates towards ``targets`` (``{"at", "to", "weight"}`` dicts),
         starting from the last contraction solved for, keeping ``freeze`` winches;
-        each a stable equilibrium within bounds."""
+        the last one the step's pose."""
 
     # Optional: ``check_targets(targets)`` raises SceneError (``targets[k].at: ...``)
     # for a target the pose step could never reach (off the body); a run calls
@@ -164,6 +174,7 @@ class _Runner:
         # Polls also feed the board's watchdog.
         self.poll_period = min(self.period, calibration.port.watchdog_ms / 1000.0 / WATCHDOG_POLLS)
         self.t0 = t0
+        self.clock: PlannedClock | None = None   # a dry run's planned time, from start()
         self.commanded: dict[str, float] = {}
         self.planner_at: dict[str, float] | None = None   # contraction the planner last solved for
         self.commands = 0
@@ -174,11 +185,17 @@ class _Runner:
         self.far_poses: list[int] = []
 
     # -- log lines ---------------------------------------------------------
+    def now(self) -> float:
+        """s since the run started: planned time in a dry run (0 before its start)."""
+        if self.dry:
+            return self.clock.t if self.clock is not None else 0.0
+        return time.monotonic() - self.t0
+
     def _line(self, step, kind, event, *, commanded=None, ticks=None, acknowledged=None, info=None, **extra):
         commanded = dict(commanded if commanded is not None else self.commanded)
         info = info or {}
         self.log.write({
-            "t": round(time.monotonic() - self.t0, 4), "step": step, "kind": kind, "event": event,
+            "t": round(self.now(), 4), "step": step, "kind": kind, "event": event,
             "commanded": commanded, "ticks": ticks if ticks is not None else self.calibration.to_ticks(commanded),
             "acknowledged": acknowledged, "measured": self.measured,
             "objective": info.get("objective"), "status": info.get("status"), **extra})
@@ -212,7 +229,9 @@ class _Runner:
         self.link.send(full)
         self.commanded = full
         self.commands += 1
-        if not self.dry:
+        if self.dry:
+            self.clock.command(full)
+        else:
             self._line(i, kind, "acknowledged", acknowledged=True, info=info)
 
     def _poll(self, i, kind, info=None):
@@ -224,6 +243,7 @@ class _Runner:
         moving (each within its deadband and at rest) and every measured
         contraction is within its calibrated ``tolerance`` of the command."""
         if self.dry:
+            self.clock.settle()
             return
         # the board's own clock: on a loaded machine a simulator runs slower than the wall's
         clock = self.link.clock
@@ -265,10 +285,12 @@ class _Runner:
         at = self.measured or {}
         start = {n: min(max(at.get(n, 0.0), self.lower[n]), self.upper[n]) for n in self.names}
         self.commanded = start
+        if self.dry:
+            self.clock = PlannedClock({n: self.calibration.winch(n).max_speed for n in self.names}, start)
         info = self._forward(start)
         self._line(None, "start", "start", info=info, script=str(self.script.path), problem=str(self.script.problem),
                    board=str(self.script.board), dry_run=self.dry, rate=self.script.rate,
-                   winches=list(self.names))
+                   winches=list(self.names), clock="planned" if self.dry else "measured")
 
     def run_step(self, i: int, step: Step):
         self._step = (i, step.kind)
@@ -291,6 +313,7 @@ class _Runner:
     def _step_hold(self, i, step):
         if self.dry:
             self._line(i, "hold", "hold", seconds=step.seconds)
+            self.clock.wait(step.seconds)
             return
         end = time.monotonic() + step.seconds
         while True:
@@ -322,35 +345,41 @@ class _Runner:
         worker = threading.Thread(target=work, name="plush-opt-planner", daemon=True)
         worker.start()
         try:
-            self._stream(i, step, iterates)
+            self._stream(i, step, iterates, PoseDispatch(f"{self.script.path}: steps[{i}].pose", step.stream,
+                                                         self.commanded, step.max_time))
         finally:
             cancel.set()
 
-    def _stream(self, i, step, iterates):
+    def _stream(self, i, step, iterates, dispatch: PoseDispatch):
+        """Send the step's commands as ``dispatch`` picks them, in order and
+        at most ``rate`` per second, polling the board in between."""
         period, poll = self.period, self.poll_period
         budget = PLANNER_TIME_FACTOR * step.max_time + PLANNER_GRACE
         deadline = time.monotonic() + budget
-        pending = latest = None
-        n_iterates = 0
-        last_send = -math.inf
-        last_io = time.monotonic()
+        outbox: deque = deque()
+        last_send, last_io = -math.inf, time.monotonic()
         done = False
         while True:
             now = time.monotonic()
-            if pending is not None and now - last_send >= period:
-                self._send(i, "pose", pending.get("contraction", {}), pending, iteration=n_iterates,
-                           converged=pending.get("converged"))
-                pending = None
+            if outbox and (self.dry or now - last_send >= period):
+                k, result = outbox.popleft()
+                if self.dry and last_send > -math.inf:
+                    self.clock.wait(period)      # a stream's commands are one period apart
+                self._send(i, "pose", result.get("contraction", {}), result, iteration=k,
+                           converged=result.get("converged"))
                 last_send = last_io = time.monotonic()
             elif not self.dry and now - last_io >= poll:
-                self._poll(i, "pose", latest)
+                self._poll(i, "pose", dispatch.latest)
                 last_io = time.monotonic()
-            if done and pending is None:
+            if done and not outbox:
                 break
             if not done and time.monotonic() > deadline:
                 raise SolverError(f"{self.script.path}: steps[{i}].pose: the planner did not finish within "
                                   f"{budget:g} s (max_time {step.max_time:g} s)")
-            due = last_send + period if pending is not None else (deadline if self.dry else last_io + poll)
+            if self.dry:
+                due = time.monotonic() if outbox else deadline
+            else:
+                due = min(last_send + period if outbox else math.inf, last_io + poll)
             wait = max(0.0, min(due, deadline) - time.monotonic())
             if done:
                 time.sleep(wait)
@@ -360,18 +389,18 @@ class _Runner:
             except queue.Empty:
                 continue
             if kind == "iterate":
-                pending = latest = payload
-                n_iterates += 1
+                outbox.extend(dispatch.take(payload))
             elif kind == "done":
                 done = True
+                outbox.extend(dispatch.finish())
             else:
                 raise payload
-        if n_iterates == 0:
+        if dispatch.latest is None:
             self._line(i, "pose", "no-iterate", info={"status": "planner produced no iterate"})
             return
-        self.planner_at = dict(self.commanded)  # the final iterate, where the planner stopped
-        self._pose_report(i, latest)
-        self._settle(i, "pose", latest)
+        self.planner_at = dict(self.commanded)  # the final pose, where the planner stopped
+        self._pose_report(i, dispatch.latest)
+        self._settle(i, "pose", dispatch.latest)
 
     def _pose_report(self, i, result):
         """Say how far the pose step ended from its targets; warn when far."""
@@ -398,7 +427,7 @@ def _describe_step(step: Step) -> str:
     return "every winch to its lower bound"
 
 
-def _default_log_path(script: RunScript) -> Path:
+def default_log_path(script: RunScript) -> Path:
     return Path("out") / "runs" / f"{script.path.stem}-{time.strftime('%Y%m%d-%H%M%S')}.jsonl"
 
 
@@ -444,7 +473,7 @@ def _play(runner: _Runner, own: bool) -> None:
 
 def _end_line(runner: _Runner | None, calibration: BoardCalibration, t0: float, status: str) -> dict:
     commanded = runner.commanded if runner is not None else {}
-    return {"t": round(time.monotonic() - t0, 4), "step": None, "kind": "end", "event": "end",
+    return {"t": round(runner.now() if runner is not None else time.monotonic() - t0, 4), "step": None, "kind": "end", "event": "end",
             "commanded": commanded, "ticks": calibration.to_ticks(commanded), "acknowledged": None,
             "measured": runner.measured if runner is not None else None, "objective": None, "status": status,
             "steps_done": runner.steps_done if runner is not None else 0,
@@ -515,7 +544,7 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
 
     if progress is None:
         progress = sys.stderr.isatty()
-    path = Path(log_path) if log_path is not None else _default_log_path(script)
+    path = Path(log_path) if log_path is not None else default_log_path(script)
     status, runner, t0, ended_by, cause = "error", None, time.monotonic(), {}, None
     with RunLog(path) as runlog:
         try:
@@ -539,51 +568,3 @@ def run_script(script_path, board: BoardLink | None = None, *, port: str | None 
     return RunResult(script=str(script.path), log_path=str(path), dry_run=runner.dry, steps=runner.steps_done,
                      commands=runner.commands, contraction=dict(runner.commanded),
                      pose_errors=tuple(runner.pose_errors), far_poses=tuple(runner.far_poses))
-
-
-# -------------------------------------------------------------------- CLI --
-
-def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Add the arguments of ``plush-opt run`` to ``parser``."""
-    parser.add_argument("script", type=Path, help="run script (YAML, format plush-opt-run/1)")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--port", help="serial port of the winch board (default: port.device of the board file)")
-    where.add_argument("--emulator", action="store_true",
-                       help="run against the board emulator (compiled on first use when `make -C hw` has not built it)")
-    where.add_argument("--simavr", action="store_true",
-                       help="run against the firmware on a simulated AVR (simavr; see docs/hardware.md)")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="plan and log every step, open no port (overrides the board options)")
-    parser.add_argument("--log", type=Path, metavar="FILE",
-                        help="JSON-lines log of the run (default: out/runs/SCRIPT-TIME.jsonl)")
-    return parser
-
-
-def cli_run(args: argparse.Namespace, planner_factory) -> int:
-    """``plush-opt run``: ``planner_factory(problem_path) -> Planner``.
-
-    Returns the exit status: 0 when the run completed, 130 when interrupted
-    (the board has been stopped). Other errors propagate as
-    :class:`~plush_opt.base.errors.PlushError`.
-    """
-    from plush_opt.base.files import check_output_path
-    script = load_run_script(args.script)
-    log_path = args.log if args.log is not None else _default_log_path(script)
-    check_output_path(log_path, "--log", stream_ok=True)      # before the planner's first (slow) solve
-    planner = planner_factory(script.problem)
-    simulator = "emulator" if args.emulator else ("simavr" if getattr(args, "simavr", False) else None)
-    try:
-        result = run_script(script, port=args.port, simulator=simulator, dry_run=args.dry_run, log_path=log_path,
-                            planner=planner, progress=getattr(args, "progress", None))
-    except KeyboardInterrupt as e:
-        name, code = interrupt_status(e)
-        sys.stderr.write(f"\ninterrupted ({name}): board stopped; log {log_path}\n")
-        return code
-    where = "dry run" if result.dry_run else (simulator or "board")
-    errors = (f", pose steps' RMS target error at most {max(result.pose_errors):.3g} mm"
-              if result.pose_errors else "")
-    far = f", {len(result.far_poses)} far from their targets" if result.far_poses else ""
-    if not getattr(args, "quiet", False) or result.far_poses:
-        sys.stderr.write(f"run {script.path.name} completed on {where}: {result.steps} steps, "
-                         f"{result.commands} commands{errors}{far}, log {result.log_path}\n")
-    return 0

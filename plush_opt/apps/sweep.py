@@ -9,6 +9,7 @@ its two end tensions are equal and loading and unloading coincide."""
 from __future__ import annotations
 
 import csv
+import sys
 import time
 from pathlib import Path
 
@@ -18,6 +19,8 @@ from ..base.errors import SceneError
 from ..problem import load
 from ..solve.plant import make_plant
 from ..base.files import atomic_path
+from .console import is_quiet, say
+from .run_log import ProgressLine
 
 # steps of one leg: each is an equilibrium solve, so a million would run for
 # hours (and its states fill memory); a hysteresis loop needs hundreds
@@ -28,7 +31,8 @@ def add_sweep_parser(sub, contraction_arg):
     p = sub.add_parser("sweep", help="follow a winch's contraction in steps (friction: with history)",
                        description="From the scene's start state (zero contraction; other winches "
                        "at 0 or their -c value), move winch W to C1 in N steps, then back to C2 "
-                       "(--back) in N more, each step from the previous state.")
+                       "(--back) in N more, each step from the previous state. Progress goes to stderr: a line "
+                       "per step (an updating line on a terminal); -q prints nothing but errors.")
     p.add_argument("problem", type=Path)
     p.add_argument("--winch", required=True, metavar="W")
     p.add_argument("--to", type=float, required=True, metavar="C1")
@@ -69,12 +73,48 @@ def sweep_path(problem, winch: str, to: float, back: float | None, steps: int,
     return path
 
 
-def run_sweep(problem, path: np.ndarray):
+def run_sweep(problem, path: np.ndarray, on_step=None):
     """The segmented plant of the problem (every tendon with via points in
     segments, :func:`~plush_opt.solve.plant.make_plant`) and its states
-    from the start state along ``path`` (the start state first)."""
+    from the start state along ``path`` (the start state first);
+    ``on_step(k, state)`` after step k (from 1), if given."""
     plant = make_plant(problem.model, segmented=True)
-    return plant, plant.follow(path)
+    return plant, plant.follow(path, on_step=on_step)
+
+
+class SweepProgress:
+    """A sweep's progress on ``stream`` (default stderr): one updating line
+    on a terminal, else one line per step as it ends
+    (``sweep: [3/8] left 1.5 mm: converged (0.21 s)``).
+
+    ``winch`` and ``values`` (mm, one per step) name the steps; call it as
+    ``on_step(k, state)``, then :meth:`close`.
+    """
+
+    def __init__(self, winch: str, values, stream=None):
+        self.winch, self.values = winch, [float(v) for v in values]
+        self.stream = stream if stream is not None else sys.stderr
+        self._line = ProgressLine(self.stream, bool(getattr(self.stream, "isatty", lambda: False)()))
+        self._t = time.perf_counter()
+        self._write(f"sweep: {len(self.values)} steps of winch {winch} from the start state")
+
+    def _write(self, text: str) -> None:
+        self._line.finish()
+        print(text, file=self.stream, flush=True)
+
+    def __call__(self, k: int, state) -> None:
+        now = time.perf_counter()
+        what = "converged" if state.converged else f"not converged: {state.status}"
+        line = (f"sweep: [{k}/{len(self.values)}] {self.winch} {self.values[k - 1]:.4g} mm: {what} "
+                f"({now - self._t:.2f} s)")
+        if self._line.enabled and state.converged:
+            self._line.update(line)
+        else:
+            self._write(line)
+        self._t = now
+
+    def close(self) -> None:
+        self._line.finish()
 
 
 def write_csv(problem, plant, states, out: Path) -> None:
@@ -101,12 +141,18 @@ def cmd_sweep(args) -> int:
     check_steps(args.steps)
     problem = load(args.problem, max_area=args.max_area)
     path = sweep_path(problem, args.winch, args.to, args.back, args.steps, dict(args.contraction))
-    plant, states = run_sweep(problem, path)
+    w = problem.winch_names.index(args.winch)
+    progress = None if is_quiet() else SweepProgress(args.winch, path[:, w])
+    try:
+        plant, states = run_sweep(problem, path, on_step=progress)
+    finally:
+        if progress is not None:
+            progress.close()
     write_csv(problem, plant, states, args.out)
     if args.plot is not None:
         from .sweep_plot import plot_sweep
         plot_sweep(problem, states, args.winch, args.plot)
     last = states[-1]
-    print(f"sweep: {len(states) - 1} of {len(path)} steps, {last.status}, "
-          f"{time.perf_counter() - t0:.2f} s; wrote {args.out}")
+    say(f"sweep: {len(states) - 1} of {len(path)} steps, {last.status}, "
+        f"{time.perf_counter() - t0:.2f} s; wrote {args.out}")
     return 0 if last.converged and len(states) == len(path) + 1 else 3

@@ -34,6 +34,11 @@ MAX_SOFT_MODULUS = 1.0e3
 #: (fem.mesh.build_mesh): meshing and solving it takes minutes; the hard
 #: limit is fem.mesh.MAX_ELEMS triangles.
 LARGE_MESH_NODES = 50_000
+#: CPU seconds per node of one equilibrium solve from rest, for the large-mesh
+#: note's estimate: the gripper (P1) took 4.5 s at 29,973 nodes and 9.6 s at
+#: 59,759 on one core (`plush-opt bench problems/gripper.yaml --sizes
+#: 10000,30000,60000 --inverse-max-nodes 0 --repeats 1`, forward CPU total).
+SOLVE_SECONDS_PER_NODE = 160e-6
 #: Nodes per (body area / max_area) of a mesh made by the mesher, per element
 #: (measured on the shipped problems at and below their own max_area: 0.84-1.0
 #: for P1, 3.2-3.7 for P2; the lower ends, as fine meshes approach them).
@@ -58,14 +63,16 @@ def estimated_nodes(scene: Scene, max_area: float | None = None) -> int | None:
 
 def large_mesh_note(scene: Scene, max_area: float, refinements: int = 0) -> str | None:
     """A line announcing a mesh estimated above :data:`LARGE_MESH_NODES`
-    nodes (``max_area`` refined uniformly ``refinements`` times), else None."""
+    nodes (``max_area`` refined uniformly ``refinements`` times), with the
+    time of one solve from rest on it (:data:`SOLVE_SECONDS_PER_NODE`), else None."""
     n = estimated_nodes(scene, max_area / 4.0 ** refinements)
     if n is None or n <= LARGE_MESH_NODES:
         return None
     refined = f" refined {refinements} times" if refinements else ""
+    seconds = SOLVE_SECONDS_PER_NODE * n
     return (f"mesh.max_area: {format_number(max_area)}{refined} gives about {n:,} {scene.element} nodes "
-            f"(more than {LARGE_MESH_NODES:,}): building and solving it can take minutes; a larger max_area "
-            "is faster")
+            f"(more than {LARGE_MESH_NODES:,}): each equilibrium solve from rest takes about {seconds:.0f} s "
+            "on one core, and control or --accuracy solves many (minutes); a larger max_area is faster")
 
 
 def plausibility_warnings(scene: Scene) -> list[str]:

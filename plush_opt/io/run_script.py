@@ -8,9 +8,11 @@ and a list of steps::
     problem: ../problems/gripper.yaml     # relative to the script
     board: ../hw/boards/gripper.yaml
     rate: 20                              # Hz, at most this many commands per second
+    stream: false                         # optional: pose steps send their final pose only (default)
     steps:
       - set: {grip: 10.0}                 # contractions, mm; other winches keep theirs
       - pose: {targets: [{at: [-78, 122], to: [-74, 80], weight: 1}], freeze: [grip], max_time: 5}
+      - pose: {targets: [{at: [0, 150], to: [0, 140]}], stream: true}   # every certified iterate
       - hold: 1.5                         # seconds
       - release                           # every winch back to its lower bound
 
@@ -35,8 +37,8 @@ MAX_STEPS = 10_000         # steps of one script: a day of one-second moves need
 MAX_RUN_TIME = 86400.0     # s, the holds and pose max_times of one script together: a day
 DEFAULT_MAX_TIME = 10.0    # s, pose steps
 
-_TOP_KEYS = ("format", "description", "problem", "board", "rate", "steps")
-_POSE_KEYS = ("targets", "freeze", "max_time")
+_TOP_KEYS = ("format", "description", "problem", "board", "rate", "stream", "steps")
+_POSE_KEYS = ("targets", "freeze", "max_time", "stream")
 _TARGET_KEYS = ("at", "to", "weight")
 
 
@@ -45,7 +47,9 @@ class Step:
     """One step of a run script.
 
     ``kind`` is ``set`` (``contraction``), ``pose`` (``targets``, ``freeze``,
-    ``max_time``), ``hold`` (``seconds``) or ``release``.
+    ``max_time``, ``stream``), ``hold`` (``seconds``) or ``release``. A pose
+    step sends its final certified pose only, or with ``stream`` every
+    certified iterate of its planner in order (docs/hardware.md).
     """
 
     kind: str
@@ -53,6 +57,7 @@ class Step:
     targets: tuple = ()                                   # pose: ({"at", "to", "weight"}, ...)
     freeze: tuple[str, ...] = ()                          # pose
     max_time: float = DEFAULT_MAX_TIME                    # pose, s
+    stream: bool = False                                  # pose: send every certified iterate
     seconds: float = 0.0                                  # hold
 
 
@@ -92,7 +97,9 @@ def load_run_script(path) -> RunScript:
         ck.fail("steps", f"{len(steps)} steps; at most {MAX_STEPS}")
     description = top.get("description")
     description = "" if description is None else ck.string(description, "description")
-    parsed = tuple(_parse_step(ck, s, i) for i, s in enumerate(steps))
+    stream = top.get("stream")
+    stream = False if stream is None else ck.boolean(stream, "stream")
+    parsed = tuple(_parse_step(ck, s, i, stream) for i, s in enumerate(steps))
     total = sum(s.seconds + (s.max_time if s.kind == "pose" else 0.0) for s in parsed)
     if total > MAX_RUN_TIME:
         ck.fail("steps", f"holds and pose max_times add up to {total:g} s; at most {MAX_RUN_TIME:g} s (a day)")
@@ -100,7 +107,8 @@ def load_run_script(path) -> RunScript:
                      description=description)
 
 
-def _parse_step(ck: Checker, item, i: int) -> Step:
+def _parse_step(ck: Checker, item, i: int, stream: bool) -> Step:
+    """Step ``i``; ``stream`` is the script's default for pose steps."""
     key = at_index("steps", i)
     if item == "release":
         return Step(kind="release")
@@ -122,7 +130,7 @@ def _parse_step(ck: Checker, item, i: int) -> Step:
             ck.fail(key, f"must map winch names to contractions, got {describe(body)}")
         return Step(kind="set", contraction={str(name): ck.number(v, at_key(key, name))
                                              for name, v in body.items()})
-    return _parse_pose(ck, body, key)
+    return _parse_pose(ck, body, key, stream)
 
 
 def _weight(ck: Checker, value, key: str) -> float:
@@ -140,7 +148,7 @@ def _seconds(ck: Checker, t: float, key: str) -> float:
     return t
 
 
-def _parse_pose(ck: Checker, body, key: str) -> Step:
+def _parse_pose(ck: Checker, body, key: str, stream: bool) -> Step:
     body = ck.mapping(body, key, _POSE_KEYS, required=("targets",))
     targets = []
     items = ck.seq(body["targets"], at_key(key, "targets"), min_len=1, what="list of targets")
@@ -158,4 +166,6 @@ def _parse_pose(ck: Checker, body, key: str) -> Step:
     max_time = body.get("max_time")
     max_time = (DEFAULT_MAX_TIME if max_time is None
                 else _seconds(ck, ck.number(max_time, at_key(key, "max_time"), gt=0), at_key(key, "max_time")))
-    return Step(kind="pose", targets=tuple(targets), freeze=tuple(freeze), max_time=max_time)
+    if body.get("stream") is not None:
+        stream = ck.boolean(body["stream"], at_key(key, "stream"))
+    return Step(kind="pose", targets=tuple(targets), freeze=tuple(freeze), max_time=max_time, stream=stream)

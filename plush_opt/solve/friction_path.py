@@ -234,14 +234,17 @@ def step(fm: FrictionModel, state: FrictionState, contraction, options: Friction
     return step(fm, mid, c, options, _splits + 1)
 
 
-def follow(fm: FrictionModel, state: FrictionState, path, options: FrictionOptions | None = None
-           ) -> list[FrictionState]:
+def follow(fm: FrictionModel, state: FrictionState, path, options: FrictionOptions | None = None,
+           on_step=None) -> list[FrictionState]:
     """States along ``path`` ((n_steps, n_winches) contractions), each from
-    the previous; stops after the first step that does not converge."""
+    the previous; stops after the first step that does not converge.
+    ``on_step(k, state)``, if given, is called after step k (from 1)."""
     states = []
     for c in np.atleast_2d(np.asarray(path, dtype=np.float64)):
         state = step(fm, state, c, options)
         states.append(state)
+        if on_step is not None:
+            on_step(len(states), state)
         if not state.converged:
             break
     return states

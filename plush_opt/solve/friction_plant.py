@@ -80,16 +80,17 @@ class FrictionPlant(Plant):
     def trial(self, contraction, guess=None, options=None, *, origin=None) -> FrictionEquilibrium:
         return self.drive(contraction, guess, options, origin=origin)
 
-    def follow(self, path) -> list[FrictionState]:
+    def follow(self, path, on_step=None) -> list[FrictionState]:
         """The scene's start state and the states along ``path``
         ((n_steps, n_winches) contractions), each from the one before,
         stopping after the first step that fails (nothing committed);
-        a :class:`SolverError` if the start state does not converge."""
+        a :class:`SolverError` if the start state does not converge.
+        ``on_step(k, state)``, if given, is called after step k (from 1)."""
         fm = self.friction_model
         start = start_state(fm)
         if not start.converged:
             raise SolverError(f"the start state did not converge: {start.status}")
-        return [start] + follow(fm, start, path)
+        return [start] + follow(fm, start, path, on_step=on_step)
 
     def end_tensions(self, state: FrictionState) -> list[tuple[float, float]]:
         """(winch end, stopper end) tension of every tendon of the scene at

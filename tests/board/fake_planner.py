@@ -2,7 +2,7 @@
 
 FakePlanner follows the ``plush_opt.apps.runs.Planner`` protocol: ``forward``
 echoes its input, ``pose`` walks linearly from the current contraction to
-a goal in ``steps`` iterates (optionally sleeping between them). The goal
+a goal in ``steps`` iterates, each certified (optionally sleeping between them). The goal
 is given, or derived from the targets' displacement, always within bounds.
 """
 
@@ -65,4 +65,4 @@ class FakePlanner:
             self._check(c)
             self.current = c
             yield {"contraction": dict(c), "objective": (1 - s) ** 2 * obj0, "converged": k == self.steps,
-                   "status": "converged" if k == self.steps else f"iterate {k}"}
+                   "status": "converged" if k == self.steps else f"iterate {k}", "certified": True}

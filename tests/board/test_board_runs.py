@@ -15,8 +15,8 @@ import yaml
 from board_helpers import default_sigint, fast_calibration_dict, wait_until
 from fake_planner import FakePlanner
 from plush_opt.io.run_script import FORMAT, RunScript, load_run_script
-from plush_opt.apps.runs import (add_run_arguments, check_run_script, cli_run,
-                                 run_script)
+from plush_opt.apps.run_command import add_run_arguments, cli_run
+from plush_opt.apps.runs import check_run_script, run_script
 from plush_opt.board import SerialLink, calibration_from_dict, load_calibration
 from plush_opt.base.errors import HardwareError, SceneError, SolverError
 
@@ -147,19 +147,18 @@ def test_dry_run_plans_logs_and_opens_nothing(tmp_path):
     assert planner.calls[2][2] == ["grip"]
 
 
-def test_stream_rate_keeps_latest_and_sends_final(tmp_path):
-    # 60 iterates over ~0.6 s streamed at 10 Hz: at most ~8 sends, the last one the final iterate.
-    planner = FakePlanner(steps=60, delay=0.01, goal={"left": 12.0, "right": 6.0})
-    steps = [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}]}}]
-    run_script(write_script(tmp_path, steps, rate=10), dry_run=True, planner=planner, log_path=tmp_path / "l.jsonl")
+def test_a_stream_sends_every_certified_iterate_at_the_rate(tmp_path, make_emulator):
+    # 60 iterates computed in ~0.3 s, streamed at 50 Hz: all 60 sent, in order,
+    # at least a period apart (the board's own log times), the last the final pose.
+    planner = FakePlanner(steps=60, delay=0.005, goal={"left": 12.0, "right": 6.0})
+    steps = [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "stream": True}}]
+    run_script(write_script(tmp_path, steps, rate=50), port=make_emulator(3).port, planner=planner,
+               log_path=tmp_path / "l.jsonl")
     log = read_log(tmp_path / "l.jsonl")
     sends = [r for r in log if r["event"] == "command"]
-    # at most one send per period of the run's own log; each send is the
-    # latest iterate received (iterate k commands k/60 of the way)
-    assert 2 <= len(sends) <= (log[-1]["t"] - log[0]["t"]) * 10 + 2
-    assert sends[-1]["iteration"] == 60 and sends[-1]["commanded"]["left"] == pytest.approx(12.0)
-    assert all(b["t"] - a["t"] >= 0.095 for a, b in zip(sends, sends[1:]))
-    assert all(a["iteration"] < b["iteration"] for a, b in zip(sends, sends[1:]))
+    assert [r["iteration"] for r in sends] == list(range(1, 61))
+    assert sends[-1]["converged"] and sends[-1]["commanded"]["left"] == pytest.approx(12.0)
+    assert all(b["t"] - a["t"] >= 0.0195 for a, b in zip(sends, sends[1:]))
     assert all(r["commanded"]["left"] == pytest.approx(12.0 * r["iteration"] / 60) for r in sends)
 
 
@@ -297,8 +296,8 @@ def test_sigint_mid_move_stops_the_board_and_leaves_a_parseable_log(tmp_path, ma
     cal = fast_calibration_dict()
     for w in cal["winches"]:
         w["max_speed"] = 2.0   # mm/s: slower than the planner moves the targets
-    script = write_script(tmp_path, [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30}}],
-                          rate=20, calibration=cal)
+    script = write_script(tmp_path, [{"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30,
+                                               "stream": True}}], rate=20, calibration=cal)
     log_path = tmp_path / "log.jsonl"
     child = subprocess.Popen([sys.executable, str(Path(__file__).with_name("sigint_child.py")), str(script),
                               emu.port, str(log_path)], stderr=subprocess.PIPE, text=True,
