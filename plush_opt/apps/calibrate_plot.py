@@ -66,7 +66,6 @@ def plot_poses(directory, meas, result) -> list[Path]:
         _panel(axes[1], result.after, i, meas.positions[i], seen, AFTER, "after")
         held = " (held out)" if not result.fitted_poses[i] else ""
         cs = ", ".join(f"{n}={c:g}" for n, c in zip(meas.scene.winch_names, meas.contractions[i]))
-        cs += f" {meas.scene.units.length}"
         fig.suptitle(f"{meas.scene.name}: pose {i}{held}: {cs}")
         path = directory / f"pose_{i:02d}.png"
         with atomic_path(path) as tmp:
