@@ -65,6 +65,8 @@ def test_the_units_key_names_length_force_and_what_follows():
     assert Units(length="cm", force="N").stress == "N/cm^2"
     assert Units(length="cm", force="N").density == "N s^2/cm^4"    # no named mass: written out
     assert Units(length="m", force="kN").stress == "kPa"
+    with pytest.raises(ValueError, match=r"^units.length: 'meter' is not one of um, mm, cm, m, in$"):
+        Units(length="meter")
 
 
 def test_a_file_in_metres_loads_with_its_units_and_without_unit_warnings(metres, caplog):

@@ -35,6 +35,11 @@ class Units:
     length: str = "mm"
     force: str = "N"
 
+    def __post_init__(self):
+        for key, value, accepted in (("length", self.length, LENGTHS), ("force", self.force, FORCES)):
+            if value not in accepted:
+                raise ValueError(f"units.{key}: {value!r} is not one of {', '.join(accepted)}")
+
     @property
     def stress(self) -> str:
         """Stress (moduli): ``MPa`` for N and mm, ``Pa`` for N and m, else
