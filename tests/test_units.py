@@ -222,3 +222,23 @@ def test_a_result_file_with_a_bad_unit_is_refused_on_reading(tmp_path, metres):
     out.write_text(json.dumps(doc))
     with pytest.raises(SceneError, match=r"r.json: units.force: 'lbf' is not one of uN, mN, N, kN$"):
         read_result(out)
+
+
+def test_the_trace_and_run_pictures_take_the_problems_units(monkeypatch):
+    from types import SimpleNamespace
+
+    from plush_opt.apps import plot
+    figures = []
+    monkeypatch.setattr(plot, "save_figure", lambda fig, path, **kw: figures.append(fig))
+    history = [SimpleNamespace(iteration=k, objective=1.0 / (k + 1), t_wall=0.1 * k) for k in range(3)]
+    plot.plot_trace("t.png", history, units=Units(length="m", force="N"))
+    rows = [{"t": t, "commanded": {"pull": t}, "measured": {"pull": t}, "step": 0, "kind": "move"} for t in (0.0, 1.0)]
+    plot.plot_run_log("r.png", rows, length="m")
+    plot.plot_trace("d.png", history)
+    try:
+        assert [ax.get_ylabel() for ax in figures[0].axes] == ["objective O [m$^2$]"] * 2
+        assert figures[1].axes[0].get_ylabel() == "pull [m]"
+        assert figures[2].axes[0].get_ylabel() == "objective O [mm$^2$]"
+    finally:
+        for fig in figures:
+            plt.close(fig)

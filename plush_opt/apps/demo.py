@@ -126,7 +126,10 @@ def _demo_run(script: Path, out: Path) -> int:
     if code != EXIT_OK:
         return code
     rows = [json.loads(line) for line in log_path.read_text().splitlines()]
-    plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions")
+    from ..io.problem_file import file_units
+    from ..io.run_script import load_run_script
+    plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions",
+                 length=file_units(load_run_script(script).problem).length)
     end = rows[-1]
     say(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
         f"wrote {log_path}, {out / 'run.png'}")

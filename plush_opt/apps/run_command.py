@@ -51,5 +51,8 @@ def cmd_run(args) -> int:
 def _run_plot(png: Path, log_path: Path, script: Path) -> None:
     from .plot import plot_run_log
     use_agg()
+    from ..io.problem_file import file_units
+    from ..io.run_script import load_run_script
     rows = [json.loads(line) for line in Path(log_path).read_text().splitlines()]
-    plot_run_log(png, rows, title=f"{Path(script).stem}: commanded and measured contractions")
+    plot_run_log(png, rows, title=f"{Path(script).stem}: commanded and measured contractions",
+                 length=file_units(load_run_script(script).problem).length)
