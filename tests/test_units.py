@@ -117,7 +117,7 @@ def test_the_summary_line_and_the_result_file_say_metres_and_pascals(metres, tmp
     line = p.stdout.strip().splitlines()[-1]
     assert line.startswith("strip_m: forward: converged") and "pull=0.0020 m;" in line, line
     assert "targets RMS error " in line and " m (worst " in line and "mm" not in line, line
-    assert f" N; " in line.split("residual ")[1], line
+    assert " N; " in line.split("residual ")[1], line
     doc = json.loads(out.read_text())
     assert doc["units"] == {"length": "m", "force": "N", "stress": "Pa", "mass": "kg", "density": "kg/m^3",
                             "gravity": "m/s^2", "time": "s"}

@@ -475,7 +475,8 @@ def status_line(session: PosingSession) -> str:
     eq, t, units = session.equilibrium, session.targets, session.model.scene.units
     parts = [f"loop {session.state:<10}"]
     if t.n_targets:
-        parts.append(f"O {t.value(session.x):.3e} {units.length}\u00b2 (rms {t.rms_error(session.x):.2f} {units.length},"
+        parts.append(f"O {t.value(session.x):.3e} {units.length}\u00b2 "
+                     f"(rms {t.rms_error(session.x):.2f} {units.length},"
                      f" {t.n_targets} target{'s' if t.n_targets > 1 else ''})")
     else:
         parts.append("O -")
