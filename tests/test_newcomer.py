@@ -21,6 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.colors import to_hex  # noqa: E402
 
 import plush_opt  # noqa: E402
+from plush_opt.io.units import Units  # noqa: E402
 from shipped import ROOT  # noqa: E402
 
 #: the gripper's bar tips pulled down and in, symmetrically (reachable: O ends near 0)
@@ -157,7 +158,7 @@ def _labels(axis) -> list[str]:
 @pytest.mark.parametrize("times", [(0.034, 0.036, 0.035), (0.034, 0.09, 0.05), (0.5, 3.0, 40.0)])
 def test_compare_log_axes_carry_at_least_two_readable_ticks(times):
     from plush_opt.apps.compare.report import anytime_figure, speed_error_figure
-    problem = SimpleNamespace(scene=SimpleNamespace(name="gripper"))
+    problem = SimpleNamespace(scene=SimpleNamespace(name="gripper", units=Units()))
     runs = [SimpleNamespace(problem="gripper", sweep="main", method=m, curve=[(0.1, 10.0, True), (0.5, 9.0, True)],
                             resolved=[], n_nodes=300, t_solve=t, fine_target_error=0.3 + 0.01 * k, stable=True,
                             converged=True, pareto=k == 0, element="P1")
@@ -174,7 +175,7 @@ def _sweep_states(curves, c):
     X = np.zeros((len(curves), 2))
     return [SimpleNamespace(contraction=np.array([ci]), nodes=X + np.array([[d[i], 0.0] for d in curves]))
             for i, ci in enumerate(c)], SimpleNamespace(
-        winch_names=("grip",), scene=SimpleNamespace(name="strip"),
+        winch_names=("grip",), scene=SimpleNamespace(name="strip", units=Units()),
         mesh=SimpleNamespace(X=X, point_nodes=np.arange(len(curves))))
 
 

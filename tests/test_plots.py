@@ -13,6 +13,7 @@ import pytest  # noqa: E402
 
 from plush_opt.apps.compare.report import plot_anytime, plot_speed_error  # noqa: E402
 from plush_opt.apps.plot import draw_pose  # noqa: E402
+from plush_opt.io.units import Units  # noqa: E402
 from shipped import ROOT  # noqa: E402
 
 
@@ -44,7 +45,7 @@ def _white_border(png) -> bool:
 
 
 def test_single_problem_compare_plots_keep_their_legends_whole(tmp_path):
-    problem = SimpleNamespace(scene=SimpleNamespace(name="gripper"))
+    problem = SimpleNamespace(scene=SimpleNamespace(name="gripper", units=Units()))
     runs = [SimpleNamespace(problem="gripper", sweep="main", method=m, curve=[(0.1, 10.0, True), (0.5, 1.0, True)],
                             resolved=[(0.2, 5.0)], n_nodes=300, t_solve=0.5, fine_target_error=0.3 + k,
                             stable=True, converged=True, pareto=k == 0)

@@ -13,7 +13,6 @@ from matplotlib.collections import PolyCollection
 from matplotlib.figure import Figure
 
 from ..base.files import atomic_path
-from .console import LENGTH_UNIT
 from .plot import BODY_COLOR, EDGE_COLOR, REST_COLOR
 
 MEASURED = "#222222"
@@ -44,16 +43,18 @@ def _panel(ax, pred, i, measured, seen, color, title):
               scale_units="xy", scale=1, color=color, width=0.004,
               label="residual" + (f" x{gain:.3g}" if gain > 1 else ""))
     rms = float(np.sqrt(np.mean(np.sum(d**2, axis=1)))) if seen.any() else float("nan")
-    ax.set_title(f"{title}: RMS marker error {rms:.3g} {LENGTH_UNIT}")
-    ax.set_xlabel(f"x ({LENGTH_UNIT})")
-    ax.set_ylabel(f"y ({LENGTH_UNIT})")
+    length = model.scene.units.length          # the measured problem's units
+    ax.set_title(f"{title}: RMS marker error {rms:.3g} {length}")
+    ax.set_xlabel(f"x ({length})")
+    ax.set_ylabel(f"y ({length})")
     ax.set_aspect("equal")
     ax.autoscale_view()
     ax.legend(loc="upper right", fontsize=7)   # "best" tries every placement: slow on many points
 
 
 def plot_poses(directory, meas, result) -> list[Path]:
-    """One PNG per pose in ``directory`` (created): before | after."""
+    """One PNG per pose in ``directory`` (created): before | after, lengths
+    in the units of the measurement file's problem (``meas.scene.units``)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = []

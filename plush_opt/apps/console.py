@@ -14,9 +14,9 @@ import os
 import sys
 
 from ..base.errors import HardwareError, PlushError, SceneError, SettingError, SolverError
+from ..io.units import units_of
 
 EXIT_OK, EXIT_INPUT, EXIT_SOLVER, EXIT_HARDWARE, EXIT_INTERNAL, EXIT_INTERRUPT = 0, 2, 3, 4, 70, 130
-LENGTH_UNIT = "mm"     # the shipped problems' unit; summary lines carry it
 
 _output = {"quiet": False}   # set once by configure_output: -q silences summaries and progress
 
@@ -74,23 +74,27 @@ def _number(value, spec: str) -> str:
     return "n/a" if value is None else format(value, spec)
 
 
-def target_summary(errors) -> str:
-    """The targets' RMS error, for every summary line ('no targets' without any)."""
+def target_summary(errors, length: str = "mm") -> str:
+    """The targets' RMS error in ``length`` units (the scene's
+    ``units.length``), for every summary line ('no targets' without any)."""
     if not len(errors):
         return "no targets"
     rms = (sum(e * e for e in errors) / len(errors)) ** 0.5
-    return f"targets RMS error {rms:.3g} {LENGTH_UNIT} (worst {max(errors):.3g})"
+    return f"targets RMS error {rms:.3g} {length} (worst {max(errors):.3g})"
 
 
 def summary_line(doc: dict) -> str:
-    """One line for a result document: verdict, contractions, how far from the targets."""
+    """One line for a result document: verdict, contractions, how far from the
+    targets, in the document's ``units`` (mm and N without them)."""
+    units = units_of(doc)
     cs = ", ".join(f"{n}={v:.4f}" for n, v in doc["contractions"].items())
-    parts = [f"{doc['problem']}: {doc['method']}: {doc['status']}", cs, target_summary(doc["target_error"])]
+    parts = [f"{doc['problem']}: {doc['method']}: {doc['status']}", f"{cs} {units.length}",
+             target_summary(doc["target_error"], units.length)]
     if doc["method"] != "forward":
         parts.append(f"objective {_number(doc['objective'], '.6g')}")
     elif doc["target_error"]:   # a forward solve's O is 0 by the spec; the targets' is apart
         parts.append(f"targets objective {_number(doc['targets_objective'], '.6g')}")
-    parts += [f"residual {_number(doc['residual_norm'], '.3g')}", f"{doc['timing']['total_s']:.3f} s"]
+    parts += [f"residual {_number(doc['residual_norm'], '.3g')} {units.force}", f"{doc['timing']['total_s']:.3f} s"]
     return "; ".join(parts)
 
 

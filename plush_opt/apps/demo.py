@@ -10,7 +10,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from .arguments import check_tension_max
-from .console import EXIT_OK, EXIT_SOLVER, LENGTH_UNIT, is_quiet, say, target_summary, use_agg
+from .console import EXIT_OK, EXIT_SOLVER, is_quiet, say, target_summary, use_agg
+from ..io.units import units_of
 from .run_command import cmd_run
 from .solve_command import solve_problem, write_interrupted, write_trace
 
@@ -73,12 +74,13 @@ def cmd_demo(args) -> int:
     write_json_atomic(out / "result.json", doc)
     plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=args.tension_max,
               converged=doc["converged"], status=doc["status"])
-    plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates")
+    plot_trace(out / "trace.png", history, title=f"{p.scene.name}: control iterates", units=p.scene.units)
     write_trace(out / "trace.csv", p.model, p.targets, history)
     say(f"demo: {doc['status']}; {len(history) - 1} iterates, "
         f"{doc['control']['equilibrium_solves']} equilibrium solves, {doc['timing']['total_s']:.2f} s")
-    say("demo: contractions " + ", ".join(f"{n} = {v:.3f} {LENGTH_UNIT}" for n, v in doc["contractions"].items()))
-    say(f"demo: {target_summary(doc['target_error'])}; "
+    mm = units_of(doc).length
+    say("demo: contractions " + ", ".join(f"{n} = {v:.3f} {mm}" for n, v in doc["contractions"].items()))
+    say(f"demo: {target_summary(doc['target_error'], mm)}; "
         f"min Hessian eigenvalue {doc['min_hessian_eigenvalue']:.3g}")
     say(f"demo: wrote {out / 'result.json'}, {out / 'pose.png'}, {out / 'trace.png'}, {out / 'trace.csv'}")
     if args.problem is None:
@@ -101,11 +103,11 @@ def _demo_contact(problem: Path, out: Path, tension_max) -> None:
     write_json_atomic(out / "result.json", doc)
     plot_pose(out / "pose.png", p.model, eq.x, eq.contraction, p.targets, tension_max=tension_max,
               converged=doc["converged"], status=doc["status"])
-    contact = doc["contact"]
-    say(f"demo: contact: {doc['status']}; {target_summary(doc['target_error'])}; the floor carries "
-        f"{contact['total_force'][1]:.4g} N (its weight), smallest gap {contact['min_gap']:.3g} {LENGTH_UNIT}, "
-        f"free: {', '.join(contact['free_motions']) or 'nothing'}")
-    feet = [f"{patch['force'][1]:.4g} N at x = {patch['at'][0]:.3g}" for patch in contact["patches"]
+    contact, units = doc["contact"], units_of(doc)
+    say(f"demo: contact: {doc['status']}; {target_summary(doc['target_error'], units.length)}; the floor carries "
+        f"{contact['total_force'][1]:.4g} {units.force} (its weight), smallest gap {contact['min_gap']:.3g} "
+        f"{units.length}, free: {', '.join(contact['free_motions']) or 'nothing'}")
+    feet = [f"{patch['force'][1]:.4g} {units.force} at x = {patch['at'][0]:.3g}" for patch in contact["patches"]
             if patch["with"] == "ground"]
     say(f"demo: contact: {len(feet)} patch(es) on the floor: {'; '.join(feet)}")
     say(f"demo: contact: wrote {out / 'result.json'}, {out / 'pose.png'}")
@@ -124,7 +126,10 @@ def _demo_run(script: Path, out: Path) -> int:
     if code != EXIT_OK:
         return code
     rows = [json.loads(line) for line in log_path.read_text().splitlines()]
-    plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions")
+    from ..io.problem_file import file_units
+    from ..io.run_script import load_run_script
+    plot_run_log(out / "run.png", rows, title=f"{script.stem}: commanded and measured contractions",
+                 length=file_units(load_run_script(script).problem).length)
     end = rows[-1]
     say(f"demo: run {end['status']}: {end['steps_done']} steps, {end['commands']} commands; "
         f"wrote {log_path}, {out / 'run.png'}")

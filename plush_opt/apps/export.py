@@ -5,8 +5,9 @@ A pose is one ``.vtu``: the deformed body's triangles and the tendons'
 polylines (as line segments) in one unstructured grid, with
 
 - point data ``displacement`` (x - X, 3 components, z = 0) and ``rest`` (X),
+  lengths in the scene's units (``Scene.units``; the field names carry none),
 - cell data ``J`` (area ratio det F of each triangle; NaN on tendon
-  segments), ``tension`` (N, of the segment: with friction at via points
+  segments), ``tension`` (force units, of the segment: with friction at via points
   the segments of one tendon pull differently; NaN on triangles) and
   ``tendon`` (index into the problem's tendon list, -1 on triangles).
 

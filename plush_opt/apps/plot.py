@@ -13,6 +13,7 @@ from matplotlib.patches import Patch
 
 from ..base.files import atomic_path
 from ..fem.contact_report import node_forces
+from ..io.units import DEFAULT_UNITS
 
 REST_COLOR = "#b0b0b0"
 BODY_COLOR = "#f3d9b1"   # felt
@@ -20,7 +21,6 @@ EDGE_COLOR = "#8a6d4b"
 PIN_COLOR = "#222222"
 TARGET_COLOR = "#d62728"
 TENDON_CMAP = "viridis"
-LENGTH_UNIT = "mm"       # the shipped problems' unit (lengths in mm, forces in N)
 LABEL_FONT = 7           # tendon, winch and error labels: small, the pose stays readable
 LABEL_MERGE = 0.05       # stoppers closer than this fraction of the picture share a label (no overprint)
 GROUND_COLOR = "#5a5a5a"
@@ -38,11 +38,13 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     pins and targets on ``ax``. Returns the artists that change with x
     (for interactive updates).
 
-    ``tension_max`` fixes the top of the tension colour scale (N), so that
+    Axes and labels are in the scene's units (``model.scene.units``).
+    ``tension_max`` fixes the top of the tension colour scale (force units), so that
     pictures of several poses compare; by default it is this pose's largest
     tension. ``labels`` adds a legend, the tendon and winch names and each
     target's error (static text: for pictures, not interactive updates).
     """
+    units = model.scene.units
     X = model.X.reshape(-1, 2)
     xn = np.asarray(x, dtype=np.float64).reshape(-1, 2)
     tri = model.mesh.triangles
@@ -68,7 +70,7 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     if colorbar and model.n_tendons:
         cb = ax.figure.colorbar(tendons, ax=ax, fraction=0.04, pad=0.02,
                                 extend="max" if top > vmax else "neither")
-        cb.set_label("tendon tension [N]")
+        cb.set_label(f"tendon tension [{units.force}]")
         artists["colorbar"] = cb
     ends = np.array([xn[p[0]] for p in model.tendon_paths]) if model.n_tendons else np.zeros((0, 2))
     artists["stoppers"] = ax.plot(ends[:, 0], ends[:, 1], "o", ms=3.5, color="#444", zorder=5)[0]
@@ -91,7 +93,7 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     if labels:
         _label_tendons(ax, model, xn, contraction)
         if targets is not None and targets.n_targets:
-            _label_errors(ax, targets, xn)
+            _label_errors(ax, targets, xn, units.length)
         _legend(ax, model, targets, show_rest)
     allpts = np.vstack([X, xn] + ([targets.to] if targets is not None and targets.n_targets else []))
     lo, hi = allpts.min(axis=0), allpts.max(axis=0)
@@ -99,8 +101,8 @@ def draw_pose(ax, model, x, contraction, targets=None, *, title=None, show_rest=
     ax.set_xlim(lo[0] - pad, hi[0] + pad)
     ax.set_ylim(lo[1] - pad, hi[1] + pad)
     ax.set_aspect("equal")
-    ax.set_xlabel(f"x [{LENGTH_UNIT}]")
-    ax.set_ylabel(f"y [{LENGTH_UNIT}]")
+    ax.set_xlabel(f"x [{units.length}]")
+    ax.set_ylabel(f"y [{units.length}]")
     if title:
         ax.set_title(title, fontsize=10)
     return artists
@@ -156,10 +158,10 @@ def _label_tendons(ax, model, xn, contraction):
                     color="#1f3b73", zorder=8)
 
 
-def _label_errors(ax, targets, xn):
-    """Each target's distance from its point, beside the target."""
+def _label_errors(ax, targets, xn, length: str):
+    """Each target's distance from its point (``length`` units), beside the target."""
     for q, e in zip(targets.to, targets.errors(xn.reshape(-1))):
-        ax.annotate(f"{e:.2f} {LENGTH_UNIT}", q, xytext=(6, -6), textcoords="offset points", va="top",
+        ax.annotate(f"{e:.2f} {length}", q, xytext=(6, -6), textcoords="offset points", va="top",
                     fontsize=LABEL_FONT, color=TARGET_COLOR, zorder=8)
 
 
@@ -184,7 +186,9 @@ def _legend(ax, model, targets, show_rest):
 
 
 def contraction_label(model, contraction) -> str:
-    return ", ".join(f"{n} = {c:.2f} mm" for n, c in zip(model.winch_names, contraction))
+    """``name = c unit`` per winch, in the scene's length unit."""
+    length = model.scene.units.length
+    return ", ".join(f"{n} = {c:.2f} {length}" for n, c in zip(model.winch_names, contraction))
 
 
 def save_figure(fig, path, **savefig_kwargs) -> None:
@@ -200,7 +204,7 @@ def save_figure(fig, path, **savefig_kwargs) -> None:
 def pose_figure(model, x, contraction, targets=None, title=None, tension_max=None, *,
                 converged: bool = True, status: str = ""):
     """The figure of one pose, with its legend, names and target errors
-    (what :func:`plot_pose` writes). ``tension_max`` (N) fixes the tension
+    (what :func:`plot_pose` writes). ``tension_max`` (force units) fixes the tension
     colour scale (see :func:`draw_pose`). A pose that is not ``converged``
     says so in red, with ``status``, in its title, across the picture and
     by a red frame: it must not pass for a solved pose."""
@@ -208,7 +212,8 @@ def pose_figure(model, x, contraction, targets=None, title=None, tension_max=Non
     if title is None:
         title = f"{model.scene.name}: {contraction_label(model, contraction)}"
         if targets is not None and targets.n_targets:
-            title += f"\nRMS target error {targets.rms_error(np.asarray(x).reshape(-1)):.3g} {LENGTH_UNIT}"
+            title += (f"\nRMS target error {targets.rms_error(np.asarray(x).reshape(-1)):.3g} "
+                      f"{model.scene.units.length}")
     draw_pose(ax, model, x, contraction, targets, title=title, tension_max=tension_max, labels=True)
     if not converged:
         mark_not_converged(ax, status)
@@ -252,7 +257,7 @@ def plot(problem, pose, path, *, tension_max=None) -> Path:
         the targets it was run for) or an
         :class:`~plush_opt.solve.equilibrium.Equilibrium` (with the problem's targets).
     path : the PNG file.
-    tension_max : top of the tension colour scale (N; default: this pose's
+    tension_max : top of the tension colour scale (force units; default: this pose's
         largest tension), to compare pictures.
     """
     eq = getattr(pose, "equilibrium", pose)
@@ -262,18 +267,19 @@ def plot(problem, pose, path, *, tension_max=None) -> Path:
     return Path(path)
 
 
-def plot_trace(path, history, title=None):
-    """Objective against iterate and against wall time of a control run."""
+def plot_trace(path, history, title=None, units=DEFAULT_UNITS):
+    """Objective against iterate and against wall time of a control run
+    (O in ``units.length`` squared: the scene's :class:`~plush_opt.io.units.Units`)."""
     it = [h.iteration for h in history]
     obj = np.array([max(h.objective, 1e-300) for h in history])
     t = [h.t_wall for h in history]
     fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.6), dpi=120)
     a.semilogy(it, obj, "o-", ms=3)
     a.set_xlabel("iterate")
-    a.set_ylabel("objective O [mm$^2$]")
+    a.set_ylabel(f"objective O [{units.length}$^2$]")
     b.semilogy(t, obj, "o-", ms=3)
     b.set_xlabel("wall time [s]")
-    b.set_ylabel("objective O [mm$^2$]")
+    b.set_ylabel(f"objective O [{units.length}$^2$]")
     for ax in (a, b):
         ax.grid(True, which="both", alpha=0.3)
     if title:
@@ -282,10 +288,11 @@ def plot_trace(path, history, title=None):
     save_figure(fig, path)
 
 
-def plot_run_log(path, log_lines, title=None):
-    """Commanded and measured contraction of each winch over a scripted run
-    (the JSON-lines log of plush_opt.runs, already parsed); a dry run's is a
-    plan, drawn against its planned time."""
+def plot_run_log(path, log_lines, title=None, length: str = "mm"):
+    """Commanded and measured contraction (``length`` units, the problem's)
+    of each winch over a scripted run (the JSON-lines log of
+    plush_opt.runs, already parsed); a dry run's is a plan, drawn against
+    its planned time."""
     plan = any(r.get("kind") == "start" and r.get("dry_run") for r in log_lines)
     rows = [r for r in log_lines if r.get("commanded")]
     if not rows:
@@ -300,7 +307,7 @@ def plot_run_log(path, log_lines, title=None):
         meas = [(r["t"], r["measured"][name]) for r in rows if r.get("measured")]
         if meas:
             ax.plot(*zip(*meas), ".", ms=3, color="#ff7f0e", label="measured")
-        ax.set_ylabel(f"{name} [mm]")
+        ax.set_ylabel(f"{name} [{length}]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(loc="upper right", fontsize=8)
     steps, seen = [], set()

@@ -51,10 +51,13 @@ def cmd_run(args) -> int:
 def _run_plot(png: Path, log_path: Path, script: Path) -> None:
     from .plot import plot_run_log
     use_agg()
+    from ..io.problem_file import file_units
+    from ..io.run_script import load_run_script
     rows = [json.loads(line) for line in Path(log_path).read_text().splitlines()]
     dry = bool(rows) and rows[0].get("kind") == "start" and rows[0].get("dry_run")
     what = "planned contractions (dry run: a plan, nothing measured)" if dry else "commanded and measured contractions"
-    plot_run_log(png, rows, title=f"{Path(script).stem}: {what}")
+    plot_run_log(png, rows, title=f"{Path(script).stem}: {what}",
+                 length=file_units(load_run_script(script).problem).length)
 
 
 def add_run_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -95,7 +98,9 @@ def cli_run(args: argparse.Namespace, planner_factory) -> int:
         sys.stderr.write(f"\ninterrupted ({name}): board stopped; log {log_path}\n")
         return code
     where = "dry run" if result.dry_run else (simulator or "board")
-    errors = (f", pose steps' RMS target error at most {max(result.pose_errors):.3g} mm"
+    from ..io.problem_file import file_units
+    errors = (f", pose steps' RMS target error at most {max(result.pose_errors):.3g} "
+              f"{file_units(script.problem).length}"
               if result.pose_errors else "")
     far = f", {len(result.far_poses)} far from their targets" if result.far_poses else ""
     if not getattr(args, "quiet", False) or result.far_poses:

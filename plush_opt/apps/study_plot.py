@@ -9,14 +9,18 @@ from pathlib import Path
 
 from ..base.files import atomic_path
 
-PANELS = (("target_error", "target error (RMS) [length]"),
-          ("max_tension", "largest tendon tension [force]"),
-          ("hysteresis_work", "hysteresis: work lost per cycle [force x length]"),
-          ("release_error", "pose left after release [length]"))
+#: the measured columns and their titles ({length} and {force}: the problem's units)
+PANELS = (("target_error", "target error (RMS) [{length}]"),
+          ("max_tension", "largest tendon tension [{force}]"),
+          ("hysteresis_work", "hysteresis: work lost per cycle [{force} {length}]"),
+          ("release_error", "pose left after release [{length}]"))
 
 
 def plot_study(out: Path, problem: Path, result) -> Path:
-    """Write the trade-off curves of ``result`` (a StudyResult) to ``out`` (PNG)."""
+    """Write the trade-off curves of ``result`` (a StudyResult) to ``out``
+    (PNG), labelled in the units of the ``problem`` file."""
+    from ..io.problem_file import file_units
+    units = file_units(problem)
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -38,7 +42,7 @@ def plot_study(out: Path, problem: Path, result) -> Path:
             bad = [r[x_key] for r in members if not r["certified"]]
             if bad:
                 ax.plot(bad, [0.0] * len(bad), "x", color=colour, ms=9)
-            ax.set_title(title, fontsize=10)
+            ax.set_title(title.format(length=units.length, force=units.force), fontsize=10)
             ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xlabel(x_key)

@@ -23,10 +23,10 @@ SAME_CURVE = 0.03
 def sweep_figure(problem, states, winch: str):
     """The hysteresis figure of a sweep (what :func:`plot_sweep` writes):
     each scene point's displacement against the swept winch's contraction,
-    lengths in the problem's unit; a curve that coincides with an earlier
+    lengths in the problem's unit (``problem.scene.units``); a curve that coincides with an earlier
     one says so in the legend."""
     import matplotlib.pyplot as plt
-    from .plot import LENGTH_UNIT
+    length = problem.scene.units.length
     w = problem.winch_names.index(winch)
     c = np.array([s.contraction[w] for s in states])
     X = problem.mesh.X
@@ -39,12 +39,12 @@ def sweep_figure(problem, states, winch: str):
         gaps = [(float(np.max(np.abs(curves[j] - d), initial=0.0)), j) for j in range(k)]
         gap, under = min(gaps, default=(np.inf, -1))
         ls, marker, size = CURVE_STYLES[k % len(CURVE_STYLES)]
-        label = f"point {k} {tuple(np.round(X[node], 1).tolist())}: loop area {area:.3g} {LENGTH_UNIT}$^2$"
+        label = f"point {k} {tuple(np.round(X[node], 1).tolist())}: loop area {area:.3g} {length}$^2$"
         if gap <= SAME_CURVE * max(scale, 1e-300):
-            label += f" (over point {under}'s curve, within {gap:.2g} {LENGTH_UNIT})"
+            label += f" (over point {under}'s curve, within {gap:.2g} {length})"
         ax.plot(c, d, linestyle=ls, marker=marker, ms=size, label=label)
-    ax.set_xlabel(f"contraction of {winch} [{LENGTH_UNIT}]")
-    ax.set_ylabel(f"displacement [{LENGTH_UNIT}]")
+    ax.set_xlabel(f"contraction of {winch} [{length}]")
+    ax.set_ylabel(f"displacement [{length}]")
     ax.set_title(f"{problem.scene.name}: loading and unloading (the loops: friction)")
     if len(problem.mesh.point_nodes):      # below the axes: it never hides a loop
         ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)

@@ -1,12 +1,13 @@
 """Plausibility warnings for a problem file: values that are valid but
 unlikely to mean what the file wants, most often a file written in other
-units than the outputs print (lengths in mm, forces in N, moduli in MPa).
+units than it says (``units:``, default lengths in mm, forces in N, moduli in MPa).
 
 :func:`plausibility_warnings` returns one line per finding, each naming the
 key; :func:`~plush_opt.io.problem_file.load_scene` logs them as warnings.
 :func:`large_mesh_note` is the line a large mesh is announced with.
 Nothing is refused or repaired here: a file in consistent other units
-solves correctly, only the outputs' unit labels are then wrong.
+solves correctly, only the outputs' unit labels are then wrong (a
+``units:`` key makes them right).
 """
 
 from __future__ import annotations
@@ -16,9 +17,13 @@ import math
 from ..base.errors import format_number
 from ..base.geometry import body_area
 from .scene import Scene
+from .units import DEFAULT_UNITS
 
-#: A body smaller than this (length units) is implausible in mm, the unit the
-#: outputs print: a robot of felt or silicone is centimetres to a metre across.
+#: one millimetre and one megapascal in SI units (thresholds below are in mm and MPa
+#: and compared in the file's own units, ``Scene.units``)
+MM, MPA = 1e-3, 1e6
+#: A body smaller than this (mm) is implausible: a robot of felt or silicone is
+#: centimetres to a metre across.
 MIN_BODY_SIZE = 1.0
 #: The tendon law's smoothing length above this fraction of the body's size
 #: blurs the slack/taut transition over the whole body (the shipped files use
@@ -30,6 +35,11 @@ MAX_RADIUS_FRACTION = 0.2
 #: Young's modulus above this (MPa with mm and N) is stiffer than any soft
 #: body (felt about 0.02, silicone 0.1-10, hard rubber about 100): a value in Pa?
 MAX_SOFT_MODULUS = 1.0e3
+#: typical moduli (Pa) quoted in that warning: felt, and silicone's range
+FELT_MODULUS, SILICONE_MODULI = 2e4, (1e5, 1e7)
+#: Earth's gravity (m/s^2), and the multiple of it above which a gravity is
+#: implausible for a robot on a bench (a file in metres with the docs' 9810 is 1000 g)
+EARTH_GRAVITY, MAX_GRAVITY = 9.81, 10.0
 #: A mesh estimated above this many nodes is announced when it is built
 #: (fem.mesh.build_mesh): meshing and solving it takes minutes; the hard
 #: limit is fem.mesh.MAX_ELEMS triangles.
@@ -76,25 +86,47 @@ def large_mesh_note(scene: Scene, max_area: float, refinements: int = 0) -> str 
 
 
 def plausibility_warnings(scene: Scene) -> list[str]:
-    """One line per implausible value, each starting with the key."""
+    """One line per implausible value, each starting with the key; values are
+    judged and said in the file's units (``scene.units``)."""
     out = []
+    u = scene.units
     size = scene.diameter
-    units = "outputs print lengths in mm, forces in N, moduli in MPa: is the file in other units?"
-    if size < MIN_BODY_SIZE:
-        out.append(f"mesh: the body is {size:.3g} across, implausibly small in mm ({units})")
+    if u == DEFAULT_UNITS:
+        units = ("outputs print lengths in mm, forces in N, moduli in MPa: is the file in other units? "
+                 "say which with units: {length: ..., force: ...}")
+    else:
+        units = f"the file says units: length {u.length}, force {u.force}, so moduli in {u.stress}"
+    if u.metres(size) < MIN_BODY_SIZE * MM:
+        out.append(f"mesh: the body is {size:.3g} across, implausibly small in {u.length} ({units})")
     eps = scene.tendon_smoothing
     if eps > MAX_SMOOTHING_FRACTION * size:
         out.append(f"tendons.smoothing: {eps:.3g} is {100 * eps / size:.3g} % of the body's size "
-                   f"({size:.3g}); the tendons go slack to taut over that length, meant to be a small "
-                   f"fraction of the body ({units})")
+                   f"({size:.3g}), both in {u.length}; the tendons go slack to taut over that length, meant to be a "
+                   f"small fraction of the body ({units})")
     for i, t in enumerate(scene.tendons):
         if t.attachment_radius > MAX_RADIUS_FRACTION * size:
             out.append(f"tendons.list[{i}].attachment_radius: {t.attachment_radius:.3g} is "
                        f"{100 * t.attachment_radius / size:.3g} % of the body's size ({size:.3g}): "
                        "a disc that wide is not a stopper or a felt hole")
             break
+    if scene.gravity is not None:
+        g = u.metres(math.hypot(*map(float, scene.gravity)))
+        if g > MAX_GRAVITY * EARTH_GRAVITY:
+            out.append(f"gravity: {g / EARTH_GRAVITY:.3g} times Earth's gravity ({EARTH_GRAVITY / u.metres(1.0):.4g} "
+                       f"{u.gravity}): is it in {_other_length(u)}/s^2? ({units})")
     e = youngs_modulus(scene)
-    if math.isfinite(e) and e > MAX_SOFT_MODULUS:
-        out.append(f"material: Young's modulus {e:.3g} is stiffer than any soft body in MPa (felt "
-                   f"about 0.02, silicone 0.1-10; {units})")
+    if math.isfinite(e) and u.pascals(e) > MAX_SOFT_MODULUS * MPA:
+        out.append(f"material: Young's modulus {e:.3g} is stiffer than any soft body in {u.stress} (felt "
+                   f"about {_in_stress(u, FELT_MODULUS)}, silicone {_in_stress(u, SILICONE_MODULI[0])}-"
+                   f"{_in_stress(u, SILICONE_MODULI[1])}; {units})")
     return out
+
+
+def _in_stress(u, pascals: float) -> str:
+    return f"{pascals / u.pascals(1.0):.3g}"
+
+
+def _other_length(u) -> str:
+    """The length unit a misplaced value most likely came from (mm for a
+    file in metres, m otherwise)."""
+    return "mm" if u.length != "mm" else "m"

@@ -25,6 +25,7 @@ from .checker import MAX_COORD, MAX_WEIGHT, Checker, at_index, at_key, describe
 from .contact_section import contact_section
 from .mesh_input import check_points_are_nodes, length, mesh_section
 from .plausibility import plausibility_warnings
+from .units import DEFAULT_UNITS, FORCES, LENGTHS, Units
 from .yaml_reader import read_yaml
 
 log = logging.getLogger("plush_opt")
@@ -45,7 +46,7 @@ DEFAULT_PIN_STIFFNESS = 1.0
 _NAME = re.compile(r"[A-Za-z0-9_-]+")
 
 _TOP_KEYS = ("format", "name", "description", "mesh", "material", "gravity", "pins",
-             "winches", "tendons", "targets", "points", "contact")
+             "winches", "tendons", "targets", "points", "contact", "units")
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "mu", "lambda", "thickness",
                   "density")
 _PIN_KEYS = ("stiffness", "at", "box")
@@ -80,6 +81,14 @@ def load_scene(path) -> Scene:
     return scene
 
 
+def file_units(path) -> Units:
+    """The :class:`~plush_opt.io.units.Units` a problem file says it is
+    written in (its ``units`` key only; mm and N without it)."""
+    source = os.path.basename(os.fspath(path)) or os.fspath(path)
+    doc = read_yaml(path, what="problem file", source=source)
+    return units_section(Checker(source), _opt(doc, "units") if isinstance(doc, dict) else None)
+
+
 def _opt(d: dict, key: str):
     """Value of an optional key; an explicit null counts as absent."""
     return d.get(key)
@@ -108,6 +117,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
     ck.document(data, _TOP_KEYS,
                 required=("format", "name", "mesh", "material", "winches", "tendons"))
     name, description = _header_section(ck, data)
+    units = units_section(ck, _opt(data, "units"))
     geo = mesh_section(ck, data["mesh"])
     material = _material_section(ck, data["material"])
 
@@ -139,7 +149,7 @@ def scene_from_dict(data: dict, source: str = "<memory>") -> Scene:
         tendons=tuple(tendons), targets=tuple(targets), points=points, gravity=gravity,
         outline=geo["outline"], holes=tuple(geo["holes"]), max_area=geo["max_area"],
         min_angle=geo["min_angle"], nodes=geo["nodes"], triangles=geo["triangles"],
-        element=geo["element"], contact=contact,
+        element=geo["element"], contact=contact, units=units,
     )
 
 
@@ -153,6 +163,34 @@ def _header_section(ck: Checker, data: dict) -> tuple[str, str]:
     description = _opt(data, "description")
     description = "" if description is None else ck.string(description, "description")
     return name, description
+
+
+def units_section(ck: Checker, raw, *, result: bool = False) -> Units:
+    """The optional ``units`` mapping (docs/problem-format.md, reading 30):
+    ``length`` one of :data:`~plush_opt.io.units.LENGTHS`, ``force`` one of
+    :data:`~plush_opt.io.units.FORCES` (defaults mm and N); a ``stress``, if
+    given, must be the one they imply. Anything else is one line naming the key.
+    ``result``: a result file's ``units`` object, whose other names (mass,
+    density, ...) are not checked."""
+    if raw is None:
+        return DEFAULT_UNITS
+    ck.mapping(raw, "units", tuple(raw) if result and isinstance(raw, dict) else ("length", "force", "stress"))
+    chosen = {}
+    for key, accepted in (("length", LENGTHS), ("force", FORCES)):
+        value = _opt(raw, key)
+        if value is None:
+            chosen[key] = getattr(DEFAULT_UNITS, key)
+            continue
+        value = ck.string(value, f"units.{key}")
+        if value not in accepted:
+            ck.fail(f"units.{key}", f"{shown(value)} is not one of {', '.join(accepted)}")
+        chosen[key] = value
+    units = Units(**chosen)
+    stress = _opt(raw, "stress")
+    if stress is not None and ck.string(stress, "units.stress") != units.stress:
+        ck.fail("units.stress", f"{shown(stress)} does not follow from {units.force} and {units.length}: "
+                f"stress is force/length^2, {units.stress} (units are labels: give length and force)")
+    return units
 
 
 def read_targets(raw, source: str) -> list[Target]:

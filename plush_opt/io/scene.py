@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..base.geometry import diameter
+from .units import DEFAULT_UNITS, Units
 
 FORMAT = "plush-opt/1"
 ELEMENTS = ("P1", "P2")          # mesh.element: 3-node or 6-node (quadratic) triangles
@@ -193,6 +194,7 @@ class Scene:
     points: np.ndarray = field(default_factory=lambda: _points(np.zeros((0, 2))))
     element: str = "P1"               # "P1" (3-node) or "P2" (6-node triangles)
     contact: Contact | None = None     # floor, obstacles, self-contact
+    units: Units = DEFAULT_UNITS       # the file's unit names (labels for outputs, never conversions)
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731

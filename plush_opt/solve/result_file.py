@@ -129,6 +129,8 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
         "tendon_tension": {t.name: float(v) for t, v in zip(model.scene.tendons, tension)},
         "target_error": targets.errors(eq.x).tolist(),
         "targets_objective": float(targets.value(eq.x)),
+        # the file's unit names (labels: the numbers are as the file wrote them)
+        "units": model.scene.units.as_dict(),
     }
     for entry, seg, t in zip(doc["model"]["tendons"]["list"], segments, model.scene.tendons):
         entry.update(seg, friction=float(t.friction))
@@ -180,9 +182,10 @@ def read_result(path) -> dict:
     per rest node), ``model.element``, ``model.rest_nodes`` and
     ``model.triangles`` (a valid mesh, as a problem file's explicit mesh),
     ``model.tendons.list`` (mappings with a ``name``, and finite
-    ``segment_rest_lengths`` where given). Anything else is one
+    ``segment_rest_lengths`` where given), ``units`` (accepted names) where given. Anything else is one
     :class:`SceneError` line naming the file and the key; nothing is repaired."""
     from ..io.mesh_input import explicit_mesh
+    from ..io.problem_file import units_section
     ck = Checker(path)
     try:
         with open(path, "rb") as fh:
@@ -208,6 +211,8 @@ def read_result(path) -> dict:
     if len(nodes) != len(model["rest_nodes"]):
         ck.fail("nodes", f"{len(nodes)} points, but model.rest_nodes has {len(model['rest_nodes'])}")
     _check_tendon_entries(ck, model["tendons"])
+    if doc.get("units") is not None:
+        units_section(ck, doc["units"], result=True)
     return doc
 
 

@@ -207,7 +207,7 @@ def speed_error_figure(problems, runs):
             ax.set_yscale("log")
             readable_log_axis(ax, "y")
         ax.set_xlabel("solve time [s]")
-        ax.set_ylabel("RMS target error, P2 reference [mm]")
+        ax.set_ylabel(f"RMS target error, P2 reference [{p.scene.units.length}]")
         ax.set_title(p.scene.name, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
     from matplotlib.lines import Line2D

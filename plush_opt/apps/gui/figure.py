@@ -134,7 +134,7 @@ def pose_axes(fig, model, x, contraction, tension_max: float):
                      label="its body point")]
     cax = fig.add_axes([0.645, POSE_BOTTOM, 0.01, 0.955 - POSE_BOTTOM])
     cb = fig.colorbar(artists["tendons"], cax=cax)
-    cb.set_label("tendon tension [N]", fontsize=9)
+    cb.set_label(f"tendon tension [{model.scene.units.force}]", fontsize=9)
     cb.ax.tick_params(labelsize=8)
     return ax, artists, legend
 
@@ -163,7 +163,7 @@ def winch_panel(fig, model, contraction, frozen, legend, on_slider: Callable, on
     """The right-hand panel: one slider and one freeze toggle per winch,
     the key help and the legend. Returns (sliders, freeze buttons) by winch name."""
     left, width = 0.745, 0.15
-    fig.text(0.705, 0.935, "Winch contractions [mm]", fontsize=11, weight="bold")
+    fig.text(0.705, 0.935, f"Winch contractions [{model.scene.units.length}]", fontsize=11, weight="bold")
     row = min(ROW_MAX, ROWS_HEIGHT / max(model.n_winches, 1))
     sliders, buttons = {}, {}
     with no_redraws(fig.canvas):

@@ -255,12 +255,12 @@ class PosingSession:
         self.loop.drop()
         if self.targets.n_targets and not self.paused:
             self.held = True
-        name = self.winch_names[i]
+        name, mm = self.winch_names[i], self.model.scene.units.length
         if eq.converged:
-            self.message = (f"{name} = {c[i]:.3f} mm: forward pose"
+            self.message = (f"{name} = {c[i]:.3f} {mm}: forward pose"
                             + (" (loop held: space or a target edit runs it)" if self.held else ""))
         else:
-            self.message = f"{name} = {c[i]:.3f} mm: forward solve: {eq.status}"
+            self.message = f"{name} = {c[i]:.3f} {mm}: forward solve: {eq.status}"
         self._show(eq)
 
     # ------------------------------------------------- mode 3: freeze
@@ -472,14 +472,15 @@ def result_document(session: PosingSession) -> dict:
 def status_line(session: PosingSession) -> str:
     """The status line: loop state, objective, residual, rate, bounds held,
     frozen winches, board."""
-    eq, t = session.equilibrium, session.targets
+    eq, t, units = session.equilibrium, session.targets, session.model.scene.units
     parts = [f"loop {session.state:<10}"]
     if t.n_targets:
-        parts.append(f"O {t.value(session.x):.3e} mm\u00b2 (rms {t.rms_error(session.x):.2f} mm,"
+        parts.append(f"O {t.value(session.x):.3e} {units.length}\u00b2 "
+                     f"(rms {t.rms_error(session.x):.2f} {units.length},"
                      f" {t.n_targets} target{'s' if t.n_targets > 1 else ''})")
     else:
         parts.append("O -")
-    parts.append(f"residual {eq.residual_norm:.1e} N{'' if eq.converged else ' (NOT converged)'}")
+    parts.append(f"residual {eq.residual_norm:.1e} {units.force}{'' if eq.converged else ' (NOT converged)'}")
     parts.append(f"{iterate_rate(session):5.1f} it/s")
     bounds = session.last_iterate.active_bounds if session.last_iterate is not None else ()
     parts.append(f"bounds: {', '.join(bounds) if bounds else '-'}")
@@ -495,7 +496,7 @@ def status_line(session: PosingSession) -> str:
         parts.append("board: stopped")
     else:
         lag = pacer.lag(session.contraction_by_name)
-        parts.append(f"board: {pacer.sends} sent" + ("" if lag is None else f", lag {lag:.2f} mm"))
+        parts.append(f"board: {pacer.sends} sent" + ("" if lag is None else f", lag {lag:.2f} {units.length}"))
     return "  |  ".join(parts)
 
 
@@ -509,7 +510,7 @@ def tension_text(session: PosingSession) -> str:
     for t, seg in zip(session.model.scene.tendons, segments):
         T = seg["segment_tensions"]
         parts.append(f"{t.name} " + (f"{T[0]:.3g}" if max(T) == min(T) else "/".join(f"{v:.3g}" for v in T)))
-    return "T [N]: " + (", ".join(parts) if parts else "-")
+    return f"T [{session.model.scene.units.force}]: " + (", ".join(parts) if parts else "-")
 
 
 def timestamped(folder: Path, stem: str) -> Path:
