@@ -362,7 +362,7 @@ class ContactTerm(Term):
             A, B = self._segment_ends(X)
             inside = geo.points_in_polygon(P, o.outline)
             crossing = len(geo.crossing_pairs(A, B, *self._obstacle_edges[i])[0]) > 0
-            enclosed = _body_contains(self.boundary, X, o.outline[:1])
+            enclosed = bool(geo.points_inside(o.outline[:1], A, B).any())   # inside the body (its holes out)
             if inside.any() or crossing or enclosed:
                 raise SceneError(f"{where}.obstacles[{i}]: obstacle {o.name!r} overlaps the body's rest "
                                  "pose (the rest pose must be clear of every obstacle)")
@@ -387,15 +387,3 @@ def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:
     cols.append(c[ok])
     vals.append(hess.reshape(len(dofs), q * q)[ok])
 
-
-
-def _body_contains(boundary: Boundary, X: np.ndarray, points: np.ndarray) -> bool:
-    """Whether any of ``points`` lies inside the body at its rest pose (the
-    mesh boundary, outline and holes, by the even-odd rule)."""
-    A = X.reshape(-1, 2)[boundary.segments[:, 0]]
-    B = X.reshape(-1, 2)[boundary.segments[:, 1]]
-    p = points[:, None, :]
-    straddle = (A[None, :, 1] > p[..., 1]) != (B[None, :, 1] > p[..., 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xint = A[None, :, 0] + (p[..., 1] - A[None, :, 1]) * (B[None, :, 0] - A[None, :, 0]) / (B[None, :, 1] - A[None, :, 1])
-    return bool(np.any(np.count_nonzero(straddle & (p[..., 0] < xint), axis=1) % 2 == 1))

@@ -343,8 +343,17 @@ def points_in_polygon(points, outline, chunk: int = 1 << 20) -> np.ndarray:
     """Even-odd rule: which points lie inside the closed polygon ``outline``
     (k, 2), (n,) bool (points on the boundary: either answer). Costs
     n * k work, in chunks of about ``chunk`` point-edge pairs."""
+    return points_inside(points, *_ring_edges(outline), chunk=chunk)
+
+
+def points_inside(points, a, b, chunk: int = 1 << 20) -> np.ndarray:
+    """Even-odd rule over segments: which points lie inside the region the
+    segments ``a`` -> ``b`` (k, 2 each) bound (closed rings in any order:
+    an outline and its holes), (n,) bool (points on a segment: either
+    answer). Costs n * k work, in chunks of about ``chunk`` point-segment
+    pairs."""
     pts = np.asarray(points, float).reshape(-1, 2)
-    a, b = _ring_edges(outline)
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     out = np.zeros(len(pts), dtype=bool)
     rows = max(1, chunk // max(len(a), 1))
     for s in range(0, len(pts), rows):
