@@ -92,6 +92,12 @@ class Entries:
         return self.tocoo().tocsr()
 
 
+#: the pairs of a term with neither obstacles nor self-contact (read-only, shared)
+_NO_PAIRS = Pairs.empty()
+for _array in vars(_NO_PAIRS).values():
+    _array.setflags(write=False)
+
+
 def default_stiffness(scene: Scene, distance: float) -> float:
     """kappa for a file that leaves ``contact.stiffness`` out (energy units
     per length^5): :data:`KAPPA_SCALE` mu thickness / d_hat^3."""
@@ -159,7 +165,7 @@ class ContactTerm(Term):
         for the energy); its arrays are read-only."""
         radius = self.distance if radius is None else radius
         if not (self.obstacles or self.self_contact):
-            return Pairs.empty()
+            return _NO_PAIRS
         P = self.points(x)
         last = self._last_pairs
         if last is not None and last[0] == radius and np.array_equal(last[1], P):

@@ -91,10 +91,13 @@ def _fall_length(model, c, x: np.ndarray, d: np.ndarray) -> float | None:
     node): to the first root of the force along ``d``, within the step
     bound; None when nothing lies ahead within the body's size."""
     moving = [term for term in model.terms if not term.translation_invariant]
+    # a term linear in x (gravity) has the same slope everywhere along d
+    constant = sum(float(term.evaluate(x, c, 1).gradient @ d) for term in moving if term.linear)
+    moving = [term for term in moving if not term.linear]
 
     def slope(t: float) -> float:
         xt = x + t * d
-        return float(sum(term.evaluate(xt, c, 1).gradient @ d for term in moving))
+        return constant + sum(float(term.evaluate(xt, c, 1).gradient @ d) for term in moving)
 
     P = x.reshape(-1, 2)
     reach = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
