@@ -12,7 +12,10 @@ orthogonal to N, (H + a sum_j e_j e_j^T) dx = -g is the solution of
 H dx = -g that does not move those dofs).
 
 A rigid motion with H r = 0 but a net force along it is not free: the
-body falls or slides, the Hessian stays singular there and the solver's
+body falls or slides (:func:`split_motions` tells the two kinds apart; an
+evaluation reports the second in ``unbalanced``). A body that falls onto
+something is moved onto it before Newton (plush_opt/solve/free_fall.py);
+where nothing holds it, the Hessian stays singular and the solver's
 regularised steps follow the force (:func:`unbalanced` says so when no
 equilibrium is found).
 """
@@ -186,7 +189,7 @@ def unbalanced(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> str | Non
     scale and |H r| times the body's size (its bounding box's diagonal)
     is below |grad E . r|: flat motions (|H r| at round-off, the gauge's
     :data:`FLAT`), and also one that a sliding contact resists only by
-    a smoothing window's round-off stiffness."""
+    the tiny stiffness of a node in its friction's smoothing window."""
     V = rigid_motions(x)
     HV = H @ V
     lam, Q = np.linalg.eigh(HV.T @ HV)          # |H V q|^2 over unit q
