@@ -69,6 +69,35 @@ class Pairs:
         return Pairs(np.zeros((0, 6), dtype=np.int64), z, z, z, np.zeros(0), np.zeros(0, dtype=np.int64))
 
 
+@dataclass(frozen=True)
+class Entries:
+    """A term's sparse Hessian as COO entries (duplicates add), handed to
+    :meth:`~plush_opt.fem.hessian_layout.HessianLayout.assemble` without
+    building a scipy matrix each evaluation: ``row``, ``col`` (k,) int,
+    ``data`` (k,), ``shape`` (n_dofs, n_dofs)."""
+
+    row: np.ndarray
+    col: np.ndarray
+    data: np.ndarray
+    shape: tuple[int, int]
+
+    @property
+    def nnz(self) -> int:
+        return len(self.data)
+
+    def tocoo(self) -> sp.coo_matrix:
+        return sp.coo_matrix((self.data, (self.row, self.col)), shape=self.shape)
+
+    def tocsr(self) -> sp.csr_matrix:
+        return self.tocoo().tocsr()
+
+
+#: the pairs of a term with neither obstacles nor self-contact (read-only, shared)
+_NO_PAIRS = Pairs.empty()
+for _array in vars(_NO_PAIRS).values():
+    _array.setflags(write=False)
+
+
 def default_stiffness(scene: Scene, distance: float) -> float:
     """kappa for a file that leaves ``contact.stiffness`` out (energy units
     per length^5): :data:`KAPPA_SCALE` mu thickness / d_hat^3."""
@@ -112,6 +141,7 @@ class ContactTerm(Term):
         self._obstacle_weight = [0.5 * (np.linalg.norm(b - a, axis=1)
                                         + np.roll(np.linalg.norm(b - a, axis=1), 1))
                                  for a, b in self._obstacle_edges]
+        self._last_pairs = None            # (radius, boundary positions, Pairs) of the last pose asked
         self._check_rest(X)
 
     # -- geometry at a pose ---------------------------------------------------
@@ -130,10 +160,25 @@ class ContactTerm(Term):
 
     def pairs(self, x: np.ndarray, radius: float | None = None) -> Pairs:
         """The point-segment pairs (obstacles, self) closer than ``radius``
-        (default d_hat) at flat pose ``x``."""
+        (default d_hat) at flat pose ``x``. The last pose's pairs are kept
+        (an evaluation asks at the same pose for admissibility and then
+        for the energy); its arrays are read-only."""
         radius = self.distance if radius is None else radius
+        if not (self.obstacles or self.self_contact):
+            return _NO_PAIRS
         P = self.points(x)
-        A, B = self._segment_ends(x)
+        last = self._last_pairs
+        if last is not None and last[0] == radius and np.array_equal(last[1], P):
+            return last[2]
+        pairs = self._find_pairs(P, radius)
+        for array in vars(pairs).values():
+            array.setflags(write=False)
+        self._last_pairs = (radius, P, pairs)
+        return pairs
+
+    def _find_pairs(self, P: np.ndarray, radius: float) -> Pairs:
+        """The broad and narrow phase of :meth:`pairs` at boundary positions ``P``."""
+        A, B = P[self.boundary.local[:, 0]], P[self.boundary.local[:, 1]]
         bd, sd = self.node_dofs, self._seg_dofs
         parts = []
         for k, ((oa, ob), ow) in enumerate(zip(self._obstacle_edges, self._obstacle_weight)):
@@ -198,7 +243,7 @@ class ContactTerm(Term):
             energy += e
             if order >= 1:
                 dofs, grad, hess = parts
-                np.add.at(g, dofs.ravel(), grad.ravel())
+                g[dofs.ravel()] = grad.ravel()          # (each boundary node once)
                 if order == 2:
                     _collect(rows, cols, vals, dofs, hess)
         pairs = self.pairs(x)
@@ -207,7 +252,7 @@ class ContactTerm(Term):
             energy += e
             if order >= 1:
                 ok = pairs.dofs >= 0
-                np.add.at(g, pairs.dofs[ok], grad[ok])
+                g += np.bincount(pairs.dofs[ok], weights=grad[ok], minlength=self.n_dofs)
                 if order == 2:
                     _collect(rows, cols, vals, pairs.dofs, hess)
         if order == 0:
@@ -217,7 +262,7 @@ class ContactTerm(Term):
             rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
             cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
             vals = np.concatenate(vals) if vals else np.zeros(0)
-            hessian = {"contact_hess": sp.coo_matrix((vals, (rows, cols)), shape=(self.n_dofs, self.n_dofs))}
+            hessian = {"contact_hess": Entries(rows, cols, vals, (self.n_dofs, self.n_dofs))}
         # the contact forces in balance (0 where nothing touches: the other terms set the scale)
         return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
 
@@ -323,7 +368,7 @@ class ContactTerm(Term):
             A, B = self._segment_ends(X)
             inside = geo.points_in_polygon(P, o.outline)
             crossing = len(geo.crossing_pairs(A, B, *self._obstacle_edges[i])[0]) > 0
-            enclosed = _body_contains(self.boundary, X, o.outline[:1])
+            enclosed = bool(geo.points_inside(o.outline[:1], A, B).any())   # inside the body (its holes out)
             if inside.any() or crossing or enclosed:
                 raise SceneError(f"{where}.obstacles[{i}]: obstacle {o.name!r} overlaps the body's rest "
                                  "pose (the rest pose must be clear of every obstacle)")
@@ -336,6 +381,7 @@ class ContactTerm(Term):
         if bad is not None:
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
 
+
 def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:
     """Append the entries of local Hessians ``hess`` (k, q, q) on ``dofs``
     (k, q) to a COO triple, skipping fixed points (dof -1)."""
@@ -347,14 +393,3 @@ def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:
     cols.append(c[ok])
     vals.append(hess.reshape(len(dofs), q * q)[ok])
 
-
-def _body_contains(boundary: Boundary, X: np.ndarray, points: np.ndarray) -> bool:
-    """Whether any of ``points`` lies inside the body at its rest pose (the
-    mesh boundary, outline and holes, by the even-odd rule)."""
-    A = X.reshape(-1, 2)[boundary.segments[:, 0]]
-    B = X.reshape(-1, 2)[boundary.segments[:, 1]]
-    p = points[:, None, :]
-    straddle = (A[None, :, 1] > p[..., 1]) != (B[None, :, 1] > p[..., 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xint = A[None, :, 0] + (p[..., 1] - A[None, :, 1]) * (B[None, :, 0] - A[None, :, 0]) / (B[None, :, 1] - A[None, :, 1])
-    return bool(np.any(np.count_nonzero(straddle & (p[..., 0] < xint), axis=1) % 2 == 1))

@@ -29,11 +29,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..base.errors import SceneError
 from ..base.reprs import compact_repr
-from .contact import ContactTerm
+from .contact import ContactTerm, Entries
 from .terms import Term, TermEvaluation
 
 #: the slip threshold eps as a fraction of d_hat: the tangential play a
@@ -160,8 +159,7 @@ class ContactFrictionTerm(Term):
             q = 2
             rows = np.repeat(self._dofs, q, axis=1).ravel()
             cols = np.tile(self._dofs, (1, q)).ravel()
-            hessian = {"friction_hess": sp.coo_matrix((local.ravel(), (rows, cols)),
-                                                      shape=(self.n_dofs, self.n_dofs))}
+            hessian = {"friction_hess": Entries(rows, cols, local.ravel(), (self.n_dofs, self.n_dofs))}
         return TermEvaluation(energy, g, hessian, float(np.linalg.norm(g)))
 
     def expression(self, x, c):

@@ -67,22 +67,34 @@ def barrier(s, dhat2):
     ``s`` any shape, ``dhat2`` a scalar or broadcastable; returns
     ``(b, db/ds, d2b/ds2)`` of the broadcast shape.
     """
-    s, h = np.broadcast_arrays(np.asarray(s, float), np.asarray(dhat2, float))
+    s = np.asarray(s, float)
+    if np.ndim(dhat2) == 0 and s.ndim == 1 and np.all((s > 0) & (s < dhat2)):
+        return _barrier_inside(s, float(dhat2))        # (every pair active: the common case)
+    s, h = np.broadcast_arrays(s, np.asarray(dhat2, float))
     b, db, d2b = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
     inside = (s > 0) & (s < h)
-    si, hi = s[inside], h[inside]
-    u = si - hi                                         # < 0, exact near dhat2
-    near = si >= LOG1P_FROM * hi
-    ln = np.empty_like(si)
-    ln[near] = np.log1p(u[near] / hi[near])
-    ln[~near] = np.log(si[~near] / hi[~near])
-    with np.errstate(over="ignore"):                   # s below about 1e-154 dhat2: b'' is inf
-        b[inside] = -u * u * ln
-        db[inside] = -2.0 * u * ln - u * u / si
-        d2b[inside] = -2.0 * ln - 4.0 * u / si + (u / si) ** 2
+    b[inside], db[inside], d2b[inside] = _barrier_inside(s[inside], h[inside])
     bad = (s <= 0) | np.isnan(s)
     b[bad] = np.where(np.isnan(s[bad]), np.nan, np.inf)
     db[bad] = d2b[bad] = np.nan
+    return b, db, d2b
+
+
+def _barrier_inside(s, h):
+    """:func:`barrier` at 0 < s < h (1-d ``s``; ``h`` a scalar or alike)."""
+    u = s - h                                           # < 0, exact near dhat2
+    near = s >= LOG1P_FROM * h
+    if np.all(near):
+        ln = np.log1p(u / h)
+    else:
+        ln = np.empty_like(s)
+        hb = np.broadcast_to(h, s.shape)
+        ln[near] = np.log1p(u[near] / hb[near])
+        ln[~near] = np.log(s[~near] / hb[~near])
+    with np.errstate(over="ignore"):                   # s below about 1e-154 dhat2: b'' is inf
+        b = -u * u * ln
+        db = -2.0 * u * ln - u * u / s
+        d2b = -2.0 * ln - 4.0 * u / s + (u / s) ** 2
     return b, db, d2b
 
 
@@ -331,8 +343,17 @@ def points_in_polygon(points, outline, chunk: int = 1 << 20) -> np.ndarray:
     """Even-odd rule: which points lie inside the closed polygon ``outline``
     (k, 2), (n,) bool (points on the boundary: either answer). Costs
     n * k work, in chunks of about ``chunk`` point-edge pairs."""
+    return points_inside(points, *_ring_edges(outline), chunk=chunk)
+
+
+def points_inside(points, a, b, chunk: int = 1 << 20) -> np.ndarray:
+    """Even-odd rule over segments: which points lie inside the region the
+    segments ``a`` -> ``b`` (k, 2 each) bound (closed rings in any order:
+    an outline and its holes), (n,) bool (points on a segment: either
+    answer). Costs n * k work, in chunks of about ``chunk`` point-segment
+    pairs."""
     pts = np.asarray(points, float).reshape(-1, 2)
-    a, b = _ring_edges(outline)
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
     out = np.zeros(len(pts), dtype=bool)
     rows = max(1, chunk // max(len(a), 1))
     for s in range(0, len(pts), rows):

@@ -12,7 +12,10 @@ orthogonal to N, (H + a sum_j e_j e_j^T) dx = -g is the solution of
 H dx = -g that does not move those dofs).
 
 A rigid motion with H r = 0 but a net force along it is not free: the
-body falls or slides, the Hessian stays singular there and the solver's
+body falls or slides (:func:`split_motions` tells the two kinds apart; an
+evaluation reports the second in ``unbalanced``). A body that falls onto
+something is moved onto it before Newton (plush_opt/solve/free_fall.py);
+where nothing holds it, the Hessian stays singular and the solver's
 regularised steps follow the force (:func:`unbalanced` says so when no
 equilibrium is found).
 """
@@ -40,21 +43,23 @@ def rigid_motions(x: np.ndarray) -> np.ndarray:
     P = x.reshape(-1, 2)
     n = len(P)
     V = np.zeros((2 * n, 3))
-    V[0::2, 0] = 1.0
-    V[1::2, 1] = 1.0
+    V[0::2, 0] = V[1::2, 1] = 1.0 / np.sqrt(n)
     d = P - P.mean(axis=0)
-    V[0::2, 2], V[1::2, 2] = -d[:, 1], d[:, 0]
-    return V / np.linalg.norm(V, axis=0)
+    r = np.sqrt(np.dot(d.ravel(), d.ravel()))
+    V[0::2, 2], V[1::2, 2] = -d[:, 1] / r, d[:, 0] / r
+    return V
 
 
-def flat_motions(H, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rigid motions along which ``H`` (the Hessian at flat pose ``x``) is
-    flat: (n_dofs, k) orthonormal combinations of :func:`rigid_motions`,
-    and (k, 3) their coordinates in them."""
+def flat_motions(H, x: np.ndarray, diagonal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motions along which ``H`` (the Hessian at flat pose ``x``;
+    ``diagonal`` its diagonal, if known) is flat: (n_dofs, k) orthonormal
+    combinations of :func:`rigid_motions`, and (k, 3) their coordinates in
+    them."""
     V = rigid_motions(x)
     HV = H @ V
     lam, Q = np.linalg.eigh(HV.T @ HV)          # |H V q|^2 over unit q
-    scale = float(np.max(np.abs(H.diagonal()), initial=0.0))
+    diagonal = H.diagonal() if diagonal is None else diagonal
+    scale = float(np.max(np.abs(diagonal), initial=0.0))
     flat = np.sqrt(np.maximum(lam, 0.0)) <= FLAT * max(scale, 1e-300)
     Qf = Q[:, flat]
     R = V @ Qf
@@ -65,18 +70,28 @@ def flat_motions(H, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def free_motions(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> np.ndarray:
     """(n_dofs, k) the flat rigid motions with no net force along them."""
-    R, _ = flat_motions(H, x)
+    return split_motions(H, x, g, force_scale)[0]
+
+
+def split_motions(H, x: np.ndarray, g: np.ndarray, force_scale: float,
+                  diagonal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The flat rigid motions of ``H`` at ``x`` (gradient ``g``; ``diagonal``
+    H's, if known), split: (n_dofs, k) those with no net force along them
+    (free), and (n_dofs, j) those with one (the body falls or slides along
+    them)."""
+    R, _ = flat_motions(H, x, diagonal)
     if R.shape[1] == 0:
-        return R
-    push = np.abs(R.T @ g)
-    return R[:, push <= BALANCED * max(force_scale, 1e-300)]
+        return R, R
+    balanced = np.abs(R.T @ g) <= BALANCED * max(force_scale, 1e-300)
+    return R[:, balanced], R[:, ~balanced]
 
 
-def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
+def gauge(H: sp.csc_matrix, R: np.ndarray, diagonal: np.ndarray | None = None) -> sp.csc_matrix:
     """H plus a stiffness on one dof per free motion in ``R`` (n_dofs, k):
     the dofs (greedy pivots of R) make R's rows there invertible. ``H``
-    (the fresh Hessian of one evaluation) is changed in place where its
-    pattern holds those diagonal entries."""
+    (the fresh Hessian of one evaluation; ``diagonal`` its diagonal, if
+    known) is changed in place where its pattern holds those diagonal
+    entries."""
     if R.shape[1] == 0:
         return H
     dofs = []
@@ -87,7 +102,7 @@ def gauge(H: sp.csc_matrix, R: np.ndarray) -> sp.csc_matrix:
         if j + 1 < R.shape[1]:
             # eliminate dof i from the remaining motions (Gaussian pivoting)
             rest[:, j + 1:] -= np.outer(rest[:, j] / rest[i, j], rest[i, j + 1:])
-    diagonal = H.diagonal()
+    diagonal = H.diagonal() if diagonal is None else diagonal
     stiffness = float(np.mean(np.abs(diagonal)))
     slots = _diagonal_slots(H, dofs)
     if np.all(slots >= 0):
@@ -166,11 +181,25 @@ def describe(R: np.ndarray, x: np.ndarray) -> list[str]:
 
 
 def unbalanced(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> str | None:
-    """Why there is no equilibrium near ``x``, if a flat rigid motion has a
-    net force along it (the body falls or slides), in words; else None."""
-    R, _ = flat_motions(H, x)
-    for r, name in zip(R.T, describe(R, x)):
-        if abs(r @ g) > BALANCED * max(force_scale, 1e-300):
+    """Why there is no equilibrium near ``x``, if a rigid motion has a net
+    force along it that its stiffness could not balance within the body's
+    size (the body falls or slides), in words; else None.
+
+    A motion counts when |grad E . r| exceeds ``BALANCED`` times the force
+    scale and |H r| times the body's size (its bounding box's diagonal)
+    is below |grad E . r|: flat motions (|H r| at round-off, the gauge's
+    :data:`FLAT`), and also one that a sliding contact resists only by
+    the tiny stiffness of a node in its friction's smoothing window."""
+    V = rigid_motions(x)
+    HV = H @ V
+    lam, Q = np.linalg.eigh(HV.T @ HV)          # |H V q|^2 over unit q
+    P = x.reshape(-1, 2)
+    size = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
+    R = V @ Q
+    for r, stiffness in zip(R.T, np.sqrt(np.maximum(lam, 0.0))):
+        push = abs(float(r @ g))
+        if push > BALANCED * max(force_scale, 1e-300) and stiffness * size < push:
+            name = describe(r[:, None], x)[0]
             return (f"no equilibrium: nothing holds the body against a net force along a free "
                     f"{name} (it slides or falls)")
     return None

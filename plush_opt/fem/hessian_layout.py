@@ -147,6 +147,7 @@ class HessianLayout:
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ucols, minlength=n))]).astype(np.int32)
         self.indices = urows.astype(np.int32)
         self.nnz = len(unique_keys)
+        self._keys = unique_keys               # col * n + row of each slot, ascending
         parts = np.split(slot, np.cumsum(sizes)[:-1])
         self._slot_elem, self._slot_pin = parts[0], parts[1]
         self._slot = {name: parts[2 + i] for i, (name, _, _) in enumerate(kinds)}
@@ -237,8 +238,9 @@ class HessianLayout:
         each tendon's l' on its local dofs (n_tendons, local) and U''; with
         via segments (:class:`ViaSegments`) each one's Hessian in its ends'
         via point coordinates (count, 4, 4); with contact, its pairs'
-        Hessian and with contact friction its (sparse matrices on node dofs
-        whose pattern follows the pairs in contact), added last.
+        Hessian and with contact friction its (COO entries on node dofs,
+        ``row``, ``col``, ``data``, whose pattern follows the pairs in
+        contact), added last.
         A CSC matrix, or a LowRankHessian."""
         data = np.bincount(self._slot_elem, weights=elem_hess, minlength=self.nnz)
         data += np.bincount(self._slot_pin, weights=np.full(len(self._slot_pin), pin_stiffness),
@@ -260,16 +262,33 @@ class HessianLayout:
                 data += self._spread @ np.concatenate(rest)
         if via_hess is not None:
             data += self._via_expand @ (2 * via_hess if self.via.split else via_hess).ravel()
-        H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+        outside = []
         for extra in (contact_hess, friction_hess):
             if extra is not None and extra.nnz:
-                H = (H + extra.tocsc()).tocsc()
-                H.sort_indices()
+                # into the pattern's slots where it has them (a floor's node
+                # blocks, pairs of mesh neighbours): the pattern stays fixed
+                extra = extra if hasattr(extra, "row") else extra.tocoo()
+                slot = self.slots(extra.row, extra.col)
+                if np.all(slot >= 0):
+                    np.add.at(data, slot, extra.data)
+                else:
+                    outside.append(extra)
+        H = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+        for extra in outside:
+            H = (H + sp.csc_matrix((extra.data, (extra.row, extra.col)), shape=H.shape)).tocsc()
+            H.sort_indices()
         Q, M = self._low_rank_term(K, length_grad, dtension) if self.low_rank else (None, None)
         if via_hess is not None and self.via.split:
             Qv, Mv = self._via_pairs, pair_blocks(via_hess[:, :2, :2])
             Q, M = (Qv, Mv) if Q is None else (sp.vstack([Q, Qv], format="csr"), sla.block_diag(M, Mv))
         return H if Q is None else LowRankHessian(H, Q, M)
+
+    def slots(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Where the entries (rows, cols) sit in the pattern's data, -1
+        where the pattern has none."""
+        key = np.asarray(cols, dtype=np.int64) * self.n + np.asarray(rows, dtype=np.int64)
+        pos = np.minimum(np.searchsorted(self._keys, key), self.nnz - 1)
+        return np.where(self._keys[pos] == key, pos, -1)
 
     def _low_rank_term(self, K, length_grad, dtension) -> tuple[sp.csr_matrix, np.ndarray]:
         """Q and M of the terms kept apart: minus each segment's

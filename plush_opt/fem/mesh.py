@@ -276,7 +276,7 @@ def refine_uniformly(X: np.ndarray, tris: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False,
-               refinements: int = 0) -> Mesh:
+               refinements: int = 0, announce: bool = True) -> Mesh:
     """Mesh a scene.
 
     Parameters
@@ -294,6 +294,9 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
         Split every triangle into four this many times after meshing
         (:func:`refine_uniformly`): the accuracy sweep's nested levels.
         Outline scenes only.
+    announce : bool
+        Log a line for a mesh estimated above the large-mesh size
+        (io/plausibility.py); False for a trial mesh a search discards.
 
     Returns
     -------
@@ -321,7 +324,7 @@ def build_mesh(scene: Scene, max_area: float | None = None, graded: bool = False
             raise SceneError(f"{src}: max_area: must be a finite number > 0, got {max_area!r}")
         if max_area is not None:
             _refuse_large(scene, max_area / 4.0 ** refinements, tol)
-            note = large_mesh_note(scene, max_area, refinements)
+            note = large_mesh_note(scene, max_area, refinements) if announce else None
             if note is not None:                  # minutes of work ahead: say what is being built
                 log.warning("%s: %s", src, note)
         if graded and max_area is None:
@@ -440,7 +443,7 @@ def area_for_nodes(scene: Scene, target_nodes: int, *, graded: bool = False, rel
     area = body / (2.0 * target_nodes)  # a triangulation has about twice as many elements
     best = None
     for _ in range(max_iter):
-        mesh = build_mesh(scene, max_area=area, graded=graded)
+        mesh = build_mesh(scene, max_area=area, graded=graded, announce=False)   # (a trial: quiet)
         n = mesh.n_nodes
         if best is None or abs(n - target_nodes) < abs(best[1].n_nodes - target_nodes):
             best = (area, mesh)
@@ -457,4 +460,7 @@ def area_for_nodes(scene: Scene, target_nodes: int, *, graded: bool = False, rel
         if guess == area:
             break
         area = guess
+    note = large_mesh_note(scene, best[0])
+    if note is not None:                          # the mesh kept, announced as build_mesh does
+        log.warning("%s: %s", scene.source, note)
     return best

@@ -63,6 +63,9 @@ class Evaluation:
     ``force_scale`` is the size of the forces in balance (norm of the
     tendon, pin and gravity forces, at least the elastic force of a unit
     strain on one element): residuals are judged relative to it.
+    ``unbalanced`` (a gauged evaluation of a body without pins, order 2):
+    (n_dofs, k) orthonormal rigid motions along which the Hessian is flat
+    but a net force acts (the body falls or slides), or None.
     """
 
     energy: float
@@ -70,6 +73,7 @@ class Evaluation:
     hessian_form: sp.csc_matrix | LowRankHessian | None
     force_scale: float
     admissible: bool
+    unbalanced: np.ndarray | None = None
 
     @functools.cached_property
     def hessian(self) -> sp.csc_matrix | None:
@@ -111,13 +115,16 @@ def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order:
 
 def gauged(ev: Evaluation, x: np.ndarray) -> Evaluation:
     """``ev`` (order 2, of a body without pins) with the gauge of
-    :mod:`~plush_opt.fem.free_motion` on the rigid motions it leaves free."""
+    :mod:`~plush_opt.fem.free_motion` on the rigid motions it leaves free,
+    and the flat ones with a net force along them (``unbalanced``)."""
     if ev.hessian_form is None:
         return ev
-    R = free_motion.free_motions(ev.hessian, x, ev.gradient, ev.force_scale)
-    if R.shape[1] == 0:
+    diagonal = ev.hessian.diagonal()
+    R, U = free_motion.split_motions(ev.hessian, x, ev.gradient, ev.force_scale, diagonal)
+    if R.shape[1] == 0 and U.shape[1] == 0:
         return ev
-    return Evaluation(ev.energy, ev.gradient, free_motion.gauge(ev.hessian, R), ev.force_scale, True)
+    H = free_motion.gauge(ev.hessian, R, diagonal) if R.shape[1] else ev.hessian_form
+    return Evaluation(ev.energy, ev.gradient, H, ev.force_scale, True, U if U.shape[1] else None)
 
 
 def free_motions_at(ev: Evaluation, x: np.ndarray) -> list[str]:

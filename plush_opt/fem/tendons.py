@@ -39,6 +39,7 @@ class TendonTerm(Term):
     """
 
     name = "tendons"
+    translation_invariant = True           # (lengths between points on the body)
 
     def __init__(self, scene: Scene, mesh: Mesh, X: np.ndarray):
         self.count = len(scene.tendons)

@@ -87,10 +87,15 @@ class Term:
 
     ``linear`` : True for a term linear in x (no Hessian contribution);
     the CasADi expression adds such terms after the others.
+    ``translation_invariant`` : True for a term whose energy a rigid
+    translation of the whole body leaves unchanged (the elastic energy,
+    the tendons): a body's fall (plush_opt/solve/free_fall.py) evaluates
+    only the others along it.
     """
 
     name = "term"
     linear = False
+    translation_invariant = False
 
     def admissible(self, x: np.ndarray) -> bool:
         """Whether the term is defined at the finite flat pose ``x``."""
@@ -140,6 +145,7 @@ class ElasticTerm(Term):
     """
 
     name = "elastic"
+    translation_invariant = True
 
     def __init__(self, scene: Scene, mesh: Mesh):
         mat = scene.material

@@ -32,6 +32,7 @@ from ..base.errors import SolverError
 from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
+from .free_fall import free_fall
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
 
@@ -208,7 +209,9 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
     """Kept-factor steps from the start with the caller's ``chord`` factor
     (a positive definite one of this model): (pose, evaluation, where they
-    began or None)."""
+    began or None). A body nothing holds yet is first moved onto what will
+    (:func:`~plush_opt.solve.free_fall.free_fall`)."""
+    x, ev = free_fall(model, c, x, ev)
     if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
         return x, ev, None
     xs, es, steps = _chord_steps(model, c, x, ev, chord, options)
