@@ -62,6 +62,15 @@ CHORD_DEPTH = 1e-3
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
+# A full Newton step that fails the energy test is still taken, one at a
+# time, as a tentative step (the watchdog of nonmonotone line searches):
+# where a stiff tendon pulls a soft body the energy's valley is so curved
+# that a full step climbs its wall, yet the step after it lands far below
+# the start. That next step must end at least the full step's Armijo
+# decrease below the start, else the solve goes back to the start and
+# backtracks as usual, and takes no more tentative steps. This many may
+# fail before they stop: one failure says the steps are not converging.
+TENTATIVE_FAILURES = 1
 
 
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -140,31 +149,37 @@ def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
             and min(history[-w:]) > options.stall_gain * min(history[:-w]))
 
 
-def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions):
+def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions,
+                 tentative: bool = False, first: int = 0):
     """Backtracking from the full step ``dx``: the accepted (x, evaluation
-    with its Hessian) and the step length, or (None, 0.0). A step is never
-    accepted at a non-admissible pose or a non-finite energy, and never
-    starts beyond the fraction of ``dx`` the model allows (contact: the
-    first time of impact)."""
+    with its Hessian), the step length and whether the step is tentative,
+    or (None, 0.0, False). A step is never accepted at a non-admissible
+    pose or a non-finite energy, and never starts beyond the fraction of
+    ``dx`` the model allows (contact: the first time of impact). With
+    ``tentative``, a whole admissible step that fails the energy test is
+    returned as tentative (``TENTATIVE_FAILURES``). ``first``: the
+    backtracking cuts already made (after a tentative step went back)."""
     g = ev.gradient
     slope = float(g @ dx)
     slack = _energy_slack(model, ev.energy, x)
-    alpha = model.max_step(x, dx)
-    for k in range(options.max_backtracks):
+    alpha = model.max_step(x, dx) * options.backtrack ** first
+    for k in range(first, options.max_backtracks):
         xt = x + alpha * dx
         et = model.evaluate(xt, c, order=2 if k == 0 else 0)
         if not (et.admissible and np.isfinite(et.energy)):
             alpha *= options.backtrack
             continue
         if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
-            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha
+            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha, False
         if k == 0 and et.energy <= ev.energy + ROUNDOFF_BAND * slack and \
                 np.linalg.norm(et.gradient) < ROUNDOFF_RESIDUAL_CUT * np.linalg.norm(g):
             # energy differences at round-off level: judge the full
             # Newton step by the residual it leaves instead
-            return (xt, et), alpha
+            return (xt, et), alpha, False
+        if k == 0 and tentative and alpha == 1.0:
+            return (xt, et), alpha, True
         alpha *= options.backtrack
-    return None, 0.0
+    return None, 0.0, False
 
 
 def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
@@ -248,6 +263,16 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
+def _go_back(model: Model, c, watch, options: EquilibriumOptions):
+    """Back to the start of a tentative step (``watch``: its pose,
+    evaluation, step and the energy the next step had to reach): the
+    line search there without the whole step; (accepted, step length)."""
+    x, ev, dx, _ = watch
+    log.debug("newton: the tentative step did not pay off; backtracking from its start")
+    accepted, alpha, _ = _line_search(model, c, x, ev, dx, options, first=1)
+    return accepted, alpha
+
+
 #: the status of a solve asked to start at a pose no term admits
 NOT_ADMISSIBLE = "initial pose not admissible (some element has J <= 0)"
 
@@ -279,11 +304,20 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
+    watch, failures = None, 0     # a tentative step's start (_go_back), tentative steps gone back
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
         if factor is None and undo is not None:    # kept-factor steps led there: undone
             (x, ev), undo, keep = undo, None, False
+            continue
+        if factor is None and watch is not None:   # a tentative step led there: back, backtrack
+            accepted, _ = _go_back(model, c, watch, options)
+            watch, failures = None, failures + 1
+            if accepted is None:
+                status = "line search failed: no admissible step decreases the energy"
+                break
+            x, ev = accepted
             continue
         small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
@@ -331,8 +365,20 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             status = _left_branch(it)
             break
         it += 1
-        accepted, alpha = _line_search(model, c, x, ev, -step_factor.solve(g), options)
-        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e", it, rel, step_factor.shift, alpha)
+        dx = -step_factor.solve(g)
+        accepted, alpha, tentative = _line_search(
+            model, c, x, ev, dx, options, watch is None and factor is not None and failures < TENTATIVE_FAILURES)
+        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, rel, step_factor.shift, alpha,
+                  " (tentative)" if tentative else "")
+        if tentative:
+            watch = (x, ev, dx, ev.energy + options.armijo * float(g @ dx) + _energy_slack(model, ev.energy, x))
+            (x, ev), undo = accepted, None
+            continue
+        if watch is not None:                      # the step after a tentative one
+            if accepted is None or accepted[1].energy > watch[3]:
+                (_, ev0, _, _), failures = watch, failures + 1
+                (accepted, alpha), g, factor = _go_back(model, c, watch, options), ev0.gradient, None
+            watch = None
         if accepted is None:
             status = "line search failed: no admissible step decreases the energy"
             break
