@@ -81,7 +81,7 @@ LOW_RANK_DROP = 1e-14
 # A Woodbury solve is refined once by the residual it leaves when that is
 # above this fraction of the right-hand side (the update loses digits when
 # the sparse part is much softer than the whole: a stiff tendon on a soft body).
-REFINE_ABOVE = 1e-12
+REFINE_ABOVE = 1e-10
 # The Woodbury set-up by forward substitution of the sparse low-rank factor
 # alone (CHOLMOD); False forms Y = A^-1 G with k full solves, as with QDLDL
 # (the reference path: tools/bench_newton.py times the two).
@@ -354,8 +354,8 @@ class _WoodburySolve:
     x = A^-1 b - Y T^-1 Y^T b.
 
     With a CHOLMOD body factor (:class:`_CholmodHalves`) the set-up is k
-    forward substitutions of the sparse G alone, Z = L^-1 P G |D|^1/2 and
-    T = sign(D) + Z^T D_A^-1 Z, and a solve is one forward and one
+    forward substitutions of G alone, Z = L^-1 P G |D|^1/2 (kept on its
+    nonzero rows) and T = sign(D) + Z^T D_A^-1 Z, and a solve is one forward and one
     backward substitution: x = P^T L^-T D_A^-1 (y - Z T^-1 Z^T D_A^-1 y),
     y = L^-1 P b (the cost of one plain solve). Otherwise Y is formed
     (k solves).
@@ -376,11 +376,15 @@ class _WoodburySolve:
         scale = np.sqrt(np.abs(D))
         n = H.shape[0]
         if self._halves is not None:
-            G = (H.QT @ sp.csr_matrix(V * scale)).tocsc() if D.size else sp.csc_matrix((n, 0))
-            self._Z = sp.csc_matrix(self._halves.forward(G)) if D.size else sp.csc_matrix((n, 0))
-            W = sp.diags(self._halves.dinv) @ self._Z
-            T = np.diag(np.sign(D)) + (self._Z.T @ W).toarray()
-            self._WT = W.T.tocsr()
+            # Z is forward-substituted dense (CHOLMOD's dense solve beats its
+            # sparse one on these k columns), then kept on its nonzero rows
+            # alone (the paths of G's rows up the elimination tree)
+            G = (H.QT @ (V * scale)) if D.size else np.zeros((n, 0))
+            Z = self._halves.forward(np.asarray(G)) if D.size else G
+            self._rows = np.flatnonzero(np.any(Z != 0.0, axis=1))
+            self._Z = np.ascontiguousarray(Z[self._rows])
+            self._WT = (self._halves.dinv[self._rows, None] * self._Z).T.copy()
+            T = np.diag(np.sign(D)) + self._Z.T @ self._WT.T
         else:
             G = np.asarray(H.QT @ V) * scale if D.size else np.zeros((n, 0))
             self._Y = body.solve(G).reshape(n, -1)
@@ -399,7 +403,8 @@ class _WoodburySolve:
     def _once(self, b: np.ndarray) -> np.ndarray:
         if self._halves is not None:
             y = self._halves.forward(b)
-            return self._halves.backward(y - self._Z @ self._inner(self._WT @ y))
+            y[self._rows] -= self._Z @ self._inner(self._WT @ y[self._rows])
+            return self._halves.backward(y)
         u = self._body.solve(b)
         return u - self._Y @ self._inner(self._Y.T @ b)
 
