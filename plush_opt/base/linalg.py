@@ -68,6 +68,11 @@ SUPERNODAL_MIN_DOFS = 25_000
 # supernodal wins by far (docs/benchmarks.md, "Finite attachments and the
 # factor"). A plain P2 mesh has about 30 entries per unknown.
 SUPERNODAL_MIN_DENSITY = 150
+# The supernodal factor's fill-reducing ordering: METIS's nested dissection
+# leaves less fill than AMD on these 2D meshes and factors about a sixth
+# faster at 30,000 nodes (docs/benchmarks.md); AMD where CHOLMOD was built
+# without METIS, and for the simplicial factor (no faster there).
+SUPERNODAL_ORDERING = "metis"
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 
@@ -110,8 +115,9 @@ def _checked_backend(name: str) -> str:
 class Factorizer:
     """LDL^T factorisations of matrices sharing one sparsity pattern.
 
-    The fill-reducing ordering (AMD) and symbolic analysis are computed on
-    the first call and reused for every later matrix with the same pattern.
+    The fill-reducing ordering (AMD; METIS for a supernodal factor) and
+    symbolic analysis are computed on the first call and reused for every
+    later matrix with the same pattern.
     Both backends factor without pivoting. QDLDL is a simplicial LDL^T;
     CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_DOFS`
     unknowns (about twice as fast there as its supernodal LL^T) and a
@@ -156,14 +162,14 @@ class Factorizer:
         return self._factor_qdldl(H, shift)
 
     def _factor_cholmod(self, H, shift) -> "Factor":
-        from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError
         if self._symbolic is None:
             self.mode_used = self.mode
             if self.mode == "auto":
                 dense = H.nnz >= SUPERNODAL_MIN_DENSITY * H.shape[0]
                 big = H.shape[0] >= SUPERNODAL_MIN_DOFS
                 self.mode_used = "supernodal" if big or dense else "simplicial"
-            self._symbolic = analyze(H, mode=self.mode_used, ordering_method="amd")
+            self._symbolic = _analyze(H, self.mode_used)
         try:
             f = self._symbolic.cholesky(H, beta=shift)
         except CholmodNotPositiveDefiniteError as exc:
@@ -223,6 +229,18 @@ class Factorizer:
     def _give_back(self, pattern, solver):
         if pattern == self._pattern:
             self._spare.append(solver)
+
+
+def _analyze(H, mode: str):
+    """CHOLMOD's symbolic analysis of H in ``mode``, ordered by
+    :data:`SUPERNODAL_ORDERING` (supernodal) or AMD."""
+    from sksparse.cholmod import CholmodError, analyze
+    if mode == "supernodal" and SUPERNODAL_ORDERING != "amd":
+        try:
+            return analyze(H, mode=mode, ordering_method=SUPERNODAL_ORDERING)
+        except CholmodError:          # (built without METIS)
+            pass
+    return analyze(H, mode=mode, ordering_method="amd")
 
 
 def _check_pivots(d: np.ndarray):
