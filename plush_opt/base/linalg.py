@@ -357,10 +357,13 @@ def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     k = M.shape[0]
     lam, V = np.zeros(k), np.zeros((k, k))
     if k:
-        n_blocks, label = connected_components(sp.csr_matrix(M != 0), directed=False)
-        for b in range(n_blocks):
-            idx = np.flatnonzero(label == b)
-            lam[idx], V[np.ix_(idx, idx)] = np.linalg.eigh(M[np.ix_(idx, idx)])
+        _, label = connected_components(sp.csr_matrix(M != 0), directed=False)
+        order = np.argsort(label, kind="stable")           # each block's indices, ascending
+        starts = np.flatnonzero(np.r_[True, np.diff(label[order]) != 0])
+        sizes = np.diff(np.r_[starts, k])
+        for size in np.unique(sizes):                      # the blocks of one size in one call
+            idx = order[starts[sizes == size][:, None] + np.arange(size)]     # (blocks, size)
+            lam[idx], V[idx[:, :, None], idx[:, None, :]] = np.linalg.eigh(M[idx[:, :, None], idx[:, None, :]])
     keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
     return lam[keep], V[:, keep]
 
