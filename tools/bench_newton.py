@@ -7,11 +7,13 @@ BLAS thread).
 Variants (module constants switched between runs, nothing else changes):
 
 - ``reference``: the Woodbury set-up with k full solves
-  (``linalg.WOODBURY_HALVES = False``) and no kept-factor steps
-  (``newton.CHORD_STEPS = 0``);
+  (``linalg.WOODBURY_HALVES = False``), no kept-factor steps
+  (``newton.CHORD_STEPS = 0``) and no tentative steps
+  (``newton.TENTATIVE_FAILURES = 0``);
 - ``halves``: the set-up by forward substitution alone;
-- ``now``: that, and Newton's kept-factor (chord) steps, in the forward solve
-  and from the committed equilibrium's factor in each control trial.
+- ``chord``: that, and Newton's kept-factor (chord) steps, in the forward
+  solve and from the committed equilibrium's factor in each control trial;
+- ``now``: that, and Newton's tentative full steps (the shipped code).
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -43,7 +45,8 @@ from plush_opt.solve import newton
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
-VARIANTS = {"reference": (False, 0), "halves": (True, 0), "now": (True, newton.CHORD_STEPS)}
+VARIANTS = {"reference": (False, 0, 0), "halves": (True, 0, 0), "chord": (True, newton.CHORD_STEPS, 0),
+            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)}
 
 
 def _counting(model) -> dict:
@@ -111,7 +114,7 @@ def main(argv=None):
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS)
+    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problem = from_scene(scene, mesh_for_nodes(scene, nodes))
@@ -120,11 +123,11 @@ def main(argv=None):
         runs = {name: [] for name in VARIANTS}
         try:
             for _ in range(args.repeats):
-                for name, (halves, chord) in VARIANTS.items():
-                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS = halves, chord
+                for name, switches in VARIANTS.items():
+                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = switches
                     runs[name].append({**_forward(model, c), **_control(model, problem.targets)})
         finally:
-            linalg.WOODBURY_HALVES, newton.CHORD_STEPS = saved
+            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = saved
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]

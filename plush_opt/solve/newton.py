@@ -6,7 +6,10 @@ line search that never accepts a non-admissible pose (some J <= 0) or a
 non-finite energy, a multiple of the identity added where the Hessian is
 not positive definite, and an escape along the most negative curvature
 direction at a saddle and off a symmetric branch. Its tuning is
-:class:`~plush_opt.solve.certificate.EquilibriumOptions`.
+:class:`~plush_opt.solve.certificate.EquilibriumOptions`. A full step that
+raises the energy may be taken tentatively, one at a time (a watchdog): it
+stands only if the step after it ends below where it started, else the
+solve goes back there and backtracks (``TENTATIVE_FAILURES``).
 
 A factorisation is kept where it still serves (a chord step, no new
 factorisation): after a full Newton step that cut the residual by
