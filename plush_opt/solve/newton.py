@@ -144,6 +144,12 @@ def _left_branch(it: int) -> str:
     return f"{LEFT_BRANCH}: Hessian not positive definite after {it} iteration(s)"
 
 
+def _stalled_status(history: list[float], options: EquilibriumOptions) -> str:
+    return (f"residual stalled at {min(history):.1e} of the force scale, above gtol "
+            f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
+            "ill-conditioned Hessian)")
+
+
 def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
     """No progress over the last ``stall_window`` relative residuals of
     ``history`` near the tolerance (see :class:`EquilibriumOptions`)."""
@@ -266,14 +272,63 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
-def _go_back(model: Model, c, watch, options: EquilibriumOptions):
-    """Back to the start of a tentative step (``watch``: its pose,
-    evaluation, step and the energy the next step had to reach): the
-    line search there without the whole step; (accepted, step length)."""
-    x, ev, dx, _ = watch
-    log.debug("newton: the tentative step did not pay off; backtracking from its start")
-    accepted, alpha, _ = _line_search(model, c, x, ev, dx, options, first=1)
-    return accepted, alpha
+class _Watchdog:
+    """Newton's tentative full steps (``TENTATIVE_FAILURES``): where the one
+    under watch started (its pose, evaluation, step and the energy the step
+    after it must reach), and how many were undone."""
+
+    def __init__(self):
+        self.start, self.failures = None, 0
+
+    def allows(self, factor: Factor | None) -> bool:
+        """Whether the next (unregularised) step may be tentative."""
+        return self.start is None and factor is not None and self.failures < TENTATIVE_FAILURES
+
+    def watch(self, model: Model, x, ev: Evaluation, dx, options: EquilibriumOptions) -> None:
+        """Watch the tentative step ``dx`` from (``x``, ``ev``): the step
+        after it must end the whole step's Armijo decrease below ``ev``."""
+        slope = float(ev.gradient @ dx)
+        self.start = (x, ev, dx, ev.energy + options.armijo * slope + _energy_slack(model, ev.energy, x))
+
+    def judge(self, model: Model, c, accepted, alpha: float, options: EquilibriumOptions):
+        """The step after a tentative one (``accepted``, None where it failed
+        or met an indefinite Hessian) stands if it ends below the watched
+        start's mark; else back to that start and its line search without
+        the whole step. (accepted, step length); as given with nothing under
+        watch."""
+        start, self.start = self.start, None
+        if start is None or (accepted is not None and accepted[1].energy <= start[3]):
+            return accepted, alpha
+        self.failures += 1
+        log.debug("newton: the tentative step did not pay off; backtracking from its start")
+        accepted, alpha, _ = _line_search(model, c, start[0], start[1], start[2], options, first=1)
+        return accepted, alpha
+
+
+def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Factor | None, dog: _Watchdog,
+          keep: bool, options: EquilibriumOptions, it: int):
+    """One Newton step from (``x``, ``ev``) with ``step_factor`` (``factor``:
+    H's own, or None where it was regularised): the line search, a
+    tentative step or the judging of the one before (``dog``), then the
+    kept-factor steps (``keep``: allowed). (pose, evaluation, the pose to
+    go back to if kept-factor steps were taken) or None (line search failed)."""
+    g = ev.gradient
+    dx = -step_factor.solve(g)
+    accepted, alpha, tentative = _line_search(model, c, x, ev, dx, options, dog.allows(factor))
+    log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, np.linalg.norm(g) / ev.force_scale,
+              step_factor.shift, alpha, " (tentative)" if tentative else "")
+    if tentative:
+        dog.watch(model, x, ev, dx, options)
+        return accepted[0], accepted[1], None
+    accepted, alpha = dog.judge(model, c, accepted, alpha, options)
+    if accepted is None:
+        return None
+    x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
+    return x, ev, (accepted if kept else None)
+
+
+#: the status of a solve whose line search found no admissible step that lowers the energy
+LINE_SEARCH_FAILED = "line search failed: no admissible step decreases the energy"
 
 
 #: the status of a solve asked to start at a pose no term admits
@@ -307,18 +362,17 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
-    watch, failures = None, 0     # a tentative step's start (_go_back), tentative steps gone back
+    dog = _Watchdog()             # tentative full steps
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
         if factor is None and undo is not None:    # kept-factor steps led there: undone
             (x, ev), undo, keep = undo, None, False
             continue
-        if factor is None and watch is not None:   # a tentative step led there: back, backtrack
-            accepted, _ = _go_back(model, c, watch, options)
-            watch, failures = None, failures + 1
+        if factor is None and dog.start is not None:   # a tentative step led there: back, backtrack
+            accepted, _ = dog.judge(model, c, None, 0.0, options)
             if accepted is None:
-                status = "line search failed: no admissible step decreases the energy"
+                status = LINE_SEARCH_FAILED
                 break
             x, ev = accepted
             continue
@@ -341,22 +395,16 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             break
         if it >= options.max_iterations:
             break
-        rel = np.linalg.norm(g) / ev.force_scale
-        best.append(rel)
+        best.append(np.linalg.norm(g) / ev.force_scale)
         if factor is not None and _stalled(best, options):
             # round-off (a sliver element, an ill-conditioned H) sets a floor above gtol
-            status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
-                      f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
-                      "ill-conditioned Hessian)")
+            status = _stalled_status(best, options)
             break
         if factor is None and not options.regularise and not options.escape_saddles:
             status = _left_branch(it)      # (no symmetric-branch check to make first)
             break
-        if factor is None:
-            step_factor = _regularised_factor(model, H, options, last_shift)
-            last_shift = step_factor.shift
-        else:
-            step_factor = factor
+        step_factor = factor if factor is not None else _regularised_factor(model, H, options, last_shift)
+        last_shift = last_shift if factor is not None else step_factor.shift
         if factor is None and watch_symmetry and options.escape_saddles and escapes < options.max_escapes:
             escaped, watch_symmetry = _off_symmetric_branch(model, c, x, ev, step_factor, options)
             if escaped is not None:
@@ -368,24 +416,10 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             status = _left_branch(it)
             break
         it += 1
-        dx = -step_factor.solve(g)
-        accepted, alpha, tentative = _line_search(
-            model, c, x, ev, dx, options, watch is None and factor is not None and failures < TENTATIVE_FAILURES)
-        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, rel, step_factor.shift, alpha,
-                  " (tentative)" if tentative else "")
-        if tentative:
-            watch = (x, ev, dx, ev.energy + options.armijo * float(g @ dx) + _energy_slack(model, ev.energy, x))
-            (x, ev), undo = accepted, None
-            continue
-        if watch is not None:                      # the step after a tentative one
-            if accepted is None or accepted[1].energy > watch[3]:
-                (_, ev0, _, _), failures = watch, failures + 1
-                (accepted, alpha), g, factor = _go_back(model, c, watch, options), ev0.gradient, None
-            watch = None
-        if accepted is None:
-            status = "line search failed: no admissible step decreases the energy"
+        stepped = _step(model, c, x, ev, step_factor, factor, dog, keep, options, it)
+        if stepped is None:
+            status = LINE_SEARCH_FAILED
             break
-        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
-        undo = accepted if kept else None
+        x, ev, undo = stepped
     return certified(model, c, x, ev, factor, converged, _why_not(model, c, x, converged, status), it, t0,
                      options, "newton", escapes)
