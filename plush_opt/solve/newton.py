@@ -145,6 +145,7 @@ def _left_branch(it: int) -> str:
 
 
 def _stalled_status(history: list[float], options: EquilibriumOptions) -> str:
+    """The status of a solve stopped by :func:`_stalled`."""
     return (f"residual stalled at {min(history):.1e} of the force scale, above gtol "
             f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
             "ill-conditioned Hessian)")
