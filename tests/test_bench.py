@@ -22,6 +22,8 @@ def test_bench_writes_markdown_and_json(tmp_path):
     row = report["rows"][0]
     assert row["problem"] == "hexapod_leg" and 100 <= row["nodes"] <= 200
     assert row["forward_certified"] and row["resolve_certified"] and row["inverse_reparam_certified"]
+    # each control iterate is a certified pose: at least its own factorisation
+    assert row["control_factorisations"] >= 1 and row["control_factor_ratio"] >= 1
     assert report["machine"]["cores"] >= 1
     md = (tmp_path / "bench.md").read_text()
     assert "| hexapod_leg |" in md and "Inverse control" in md

@@ -7,11 +7,13 @@ BLAS thread).
 Variants (module constants switched between runs, nothing else changes):
 
 - ``reference``: the Woodbury set-up with k full solves
-  (``linalg.WOODBURY_HALVES = False``) and no kept-factor steps
-  (``newton.CHORD_STEPS = 0``);
+  (``linalg.WOODBURY_HALVES = False``), no kept-factor steps
+  (``newton.CHORD_STEPS = 0``) and no tentative steps
+  (``newton.TENTATIVE_FAILURES = 0``);
 - ``halves``: the set-up by forward substitution alone;
-- ``now``: that, and Newton's kept-factor (chord) steps, in the forward solve
-  and from the committed equilibrium's factor in each control trial.
+- ``chord``: that, and Newton's kept-factor (chord) steps, in the forward
+  solve and from the committed equilibrium's factor in each control trial;
+- ``now``: that, and Newton's tentative full steps (the shipped code).
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -24,6 +26,13 @@ Markdown table.
 instead builds the model and solves once from rest in this process (the
 shipped code, nothing switched) and prints the process's peak resident
 memory.
+
+    python tools/bench_newton.py --parts --nodes 10000 30000
+
+instead profiles the shipped code (cProfile on CPU time) and prints where
+the time goes: of a forward solve from rest, and of a reparam control run's
+iterates after the starting solve (the control run only up to
+``--inverse-max-nodes`` nodes).
 """
 
 from __future__ import annotations
@@ -43,7 +52,8 @@ from plush_opt.solve import newton
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
-VARIANTS = {"reference": (False, 0), "halves": (True, 0), "now": (True, newton.CHORD_STEPS)}
+VARIANTS = {"reference": (False, 0, 0), "halves": (True, 0, 0), "chord": (True, newton.CHORD_STEPS, 0),
+            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)}
 
 
 def _counting(model) -> dict:
@@ -98,6 +108,63 @@ def _peak_memory(name: str, nodes: int) -> None:
           f"{out['iterations']} iterations, {out['factorisations']} factorisations; peak memory {peak:.0f} MB")
 
 
+def _part_functions() -> list[tuple[str, object, str]]:
+    """(label, function, which time) of the parts :func:`_parts_of` reports."""
+    from plush_opt.fem.model import Model
+    from plush_opt.solve import branch, sensitivity
+    return [("CHOLMOD numeric factorisation", linalg.Factorizer._factor_cholmod, "own"),
+            ("low-rank set-up (Woodbury)", linalg._WoodburySolve.__init__, "all"),
+            ("model evaluations", Model.evaluate, "all"),
+            ("solves with a factor", linalg.Factor.solve, "all"),
+            ("end-of-branch check (its solves too)", branch._at_the_end, "all"),
+            ("sensitivities (their solves too)", sensitivity.state_sensitivity, "all")]
+
+
+def _parts_of(run) -> tuple[list[tuple[str, float]], object]:
+    """CPU seconds of ``run()`` whole and by part (cProfile on CPU time;
+    each part a function with what it calls, or a function's own time),
+    and what ``run`` returned."""
+    import cProfile
+    import pstats
+    prof = cProfile.Profile(time.process_time)
+    t = time.process_time()
+    out = prof.runcall(run)
+    whole = time.process_time() - t
+    stats = pstats.Stats(prof).stats
+    parts = [("whole (profiled)", whole)]
+    for label, fn, which in _part_functions():
+        code = fn.__code__
+        key = (code.co_filename, code.co_firstlineno, code.co_name)
+        _, _, own, cumulative, _ = stats.get(key, (0, 0, 0.0, 0.0, {}))
+        parts.append((label, own if which == "own" else cumulative))
+    return parts, out
+
+
+def _parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
+    """Where the time goes (:func:`_parts_of`): a forward solve from rest
+    and, up to ``inverse_max_nodes`` nodes, a reparam control run's iterates
+    after its starting solve; a Markdown table."""
+    print("| nodes | run | part | CPU [s] | share |")
+    print("|---|---|---|---|---|")
+    options = EquilibriumOptions(eigenvalue=False)
+    for nodes in nodes_list:
+        scene = load_scene(ROOT / "problems" / f"{problem}.yaml").replace(element="P1")
+        prob = from_scene(scene, mesh_for_nodes(scene, nodes))
+        model = prob.model
+        c = model.scene.contraction if problem != "gripper" else np.full(model.n_winches, 10.0)
+        solve_equilibrium(model, c, options=options)            # the symbolic analysis, once
+        runs = [("forward from rest", lambda: solve_equilibrium(model, c, options=options).iterations)]
+        if model.n_nodes <= inverse_max_nodes:
+            steps = Controller(model, prob.targets).iterates()
+            next(steps)                                         # the starting solve, not profiled
+            runs.append(("control iterates", lambda: sum(1 for _ in steps)))
+        for name, run in runs:
+            parts, count = _parts_of(run)
+            name += f" ({count} {'Newton iterations' if name.startswith('forward') else 'iterates'})"
+            for label, t in parts:
+                print(f"| {model.n_nodes} | {name} | {label} | {t:.3f} | {t / parts[0][1]:.0%} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problem", default="gripper")
@@ -105,13 +172,18 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--peak-memory", type=int, metavar="NODES",
                     help="one forward solve at about NODES nodes; print the peak resident memory")
+    ap.add_argument("--parts", action="store_true", help="profile the shipped code: where the time goes")
+    ap.add_argument("--inverse-max-nodes", type=int, default=12000,
+                    help="--parts: the control run only up to this many nodes")
     args = ap.parse_args(argv)
     if args.peak_memory:
         return _peak_memory(args.problem, args.peak_memory)
+    if args.parts:
+        return _parts(args.problem, args.nodes, args.inverse_max_nodes)
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS)
+    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problem = from_scene(scene, mesh_for_nodes(scene, nodes))
@@ -120,11 +192,11 @@ def main(argv=None):
         runs = {name: [] for name in VARIANTS}
         try:
             for _ in range(args.repeats):
-                for name, (halves, chord) in VARIANTS.items():
-                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS = halves, chord
+                for name, switches in VARIANTS.items():
+                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = switches
                     runs[name].append({**_forward(model, c), **_control(model, problem.targets)})
         finally:
-            linalg.WOODBURY_HALVES, newton.CHORD_STEPS = saved
+            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = saved
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]

@@ -139,6 +139,36 @@ def _solve_with_parts(model, c, x0, options, repeats: int) -> tuple[dict, object
     return runs[len(runs) // 2]
 
 
+def _control_cpu(model, targets) -> dict:
+    """A reparam control run's iterates timed in CPU seconds (the starting
+    solve left out), with the factorisations inside them counted and timed:
+    the median iterate, factorisations per iterate, and the iterates' total
+    over the factorisations' (their calls, pivot tests, low-rank set-up)."""
+    from ..control.gradient import Controller
+    fz = model.factorizer
+    plain, parts = fz.factor, {"n": 0, "s": 0.0}
+
+    def factor(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return plain(*args, **kwargs)
+        finally:
+            parts["s"] += time.process_time() - t
+            parts["n"] += 1
+    steps, times = Controller(model, targets).iterates(), []
+    next(steps)                                  # the starting solve
+    fz.factor, t = factor, time.process_time()
+    try:
+        for _ in steps:
+            times.append(time.process_time() - t)
+            t = time.process_time()
+    finally:
+        del fz.factor
+    return {} if not times else {
+        "control_iterate_cpu_s": float(np.median(times)), "control_factorisations": parts["n"] / len(times),
+        "control_factor_ratio": float(np.sum(times)) / parts["s"] if parts["s"] else None}
+
+
 def _factor_times(model, hessian, repeats: int) -> dict:
     """The factorisation the model takes, and CHOLMOD's two modes side by side."""
     row = {"factor_mode": None}
@@ -174,7 +204,7 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
         progress(f"{label}: model build")
         row.update(_build_times(problem, nodes, mesh.element.name, repeats))
     problem = from_scene(scene, mesh)
-    model, targets = problem.model, problem.targets
+    model = problem.model
     row["friction"] = problem.plant.path_dependent      # the pose depends on the path (marked *)
     c = _default_contraction(model, name)
     row["contraction"] = c.tolist()
@@ -210,27 +240,37 @@ def bench_one(problem: Path, size, repeats: int, progress, element: str = "P1",
     cold = solve_equilibrium(model, c + dc, fwd.x, NO_EIG)
     row["resolve_without_predictor_iterations"] = cold.iterations
 
-    if targets.n_targets and inverse_max_nodes is not None and mesh.n_nodes > inverse_max_nodes:
-        row["inverse_skipped"] = f"above --inverse-max-nodes {inverse_max_nodes}"
+    row.update(_bench_inverse(problem, mesh.n_nodes, repeats, progress, label, inverse_max_nodes))
+    return row
+
+
+def _bench_inverse(problem, nodes: int, repeats: int, progress, label: str, inverse_max_nodes) -> dict:
+    """The inverse solves of ``problem`` (a Problem on ``nodes`` nodes): the gradient loop with each
+    bounds method, the control iterate (wall, CPU), the bilevel method; none above ``inverse_max_nodes``."""
+    model, targets, out = problem.model, problem.targets, {}
+    if targets.n_targets and inverse_max_nodes is not None and nodes > inverse_max_nodes:
+        out["inverse_skipped"] = f"above --inverse-max-nodes {inverse_max_nodes}"
     elif targets.n_targets:
         for method in ("reparam", "clip"):
             progress(f"{label}: inverse solve ({method})")
             t_run, res = median_time(lambda: run_control(model, targets, method), max(1, repeats // 2))
             steps = np.diff([h.t_wall for h in res.history])
-            row[f"inverse_{method}_s"] = t_run
-            row[f"inverse_{method}_iterates"] = res.stats.iterations
-            row[f"inverse_{method}_objective"] = res.objective
-            row[f"inverse_{method}_status"] = res.status
-            row[f"inverse_{method}_newton_iterations"] = res.stats.newton_iterations
-            row[f"inverse_{method}_certified"] = all(_certified(h.equilibrium) for h in res.history)
+            out[f"inverse_{method}_s"] = t_run
+            out[f"inverse_{method}_iterates"] = res.stats.iterations
+            out[f"inverse_{method}_objective"] = res.objective
+            out[f"inverse_{method}_status"] = res.status
+            out[f"inverse_{method}_newton_iterations"] = res.stats.newton_iterations
+            out[f"inverse_{method}_certified"] = all(_certified(h.equilibrium) for h in res.history)
             if method == "reparam":
-                row["control_iterate_s"] = float(np.median(steps)) if steps.size else None
-                row["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
+                out["control_iterate_s"] = float(np.median(steps)) if steps.size else None
+                out["control_iterate_max_s"] = float(np.max(steps)) if steps.size else None
+                if not problem.plant.path_dependent:
+                    out.update(_control_cpu(model, targets))
         if problem.plant.path_dependent:
-            row["inverse_bilevel_skipped"] = "the bilevel method solves for the final pose alone; this pose depends on its path"
+            out["inverse_bilevel_skipped"] = "the bilevel method solves for the final pose alone; this pose depends on its path"
         else:
-            row.update(_bench_bilevel(model, targets, repeats, progress, label))
-    return row
+            out.update(_bench_bilevel(model, targets, repeats, progress, label))
+    return out
 
 
 def _bench_bilevel(model, targets, repeats, progress, label) -> dict:
@@ -315,6 +355,32 @@ def _status_lines(rows) -> list[str]:
     return lines
 
 
+def _inverse_lines(rows) -> list[str]:
+    """The inverse-control table: the control iterate and each method's run."""
+    lines = ["", "## Inverse control", "",
+             "Control iterate: wall time median (max) within the reparam run; CPU: the median iterate "
+             "of another reparam run in CPU time, its factorisations per iterate and its iterates' "
+             "total over their factorisations' (timed inside the same run).", "",
+             "| problem | element | nodes | control iterate [ms] median (max) | control iterate CPU [ms] "
+             "(factorisations per iterate; iterates / factorisations) | reparam: time [s], iterates, O | "
+             "clip: time [s], iterates, O | bilevel: time [s], iterations, O | all iterates certified |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        if "inverse_reparam_s" not in r:
+            continue
+        bil = ("not available" if "inverse_bilevel_s" not in r else
+               f"{r['inverse_bilevel_s']:.3f}, {r['inverse_bilevel_iterations']}, "
+               f"{r['inverse_bilevel_objective']:.4g}")
+        lines.append(
+            f"| {r['problem']} | {_element(r)} | {r['nodes']} | {_ms(r['control_iterate_s'])} ({_ms(r['control_iterate_max_s'])}) | "
+            f"{_ms(r.get('control_iterate_cpu_s'))} ({_s(r.get('control_factorisations'), 2)}; "
+            f"{_s(r.get('control_factor_ratio'), 2)}) | "
+            f"{r['inverse_reparam_s']:.3f}, {r['inverse_reparam_iterates']}, {r['inverse_reparam_objective']:.4g} | "
+            f"{r['inverse_clip_s']:.3f}, {r['inverse_clip_iterates']}, {r['inverse_clip_objective']:.4g} | "
+            f"{bil} | {'yes' if _all_certified(r) else 'NO'} |")
+    return lines
+
+
 def render_markdown(report: dict) -> str:
     m = report["machine"]
     lines = [
@@ -357,21 +423,7 @@ def render_markdown(report: dict) -> str:
             f"{_ms(r['resolve_s'])} ({r['resolve_iterations']}; {r['resolve_without_predictor_iterations']}) | "
             f"{'yes' if r['forward_certified'] and r['resolve_certified'] else 'NO'} |")
     lines += _factor_lines(report["rows"])
-    lines += ["", "## Inverse control", "",
-              "| problem | element | nodes | control iterate [ms] median (max) | reparam: time [s], iterates, O | "
-              "clip: time [s], iterates, O | bilevel: time [s], iterations, O | all iterates certified |",
-              "|---|---|---|---|---|---|---|---|"]
-    for r in report["rows"]:
-        if "inverse_reparam_s" not in r:
-            continue
-        bil = ("not available" if "inverse_bilevel_s" not in r else
-               f"{r['inverse_bilevel_s']:.3f}, {r['inverse_bilevel_iterations']}, "
-               f"{r['inverse_bilevel_objective']:.4g}")
-        lines.append(
-            f"| {r['problem']} | {_element(r)} | {r['nodes']} | {_ms(r['control_iterate_s'])} ({_ms(r['control_iterate_max_s'])}) | "
-            f"{r['inverse_reparam_s']:.3f}, {r['inverse_reparam_iterates']}, {r['inverse_reparam_objective']:.4g} | "
-            f"{r['inverse_clip_s']:.3f}, {r['inverse_clip_iterates']}, {r['inverse_clip_objective']:.4g} | "
-            f"{bil} | {'yes' if _all_certified(r) else 'NO'} |")
+    lines += _inverse_lines(report["rows"])
     lines += _status_lines(report["rows"])
     bil = [r for r in report["rows"] if "inverse_bilevel_s" in r]
     if bil:

@@ -68,6 +68,11 @@ SUPERNODAL_MIN_DOFS = 25_000
 # supernodal wins by far (docs/benchmarks.md, "Finite attachments and the
 # factor"). A plain P2 mesh has about 30 entries per unknown.
 SUPERNODAL_MIN_DENSITY = 150
+# The supernodal factor's fill-reducing ordering: METIS's nested dissection
+# leaves less fill than AMD on these 2D meshes and factors about a sixth
+# faster at 30,000 nodes (docs/benchmarks.md); AMD where CHOLMOD was built
+# without METIS, and for the simplicial factor (no faster there).
+SUPERNODAL_ORDERING = "metis"
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 
@@ -81,7 +86,7 @@ LOW_RANK_DROP = 1e-14
 # A Woodbury solve is refined once by the residual it leaves when that is
 # above this fraction of the right-hand side (the update loses digits when
 # the sparse part is much softer than the whole: a stiff tendon on a soft body).
-REFINE_ABOVE = 1e-12
+REFINE_ABOVE = 1e-10
 # The Woodbury set-up by forward substitution of the sparse low-rank factor
 # alone (CHOLMOD); False forms Y = A^-1 G with k full solves, as with QDLDL
 # (the reference path: tools/bench_newton.py times the two).
@@ -110,8 +115,9 @@ def _checked_backend(name: str) -> str:
 class Factorizer:
     """LDL^T factorisations of matrices sharing one sparsity pattern.
 
-    The fill-reducing ordering (AMD) and symbolic analysis are computed on
-    the first call and reused for every later matrix with the same pattern.
+    The fill-reducing ordering (AMD; METIS for a supernodal factor) and
+    symbolic analysis are computed on the first call and reused for every
+    later matrix with the same pattern.
     Both backends factor without pivoting. QDLDL is a simplicial LDL^T;
     CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_DOFS`
     unknowns (about twice as fast there as its supernodal LL^T) and a
@@ -156,14 +162,14 @@ class Factorizer:
         return self._factor_qdldl(H, shift)
 
     def _factor_cholmod(self, H, shift) -> "Factor":
-        from sksparse.cholmod import CholmodNotPositiveDefiniteError, analyze
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError
         if self._symbolic is None:
             self.mode_used = self.mode
             if self.mode == "auto":
                 dense = H.nnz >= SUPERNODAL_MIN_DENSITY * H.shape[0]
                 big = H.shape[0] >= SUPERNODAL_MIN_DOFS
                 self.mode_used = "supernodal" if big or dense else "simplicial"
-            self._symbolic = analyze(H, mode=self.mode_used, ordering_method="amd")
+            self._symbolic = _analyze(H, self.mode_used)
         try:
             f = self._symbolic.cholesky(H, beta=shift)
         except CholmodNotPositiveDefiniteError as exc:
@@ -223,6 +229,18 @@ class Factorizer:
     def _give_back(self, pattern, solver):
         if pattern == self._pattern:
             self._spare.append(solver)
+
+
+def _analyze(H, mode: str):
+    """CHOLMOD's symbolic analysis of H in ``mode``, ordered by
+    :data:`SUPERNODAL_ORDERING` (supernodal) or AMD."""
+    from sksparse.cholmod import CholmodError, analyze
+    if mode == "supernodal" and SUPERNODAL_ORDERING != "amd":
+        try:
+            return analyze(H, mode=mode, ordering_method=SUPERNODAL_ORDERING)
+        except CholmodError:          # (built without METIS)
+            pass
+    return analyze(H, mode=mode, ordering_method="amd")
 
 
 def _check_pivots(d: np.ndarray):
@@ -339,10 +357,13 @@ def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     k = M.shape[0]
     lam, V = np.zeros(k), np.zeros((k, k))
     if k:
-        n_blocks, label = connected_components(sp.csr_matrix(M != 0), directed=False)
-        for b in range(n_blocks):
-            idx = np.flatnonzero(label == b)
-            lam[idx], V[np.ix_(idx, idx)] = np.linalg.eigh(M[np.ix_(idx, idx)])
+        _, label = connected_components(sp.csr_matrix(M != 0), directed=False)
+        order = np.argsort(label, kind="stable")           # each block's indices, ascending
+        starts = np.flatnonzero(np.r_[True, np.diff(label[order]) != 0])
+        sizes = np.diff(np.r_[starts, k])
+        for size in np.unique(sizes):                      # the blocks of one size in one call
+            idx = order[starts[sizes == size][:, None] + np.arange(size)]     # (blocks, size)
+            lam[idx], V[idx[:, :, None], idx[:, None, :]] = np.linalg.eigh(M[idx[:, :, None], idx[:, None, :]])
     keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
     return lam[keep], V[:, keep]
 
@@ -354,8 +375,8 @@ class _WoodburySolve:
     x = A^-1 b - Y T^-1 Y^T b.
 
     With a CHOLMOD body factor (:class:`_CholmodHalves`) the set-up is k
-    forward substitutions of the sparse G alone, Z = L^-1 P G |D|^1/2 and
-    T = sign(D) + Z^T D_A^-1 Z, and a solve is one forward and one
+    forward substitutions of G alone, Z = L^-1 P G |D|^1/2 (kept on its
+    nonzero rows) and T = sign(D) + Z^T D_A^-1 Z, and a solve is one forward and one
     backward substitution: x = P^T L^-T D_A^-1 (y - Z T^-1 Z^T D_A^-1 y),
     y = L^-1 P b (the cost of one plain solve). Otherwise Y is formed
     (k solves).
@@ -376,11 +397,15 @@ class _WoodburySolve:
         scale = np.sqrt(np.abs(D))
         n = H.shape[0]
         if self._halves is not None:
-            G = (H.QT @ sp.csr_matrix(V * scale)).tocsc() if D.size else sp.csc_matrix((n, 0))
-            self._Z = sp.csc_matrix(self._halves.forward(G)) if D.size else sp.csc_matrix((n, 0))
-            W = sp.diags(self._halves.dinv) @ self._Z
-            T = np.diag(np.sign(D)) + (self._Z.T @ W).toarray()
-            self._WT = W.T.tocsr()
+            # Z is forward-substituted dense (CHOLMOD's dense solve beats its
+            # sparse one on these k columns), then kept on its nonzero rows
+            # alone (the paths of G's rows up the elimination tree)
+            G = (H.QT @ (V * scale)) if D.size else np.zeros((n, 0))
+            Z = self._halves.forward(np.asarray(G)) if D.size else G
+            self._rows = np.flatnonzero(np.any(Z != 0.0, axis=1))
+            self._Z = np.ascontiguousarray(Z[self._rows])
+            self._WT = (self._halves.dinv[self._rows, None] * self._Z).T.copy()
+            T = np.diag(np.sign(D)) + self._Z.T @ self._WT.T
         else:
             G = np.asarray(H.QT @ V) * scale if D.size else np.zeros((n, 0))
             self._Y = body.solve(G).reshape(n, -1)
@@ -399,7 +424,8 @@ class _WoodburySolve:
     def _once(self, b: np.ndarray) -> np.ndarray:
         if self._halves is not None:
             y = self._halves.forward(b)
-            return self._halves.backward(y - self._Z @ self._inner(self._WT @ y))
+            y[self._rows] -= self._Z @ self._inner(self._WT @ y[self._rows])
+            return self._halves.backward(y)
         u = self._body.solve(b)
         return u - self._Y @ self._inner(self._Y.T @ b)
 

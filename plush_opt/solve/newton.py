@@ -6,7 +6,10 @@ line search that never accepts a non-admissible pose (some J <= 0) or a
 non-finite energy, a multiple of the identity added where the Hessian is
 not positive definite, and an escape along the most negative curvature
 direction at a saddle and off a symmetric branch. Its tuning is
-:class:`~plush_opt.solve.certificate.EquilibriumOptions`.
+:class:`~plush_opt.solve.certificate.EquilibriumOptions`. A full step that
+raises the energy may be taken tentatively, one at a time (a watchdog): it
+stands only if the step after it ends below where it started, else the
+solve goes back there and backtracks (``TENTATIVE_FAILURES``).
 
 A factorisation is kept where it still serves (a chord step, no new
 factorisation): after a full Newton step that cut the residual by
@@ -63,6 +66,15 @@ CHORD_DEPTH = 1e-3
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
+# A full Newton step that fails the energy test is still taken, one at a
+# time, as a tentative step (the watchdog of nonmonotone line searches):
+# where a stiff tendon pulls a soft body the energy's valley is so curved
+# that a full step climbs its wall, yet the step after it lands far below
+# the start. That next step must end at least the full step's Armijo
+# decrease below the start, else the solve goes back to the start and
+# backtracks as usual, and takes no more tentative steps. This many may
+# fail before they stop: one failure says the steps are not converging.
+TENTATIVE_FAILURES = 1
 
 
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -133,6 +145,13 @@ def _left_branch(it: int) -> str:
     return f"{LEFT_BRANCH}: Hessian not positive definite after {it} iteration(s)"
 
 
+def _stalled_status(history: list[float], options: EquilibriumOptions) -> str:
+    """The status of a solve stopped by :func:`_stalled`."""
+    return (f"residual stalled at {min(history):.1e} of the force scale, above gtol "
+            f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
+            "ill-conditioned Hessian)")
+
+
 def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
     """No progress over the last ``stall_window`` relative residuals of
     ``history`` near the tolerance (see :class:`EquilibriumOptions`)."""
@@ -141,31 +160,37 @@ def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
             and min(history[-w:]) > options.stall_gain * min(history[:-w]))
 
 
-def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions):
+def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions,
+                 tentative: bool = False, first: int = 0):
     """Backtracking from the full step ``dx``: the accepted (x, evaluation
-    with its Hessian) and the step length, or (None, 0.0). A step is never
-    accepted at a non-admissible pose or a non-finite energy, and never
-    starts beyond the fraction of ``dx`` the model allows (contact: the
-    first time of impact)."""
+    with its Hessian), the step length and whether the step is tentative,
+    or (None, 0.0, False). A step is never accepted at a non-admissible
+    pose or a non-finite energy, and never starts beyond the fraction of
+    ``dx`` the model allows (contact: the first time of impact). With
+    ``tentative``, a whole admissible step that fails the energy test is
+    returned as tentative (``TENTATIVE_FAILURES``). ``first``: the
+    backtracking cuts already made (after a tentative step went back)."""
     g = ev.gradient
     slope = float(g @ dx)
     slack = _energy_slack(model, ev.energy, x)
-    alpha = model.max_step(x, dx)
-    for k in range(options.max_backtracks):
+    alpha = model.max_step(x, dx) * options.backtrack ** first
+    for k in range(first, options.max_backtracks):
         xt = x + alpha * dx
         et = model.evaluate(xt, c, order=2 if k == 0 else 0)
         if not (et.admissible and np.isfinite(et.energy)):
             alpha *= options.backtrack
             continue
         if et.energy <= ev.energy + options.armijo * alpha * slope + slack:
-            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha
+            return (xt, et if k == 0 else model.evaluate(xt, c, order=2)), alpha, False
         if k == 0 and et.energy <= ev.energy + ROUNDOFF_BAND * slack and \
                 np.linalg.norm(et.gradient) < ROUNDOFF_RESIDUAL_CUT * np.linalg.norm(g):
             # energy differences at round-off level: judge the full
             # Newton step by the residual it leaves instead
-            return (xt, et), alpha
+            return (xt, et), alpha, False
+        if k == 0 and tentative and alpha == 1.0:
+            return (xt, et), alpha, True
         alpha *= options.backtrack
-    return None, 0.0
+    return None, 0.0, False
 
 
 def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
@@ -251,6 +276,65 @@ def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Facto
     return None, pair is None
 
 
+class _Watchdog:
+    """Newton's tentative full steps (``TENTATIVE_FAILURES``): where the one
+    under watch started (its pose, evaluation, step and the energy the step
+    after it must reach), and how many were undone."""
+
+    def __init__(self):
+        self.start, self.failures = None, 0
+
+    def allows(self, factor: Factor | None) -> bool:
+        """Whether the next (unregularised) step may be tentative."""
+        return self.start is None and factor is not None and self.failures < TENTATIVE_FAILURES
+
+    def watch(self, model: Model, x, ev: Evaluation, dx, options: EquilibriumOptions) -> None:
+        """Watch the tentative step ``dx`` from (``x``, ``ev``): the step
+        after it must end the whole step's Armijo decrease below ``ev``."""
+        slope = float(ev.gradient @ dx)
+        self.start = (x, ev, dx, ev.energy + options.armijo * slope + _energy_slack(model, ev.energy, x))
+
+    def judge(self, model: Model, c, accepted, alpha: float, options: EquilibriumOptions):
+        """The step after a tentative one (``accepted``, None where it failed
+        or met an indefinite Hessian) stands if it ends below the watched
+        start's mark; else back to that start and its line search without
+        the whole step. (accepted, step length); as given with nothing under
+        watch."""
+        start, self.start = self.start, None
+        if start is None or (accepted is not None and accepted[1].energy <= start[3]):
+            return accepted, alpha
+        self.failures += 1
+        log.debug("newton: the tentative step did not pay off; backtracking from its start")
+        accepted, alpha, _ = _line_search(model, c, start[0], start[1], start[2], options, first=1)
+        return accepted, alpha
+
+
+def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Factor | None, dog: _Watchdog,
+          keep: bool, options: EquilibriumOptions, it: int):
+    """One Newton step from (``x``, ``ev``) with ``step_factor`` (``factor``:
+    H's own, or None where it was regularised): the line search, a
+    tentative step or the judging of the one before (``dog``), then the
+    kept-factor steps (``keep``: allowed). (pose, evaluation, the pose to
+    go back to if kept-factor steps were taken) or None (line search failed)."""
+    g = ev.gradient
+    dx = -step_factor.solve(g)
+    accepted, alpha, tentative = _line_search(model, c, x, ev, dx, options, dog.allows(factor))
+    log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, np.linalg.norm(g) / ev.force_scale,
+              step_factor.shift, alpha, " (tentative)" if tentative else "")
+    if tentative:
+        dog.watch(model, x, ev, dx, options)
+        return accepted[0], accepted[1], None
+    accepted, alpha = dog.judge(model, c, accepted, alpha, options)
+    if accepted is None:
+        return None
+    x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
+    return x, ev, (accepted if kept else None)
+
+
+#: the status of a solve whose line search found no admissible step that lowers the energy
+LINE_SEARCH_FAILED = "line search failed: no admissible step decreases the energy"
+
+
 #: the status of a solve asked to start at a pose no term admits
 NOT_ADMISSIBLE = "initial pose not admissible (some element has J <= 0)"
 
@@ -282,11 +366,19 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
     converged = False
+    dog = _Watchdog()             # tentative full steps
     while True:
         g, H = ev.gradient, ev.hessian_form
         factor = try_factor(model, H)
         if factor is None and undo is not None:    # kept-factor steps led there: undone
             (x, ev), undo, keep = undo, None, False
+            continue
+        if factor is None and dog.start is not None:   # a tentative step led there: back, backtrack
+            accepted, _ = dog.judge(model, c, None, 0.0, options)
+            if accepted is None:
+                status = LINE_SEARCH_FAILED
+                break
+            x, ev = accepted
             continue
         small = np.linalg.norm(g) <= options.gtol * ev.force_scale
         if small and factor is not None:
@@ -307,22 +399,16 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             break
         if it >= options.max_iterations:
             break
-        rel = np.linalg.norm(g) / ev.force_scale
-        best.append(rel)
+        best.append(np.linalg.norm(g) / ev.force_scale)
         if factor is not None and _stalled(best, options):
             # round-off (a sliver element, an ill-conditioned H) sets a floor above gtol
-            status = (f"residual stalled at {min(best):.1e} of the force scale, above gtol "
-                      f"{options.gtol:g} (a round-off floor: badly shaped elements or an "
-                      "ill-conditioned Hessian)")
+            status = _stalled_status(best, options)
             break
         if factor is None and not options.regularise and not options.escape_saddles:
             status = _left_branch(it)      # (no symmetric-branch check to make first)
             break
-        if factor is None:
-            step_factor = _regularised_factor(model, H, options, last_shift)
-            last_shift = step_factor.shift
-        else:
-            step_factor = factor
+        step_factor = factor if factor is not None else _regularised_factor(model, H, options, last_shift)
+        last_shift = last_shift if factor is not None else step_factor.shift
         if factor is None and watch_symmetry and options.escape_saddles and escapes < options.max_escapes:
             escaped, watch_symmetry = _off_symmetric_branch(model, c, x, ev, step_factor, options)
             if escaped is not None:
@@ -334,12 +420,10 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             status = _left_branch(it)
             break
         it += 1
-        accepted, alpha = _line_search(model, c, x, ev, -step_factor.solve(g), options)
-        log.debug("newton %d: residual %.3e, shift %.3e, step %.3e", it, rel, step_factor.shift, alpha)
-        if accepted is None:
-            status = "line search failed: no admissible step decreases the energy"
+        stepped = _step(model, c, x, ev, step_factor, factor, dog, keep, options, it)
+        if stepped is None:
+            status = LINE_SEARCH_FAILED
             break
-        x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
-        undo = accepted if kept else None
+        x, ev, undo = stepped
     return certified(model, c, x, ev, factor, converged, _why_not(model, c, x, converged, status), it, t0,
                      options, "newton", escapes)
