@@ -42,8 +42,11 @@ class Mapped:
     arrays through its buffer interface (no DM conversion per call)."""
 
     def __init__(self, fn: ca.Function, count: int, constants: dict[int, np.ndarray]):
-        self.fn = fn.map(count, "serial")
         self.count = count
+        if count == 0:              # CasADi maps over no columns with an error: nothing to evaluate
+            self.fn, self._sizes = fn, [0] * fn.n_out()
+            return
+        self.fn = fn.map(count, "serial")
         self.buf, self._eval = self.fn.buffer()
         self._sizes = [self.fn.nnz_out(i) for i in range(self.fn.n_out())]
         self._keep = []
@@ -53,6 +56,8 @@ class Mapped:
             self.buf.set_arg(i, memoryview(arr))
 
     def __call__(self, arg0: np.ndarray, n_out: int) -> list[np.ndarray]:
+        if self.count == 0:
+            return [np.empty(0) for _ in range(n_out)]
         arg0 = np.ascontiguousarray(arg0, dtype=np.float64)
         outs = [np.empty(self._sizes[i]) for i in range(n_out)]
         self.buf.set_arg(0, memoryview(arg0))

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..base.errors import SceneError
+from ..base.errors import SceneError, SolverError
 from ..fem.contact_friction import ContactFrictionTerm, Lag, carried_anchor, lag_at
 from ..fem.model import HeldTerms, Model
 from ..base.reprs import compact_repr
@@ -214,6 +214,34 @@ class ContactFrictionPlant(Plant):
             fields.update(converged=False, status=outside)
         return ContactEquilibrium(**fields, contact=ContactState(again.x, state.contraction, state.lag),
                                   path=eq.path, steps_done=eq.steps_done, origin=origin or eq.origin)
+
+    # -- a path's states (the sweep) ---------------------------------------
+
+    def follow(self, path, on_step=None) -> list[ContactEquilibrium]:
+        """The scene's start state and the states along ``path``
+        ((n_steps, n_winches) contractions), each reached from the one
+        before as :meth:`drive` would, stopping after the first step that fails (nothing
+        committed); a :class:`SolverError` if the start state does not
+        converge. ``on_step(k, state)``, if given, is called after step k
+        (from 1)."""
+        start = self.start_state()
+        if not start.converged:
+            raise SolverError(f"the start state did not converge: {start.status}")
+        states, state = [start], start.contact
+        for k, c in enumerate(np.atleast_2d(np.asarray(path, dtype=np.float64)), 1):
+            eq = self._from(state, c, None, None, "the state before")   # in steps of STEP_FRACTION at most
+            states.append(eq)
+            if on_step is not None:
+                on_step(k, eq)
+            if not eq.converged:
+                break
+            state = eq.contact
+        return states
+
+    def end_tensions(self, state: ContactEquilibrium) -> list[tuple[float, float]]:
+        """(winch end, stopper end) tension of every tendon at ``state``:
+        each tendon is one spring here, pulling the same at both ends."""
+        return [(float(t), float(t)) for t in self.model.tendon_state(state.x, state.contraction)["tension"]]
 
     def require_history_free(self, what: str, instead: str) -> None:
         raise SceneError(f"{self.model.scene.source}: contact.friction: {what} solves for the pose at the "

@@ -51,17 +51,16 @@ def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
     Returns
     -------
     A :class:`~plush_opt.solve.contact_plant.ContactFrictionPlant` when the
-    contact has friction; a :class:`~plush_opt.solve.friction_plant.FrictionPlant`
+    contact has friction (``segmented`` or not); a :class:`~plush_opt.solve.friction_plant.FrictionPlant`
     when a tendon has friction and an interior via point (or ``segmented``);
     else an :class:`ElasticPlant`. Nothing is committed: the plant starts at the
     scene's start state.
     """
     contact_friction = model.contact is not None and model.contact.friction > 0
-    if contact_friction and (segmented or friction_tendons(model.scene)):
+    if contact_friction and friction_tendons(model.scene):
         raise SceneError(f"{model.scene.source}: contact.friction: friction at contacts and friction at via "
-                         "points (or a segmented sweep) in one scene are not supported together; set one of "
-                         "them to 0")
-    if contact_friction:
+                         "points in one scene are not supported together; set one of them to 0")
+    if contact_friction:        # (segmented or not: its tendons are frictionless springs, one tension each)
         return ContactFrictionPlant(model)
     if segmented or friction_tendons(model.scene):
         return FrictionPlant(model, include_frictionless=segmented)
