@@ -352,3 +352,22 @@ def test_transfer_pose_carries_a_quadratic_field_between_p2_meshes():
     coarse, fine = build_mesh(_square("P2", 2)), build_mesh(_square("P2", 5))
     x = _quadratic_field(coarse.X).reshape(-1)
     assert np.allclose(transfer_pose(coarse, x, fine), _quadratic_field(fine.X).reshape(-1), atol=1e-12)
+
+
+@pytest.mark.parametrize("element", ["P1", "P2"])
+def test_kernels_compiled_with_their_loop_compute_what_the_per_element_calls_do(element):
+    """From COMPILE_MAPPED_MIN elements the mapped kernel runs as a compiled loop in chunks:
+    the same numbers, to the last bit, as one call per element."""
+    from plush_opt.fem.mapped import COMPILE_MAPPED_MIN, Mapped
+    kernels = elements.named(element).kernels
+    count = COMPILE_MAPPED_MIN
+    rng = np.random.default_rng(3)
+    rest = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0] + ([0.5, 0.0, 0.5, 0.5, 0.0, 0.5] if element == "P2" else [])
+    xe = np.array(rest) + rng.uniform(-0.05, 0.05, (count, len(rest)))
+    consts = {1: np.tile([1.0, 0.0, 0.0, 1.0], (count, 1)), 2: np.full(count, 0.5),
+              3: np.full(count, 2.0), 4: np.full(count, 5.0)}
+    for name, n_out in (("psi", 1), ("psi_grad", 2), ("psi_derivs", 3)):
+        whole = Mapped(kernels[name], count, consts, kernels.symbolic[name])
+        per_element = Mapped(kernels[name], count, consts)
+        for a, b in zip(whole(xe, n_out), per_element(xe, n_out)):
+            assert np.all(np.isfinite(a)) and np.array_equal(a, b)

@@ -207,6 +207,23 @@ def test_low_rank_factor_solves_and_certifies_like_the_assembled_matrix(backend,
 
 
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_a_low_rank_factor_with_another_low_rank_term_keeps_its_sparse_part(backend, mode):
+    """``with_low_rank_of``: the kept body factor plus the other Hessian's
+    low-rank term solves (body + Q2^T M2 Q2), refuses an indefinite term,
+    and is None for an assembled factor or matrix."""
+    H1, H2 = _low_rank(seed=7), _low_rank(seed=11, negative=0.05)
+    f = Factorizer(backend, mode).factor(H1)
+    g = f.with_low_rank_of(H2)
+    mixed = (H1.body + H2.Q.T @ sp.csr_matrix(H2.M) @ H2.Q).toarray()
+    b = np.random.default_rng(2).standard_normal(H1.shape[0])
+    assert np.linalg.norm(mixed @ g.solve(b) - b) <= 1e-12 * np.linalg.norm(b)
+    assert g.shift == f.shift and np.array_equal(g.H.body.toarray(), H1.body.toarray())
+    assert f.with_low_rank_of(_low_rank(seed=11, negative=40.0)) is None
+    assert f.with_low_rank_of(H2.assemble()) is None
+    assert Factorizer(backend, mode).factor(H1.assemble()).with_low_rank_of(H2) is None
+
+
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
 def test_low_rank_factor_refuses_an_indefinite_or_singular_update(backend, mode):
     """A definite body, an update that makes H indefinite: refused, as the
     assembled matrix is; a shift past its negative eigenvalue is accepted,

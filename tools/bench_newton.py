@@ -13,7 +13,12 @@ Variants (module constants switched between runs, nothing else changes):
 - ``halves``: the set-up by forward substitution alone;
 - ``chord``: that, and Newton's kept-factor (chord) steps, in the forward
   solve and from the committed equilibrium's factor in each control trial;
-- ``now``: that, and Newton's tentative full steps (the shipped code).
+- ``tentative``: that, and Newton's tentative full steps;
+- ``kernels``: that, and the elastic kernels compiled with their loop
+  (``mapped.COMPILE_MAPPED_MIN``; the variants above call them once per
+  element, on a second model of the same mesh);
+- ``now``: that, and the kept factor's low-rank term set up afresh where
+  its steps stall (``newton.FRESH_LOW_RANK``): the shipped code.
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -45,6 +50,7 @@ import numpy as np
 
 from plush_opt.base import linalg
 from plush_opt.control.gradient import Controller
+from plush_opt.fem import mapped
 from plush_opt.fem.mesh import mesh_for_nodes
 from plush_opt.io import load_scene
 from plush_opt.problem import from_scene
@@ -52,8 +58,13 @@ from plush_opt.solve import newton
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
-VARIANTS = {"reference": (False, 0, 0), "halves": (True, 0, 0), "chord": (True, newton.CHORD_STEPS, 0),
-            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)}
+# (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
+#  elastic kernels compiled with their loop)
+VARIANTS = {"reference": (False, 0, 0, 0, False), "halves": (True, 0, 0, 0, False),
+            "chord": (True, newton.CHORD_STEPS, 0, 0, False),
+            "tentative": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, False),
+            "kernels": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, True),
+            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK, True)}
 
 
 def _counting(model) -> dict:
@@ -183,20 +194,27 @@ def main(argv=None):
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES)
+    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK)
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
-        problem = from_scene(scene, mesh_for_nodes(scene, nodes))
-        model = problem.model
+        problems = {True: from_scene(scene, mesh_for_nodes(scene, nodes))}
+        compile_min, mapped.COMPILE_MAPPED_MIN = mapped.COMPILE_MAPPED_MIN, np.inf
+        try:
+            problems[False] = from_scene(scene, problems[True].mesh)      # kernels called per element
+        finally:
+            mapped.COMPILE_MAPPED_MIN = compile_min
+        model = problems[True].model
         c = model.scene.contraction if args.problem != "gripper" else np.full(model.n_winches, 10.0)
         runs = {name: [] for name in VARIANTS}
         try:
             for _ in range(args.repeats):
-                for name, switches in VARIANTS.items():
-                    linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = switches
-                    runs[name].append({**_forward(model, c), **_control(model, problem.targets)})
+                for name, (*switches, loop) in VARIANTS.items():
+                    (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES,
+                     newton.FRESH_LOW_RANK) = switches
+                    problem = problems[loop]
+                    runs[name].append({**_forward(problem.model, c), **_control(problem.model, problem.targets)})
         finally:
-            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES = saved
+            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK = saved
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]

@@ -463,6 +463,22 @@ class Factor:
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._chol(b)
 
+    def with_low_rank_of(self, H) -> "Factor | None":
+        """For a factor of a :class:`LowRankHessian`: the factor of its
+        sparse part (kept, not refactored) plus the low-rank term of ``H``
+        (a LowRankHessian of the same size): one low-rank set-up, no sparse
+        factorisation. None for a factor of an assembled matrix, for an
+        assembled ``H``, or where that sum is not positive definite."""
+        chol = self._chol
+        if not (isinstance(chol, _WoodburySolve) and isinstance(H, LowRankHessian)
+                and H.shape == self.H.shape):
+            return None
+        mixed = LowRankHessian(chol._H.body, H.Q, H.M)
+        try:
+            return Factor(_WoodburySolve(chol._body, mixed, self.shift), mixed, self.shift)
+        except NotPositiveDefinite:
+            return None
+
     def min_eigenvalue(self) -> float:
         """Smallest eigenvalue of ``H`` (shift-invert Lanczos around 0 using
         this factor; a few solves). Only meaningful for ``shift == 0``."""

@@ -27,45 +27,14 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from .mapped import Mapped
 from .mesh import Mesh
 from ..io.scene import Scene
-
 
 def node_dofs(nodes: np.ndarray) -> np.ndarray:
     """Interleaved dof indices of node indices: (..., k) -> (..., 2k)."""
     nodes = np.asarray(nodes, dtype=np.int64)
     return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], 2 * nodes.shape[-1])
-
-
-class Mapped:
-    """A CasADi Function mapped over ``count`` columns, evaluated into numpy
-    arrays through its buffer interface (no DM conversion per call)."""
-
-    def __init__(self, fn: ca.Function, count: int, constants: dict[int, np.ndarray]):
-        self.count = count
-        if count == 0:              # CasADi maps over no columns with an error: nothing to evaluate
-            self.fn, self._sizes = fn, [0] * fn.n_out()
-            return
-        self.fn = fn.map(count, "serial")
-        self.buf, self._eval = self.fn.buffer()
-        self._sizes = [self.fn.nnz_out(i) for i in range(self.fn.n_out())]
-        self._keep = []
-        for i, value in constants.items():
-            arr = np.ascontiguousarray(value, dtype=np.float64)
-            self._keep.append(arr)
-            self.buf.set_arg(i, memoryview(arr))
-
-    def __call__(self, arg0: np.ndarray, n_out: int) -> list[np.ndarray]:
-        if self.count == 0:
-            return [np.empty(0) for _ in range(n_out)]
-        arg0 = np.ascontiguousarray(arg0, dtype=np.float64)
-        outs = [np.empty(self._sizes[i]) for i in range(n_out)]
-        self.buf.set_arg(0, memoryview(arg0))
-        for i, out in enumerate(outs):
-            self.buf.set_res(i, memoryview(out))
-        self._eval()
-        return outs
-
 
 @dataclass(frozen=True)
 class TermEvaluation:
@@ -85,7 +54,6 @@ class TermEvaluation:
     gradient: np.ndarray | None = None
     hessian: dict = field(default_factory=dict)
     force_scale: float = 0.0
-
 
 class Term:
     """One energy term of a model (the interface; see the module docstring).
@@ -134,7 +102,6 @@ class Term:
         slip, contact) updates it here, once a step has converged. These
         terms carry none."""
 
-
 class ElasticTerm(Term):
     """The hyperelastic (compressible Neo-Hookean) energy of every element,
     through the mesh's element type (P1 or P2).
@@ -176,7 +143,7 @@ class ElasticTerm(Term):
         consts = {1: self._Dinv, 2: self.elem_weight,
                   3: np.full(self.n_elems, mat.mu), 4: np.full(self.n_elems, mat.lam)}
         kernels = self.element.kernels
-        self._by_order = [Mapped(kernels[name], self.n_elems, consts)
+        self._by_order = [Mapped(kernels[name], self.n_elems, consts, kernels.symbolic[name])
                           for name in ("psi", "psi_grad", "psi_derivs")]
         self._unit_material = None
 
@@ -226,7 +193,6 @@ class ElasticTerm(Term):
         """J = det F as a CasADi expression of x (see ``Element.jacobian_expression``)."""
         return self.element.jacobian_expression(x, self.elem_dofs, self.jacobian_data)
 
-
 class PinTerm(Term):
     """Stiff springs holding the pinned nodes at their rest positions:
     k/2 |x_p - X_p|^2 (``scene.pin_stiffness`` k)."""
@@ -253,7 +219,6 @@ class PinTerm(Term):
     def expression(self, x, c):
         dp = x[self.dofs.tolist()] - ca.DM(self._rest)
         return self.stiffness / 2 * ca.sumsqr(dp)
-
 
 class GravityTerm(Term):
     """E = -f . x, with ``force`` f the nodal weights (n_dofs,): each

@@ -19,7 +19,9 @@ from its iterate). Where the pose they reach has a Hessian that is not
 positive definite, they are undone and the solve goes on without them.
 Each such step must cut the residual by ``CHORD_CUT`` and pass the same
 admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
-follow one factorisation. They are not iterations: ``iterations`` (and
+follow one factorisation. Where they stall on a low-rank Hessian, the
+kept factor's sparse part serves on with the current pose's low-rank term
+(``FRESH_LOW_RANK``). They are not iterations: ``iterations`` (and
 ``max_iterations``) count Newton steps, each with its own factorisation. The certificate never rests on a kept factor: the pose they
 reach is factored afresh, and only that factor certifies it.
 """
@@ -75,6 +77,15 @@ NO_NET_DISPLACEMENT = 1e-8
 # backtracks as usual, and takes no more tentative steps. This many may
 # fail before they stop: one failure says the steps are not converging.
 TENTATIVE_FAILURES = 1
+# Where a step with a kept factor of a low-rank Hessian fails, the factor's
+# sparse part is kept and the low-rank term (the tendons' U'' l' l'^T,
+# which changes fastest: their stretch sits in the smoothing zone) is set
+# up afresh at the current pose, this many times per run of such steps (a
+# set-up costs about a fifth of a factorisation) ...
+FRESH_LOW_RANK = 1
+# ... and only in the local phase: relative residual at most this (and
+# above the tolerance: a converged pose needs its certificate, no more steps).
+FRESH_BELOW = 1e-3
 
 
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -200,35 +211,59 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     ``Model.max_step``) only if it is admissible, does not raise the energy
     (Armijo, or at round-off level) and cuts the residual by
     ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is ``CHORD_DEPTH`` times the tolerance, or after ``CHORD_STEPS``.
+    is ``CHORD_DEPTH`` times the tolerance, or after ``CHORD_STEPS`` with
+    one factor. Where they would stop short of the tolerance in the local
+    phase, a factor of a low-rank Hessian goes on with its low-rank term
+    set up afresh at the current pose (``FRESH_LOW_RANK``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
-    steps = 0
+    steps, since, refreshed = 0, 0, 0      # steps; steps with this factor; refreshes
     ev1 = ev
-    while steps < CHORD_STEPS:
+    while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
         if norm <= CHORD_DEPTH * options.gtol * ev1.force_scale:
             break
-        dx = -factor.solve(g)
-        if model.max_step(x, dx) < 1.0:
-            break
-        xt = x + dx
-        et = model.evaluate(xt, c, order=1)
-        if not (et.admissible and np.isfinite(et.energy)):
-            break
-        slack = _energy_slack(model, ev1.energy, x)
-        lower = et.energy <= ev1.energy + options.armijo * float(g @ dx) + slack
-        if not ((lower or et.energy <= ev1.energy + ROUNDOFF_BAND * slack)
-                and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
-            break
-        x, ev1, steps = xt, et, steps + 1
+        taken = _chord_step(model, c, x, ev1, factor, norm, options) if since < CHORD_STEPS else None
+        if taken is None:
+            # the tendons' stiffness changes fastest: the kept factor's
+            # sparse part with the low-rank term of this pose
+            fresh = None
+            if refreshed < FRESH_LOW_RANK and options.gtol < norm / ev1.force_scale <= FRESH_BELOW:
+                ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
+                fresh = factor.with_low_rank_of(ev1.hessian_form)
+            if fresh is None:
+                break
+            factor, refreshed, since = fresh, refreshed + 1, 0
+            continue
+        (x, ev1), steps, since = taken, steps + 1, since + 1
     if steps:
-        log.debug("newton: %d step(s) with a kept factor, residual %.3e", steps,
-                  np.linalg.norm(ev1.gradient) / ev1.force_scale)
-        return x, model.evaluate(x, c, order=2), steps
+        log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es)), residual %.3e", steps,
+                  refreshed, np.linalg.norm(ev1.gradient) / ev1.force_scale)
+        return x, (ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)), steps
     return x, ev, 0
+
+
+def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
+                options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
+    """One step of :func:`_chord_steps` from (``x``, ``ev``, residual norm
+    ``norm``): the pose and its evaluation (order 1), or None where the
+    step fails its tests."""
+    g = ev.gradient
+    dx = -factor.solve(g)
+    if model.max_step(x, dx) < 1.0:
+        return None
+    xt = x + dx
+    et = model.evaluate(xt, c, order=1)
+    if not (et.admissible and np.isfinite(et.energy)):
+        return None
+    slack = _energy_slack(model, ev.energy, x)
+    lower = et.energy <= ev.energy + options.armijo * float(g @ dx) + slack
+    if not ((lower or et.energy <= ev.energy + ROUNDOFF_BAND * slack)
+            and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
+        return None
+    return xt, et
 
 
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
