@@ -23,6 +23,9 @@ from ..control.result import INTERRUPTED
 
 log = logging.getLogger("plush_opt")
 
+#: Steps of the forward solve's continuation in the contraction, where the
+#: solve from rest fails (halved where a step fails): a few, as a user would.
+CONTINUATION_STEPS = 4
 #: The status of a result whose solve a solver error ended (its ``reason`` says which).
 SOLVER_ERROR_STATUS = "solver_error"
 
@@ -138,11 +141,13 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
     if method == "forward":
         t_solve = time.perf_counter()
-        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium, ipopt=eq_ipopt))
+        eq = p.equilibrium(contraction, options=EquilibriumOptions(
+            backend=equilibrium, ipopt=eq_ipopt, continuation=_continuation_steps(p)))
         t_end = time.perf_counter()
         doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
                           status=eq.status, total_s=t_end - t0, solve_s=t_end - t_solve,
-                          iterations=eq.iterations, extra=extra)
+                          iterations=eq.iterations,
+                          extra={**extra, "continuation_steps": getattr(eq, "continuation_steps", 0)})
         return p, eq, doc, ()
     quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False, ipopt=eq_ipopt)
     if method == "bilevel":
@@ -185,6 +190,14 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
                                                   extra={"signal": name, **extra})
         raise
     return p, res.equilibrium, doc, history
+
+
+def _continuation_steps(p) -> int:
+    """The forward solve's continuation in the contraction after a failure
+    from rest (EquilibriumOptions.continuation): on a history-free plant
+    only (with friction the path is the physics, and it is followed anyway)."""
+    from ..solve.elastic_plant import ElasticPlant
+    return CONTINUATION_STEPS if type(p.plant) is ElasticPlant else 0
 
 
 def accuracy_record(report: dict) -> dict:
