@@ -1,0 +1,93 @@
+"""The order of the accuracy sweep: each level's cost predicted before it
+is solved, the cheapest way to a level that meets the tolerance first, and
+a stop as soon as one does (plush_opt.solve.accuracy_sweep)."""
+
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from plush_opt.io import load_scene
+from plush_opt.solve.accuracy import Resolution, choose_levels, default_levels
+from plush_opt.solve.accuracy_sweep import EXTRA_BUDGET, Chain, CostModel, Planner
+
+DATA = Path(__file__).parent / "data"
+
+
+def level(element, n, t, estimate=None, ratio=None):
+    return SimpleNamespace(element=element, mesh=SimpleNamespace(n_nodes=n), t_solve=t, estimate=estimate,
+                           ratio=ratio)
+
+
+def chain(element, n0, refinements=3, family=1.0):
+    return Chain(element, tuple(Resolution(family, r, family) for r in range(refinements + 1)), [n0])
+
+
+def test_the_cost_model_fits_the_exponent_of_the_levels_solved():
+    cost = CostModel()
+    cost.add("P2", 1000, 1.0)
+    cost.add("P2", 4000, 8.0)                      # t ~ n^1.5
+    assert cost.exponent("P2") == pytest.approx(1.5)
+    assert cost.predict("P2", 16000) == pytest.approx(64.0)
+    # an element not solved yet: priced like the other one, per node
+    assert cost.predict("P1", 4000) == pytest.approx(8.0)
+
+
+def test_a_chain_whose_first_estimate_is_cheaper_goes_first():
+    p2, p1 = chain("P2", 800), chain("P1", 200)
+    plan = Planner([p2, p1], tol=1.0)
+    assert plan.pick(None) is p1                    # three P1 levels cost less than three P2 levels
+    for n, t in ((200, 0.1), (800, 0.5), (3200, 2.5)):
+        plan.solved(p1, level("P1", n, t))
+    # its first estimate (at 800 nodes) is 8 x the tolerance, shrinking by 0.9 per level: no P1
+    # level left is predicted to meet it, so the P2 chain is next
+    p1.solved[1].estimate, p1.solved[1].ratio = 8.0, 0.9
+    assert math.isinf(plan.cost_to_meet(p1))
+    assert plan.pick(None) is p2
+
+
+def test_the_estimate_trend_predicts_how_many_levels_a_chain_still_needs():
+    p1 = chain("P1", 200)
+    plan = Planner([p1], tol=1.0)
+    for n, t in ((200, 0.1), (800, 0.4), (3200, 1.6)):
+        plan.solved(p1, level("P1", n, t))
+    p1.solved[1].estimate, p1.solved[1].ratio = 3.0, 0.25      # level 2 predicted 0.75: needs level 3
+    assert plan.predicted_error(p1, 2) == pytest.approx(0.75)
+    assert plan.cost_to_meet(p1) == pytest.approx(plan.cost.predict("P1", 12800))
+
+
+def test_after_a_level_meets_only_cheaper_levels_are_solved_within_the_budget():
+    p2, p1 = chain("P2", 800), chain("P1", 200)
+    plan = Planner([p2, p1], tol=1.0)
+    for n, t in ((200, 0.1), (800, 0.4), (3200, 1.6)):
+        plan.solved(p1, level("P1", n, t))
+    best = level("P1", 800, 0.3)
+    assert plan.pick(best) is None                  # the P2 chain's first level, predicted 0.4 s: not faster
+    best = level("P1", 3200, 1.6)
+    assert plan.pick(best) is p2                    # 800 P2 nodes: predicted 0.4 s < 1.6 s
+    plan.extra_spent = EXTRA_BUDGET * best.t_solve
+    assert plan.pick(best) is None                  # the budget is spent
+
+
+@pytest.mark.slow
+def test_the_crescent_sweep_stops_at_the_first_level_that_meets_the_tolerance():
+    """An outline drawn in 0.5 mm steps forces a fine first mesh: the old
+    order (every P2 level up to the first estimate, 16x the first mesh's
+    nodes, then P1) solved 5 P2 levels up to that before picking anything.
+    Counted in levels and nodes, not seconds."""
+    scene = load_scene(DATA / "crescent.yaml")
+    best, levels, report = choose_levels(scene, 1.0)
+    assert report["reached"] and report["estimated_error"] <= 1.0
+    p2 = [res for res in default_levels(scene, "P2")]
+    first_estimate = [r for r in p2 if r.family == p2[0].family][2]          # P2 A2: the old sweep's minimum
+    from plush_opt.fem.mesh import build_mesh
+    import dataclasses
+    n_old = build_mesh(dataclasses.replace(scene, element="P2"), max_area=first_estimate.max_area, graded=True,
+                       refinements=first_estimate.refinements).n_nodes
+    solved_nodes = [lv.mesh.n_nodes for lv in levels]
+    assert max(solved_nodes) < n_old / 2, (solved_nodes, n_old)
+    assert sum(solved_nodes) < n_old, (solved_nodes, n_old)
+    # nothing is solved after the pick beyond the confirmation it needs and the extra budget
+    assert report["stopped"].startswith("stopped: the ")
+    assert report["not_solved"] and all(row["predicted_nodes"] > 0 for row in report["not_solved"])
