@@ -91,3 +91,51 @@ def test_the_crescent_sweep_stops_at_the_first_level_that_meets_the_tolerance():
     # nothing is solved after the pick beyond the confirmation it needs and the extra budget
     assert report["stopped"].startswith("stopped: the ")
     assert report["not_solved"] and all(row["predicted_nodes"] > 0 for row in report["not_solved"])
+
+
+@pytest.mark.slow        # a sweep of mesh levels
+def test_where_no_level_meets_at_the_returned_contraction_the_sweep_goes_on_there(monkeypatch):
+    """The check at the returned contractions finds no level meeting the
+    tolerance (forced here): the sweep goes on with them as a probe, every
+    level solved before kept (not solved again at the probes), and the
+    problem is solved again on the level it picks, which meets it there."""
+    import numpy as np
+    import plush_opt.apps.accuracy_run as run
+    import plush_opt.solve.accuracy as accuracy
+    from plush_opt.solve.equilibrium import solve_equilibrium
+    root = Path(__file__).parent.parent
+    acc = run.AccurateSolve(root / "problems" / "cantilever.yaml", 0.002)
+    first_levels = list(acc.levels)
+    c = np.array([0.6])
+    eq = solve_equilibrium(acc.problem.model, c)
+    assert eq.converged
+    real_bounds, calls = run.bounds_at, []
+
+    def bounds_at(*a, **k):           # the first check: as if no level met the tolerance there
+        at = real_bounds(*a, **k)
+        calls.append(at)
+        for lv in at if len(calls) == 1 else ():
+            lv.bound = lv.bound_via = None
+        return at
+
+    monkeypatch.setattr(run, "bounds_at", bounds_at)
+    solved_here = []
+    real_solve = accuracy._solve_level
+    monkeypatch.setattr(accuracy, "_solve_level",
+                        lambda *a, **k: solved_here.append(a[1]) or real_solve(*a, **k))
+    resolved = []
+
+    def resolve(problem, contraction):
+        resolved.append(problem)
+        again = solve_equilibrium(problem.model, [contraction[problem.winch_names[0]]])
+        return problem, again, {"accuracy": {}, "mesh_accuracy": {}}, ()
+
+    p = acc.problem
+    _, last, doc, _ = acc.check((p, eq, {"accuracy": {}, "mesh_accuracy": {}}, ()), resolve)
+    assert np.asarray(acc.report["contractions"])[-1].tolist() == c.tolist()
+    # the levels of the first sweep are kept: none of them is solved again
+    assert not {(lv.element, lv.resolution) for lv in first_levels} & {(acc.scene.element, r) for r in solved_here}
+    assert all(lv.y.shape[0] == len(acc.report["contractions"]) for lv in acc.levels)
+    assert len(resolved) == 1 and doc["accuracy"]["at_result"]["resolves"] == 1
+    assert doc["accuracy"]["at_result"]["met"] is True
+    assert doc["accuracy"]["at_result"]["estimated_error"] <= 0.002

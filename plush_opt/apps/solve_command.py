@@ -204,9 +204,10 @@ def accuracy_record(report: dict) -> dict:
     """The result JSON's keys for a mesh chosen by ``--accuracy``: ``accuracy``
     (tolerance, estimated_error, element, nodes, whether the tolerance was
     met, whether the mesh is graded, how often it was refined uniformly,
-    the summary) and ``mesh_accuracy``."""
+    the summary, why the sweep stopped) and ``mesh_accuracy`` (with the
+    levels solved and those left unsolved)."""
     keys = ("tolerance", "estimated_error", "element", "nodes", "reached", "status", "max_area",
-            "graded", "refinements", "summary")
+            "graded", "refinements", "summary", "stopped")
     return {"accuracy": {k: report.get(k) for k in keys}, "mesh_accuracy": report}
 
 

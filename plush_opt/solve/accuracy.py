@@ -339,8 +339,11 @@ def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
     if best is not None:
         return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
                 f"level left is predicted to solve faster within {EXTRA_BUDGET:g} x its solve time")
-    return (f"stopped: no level left is predicted to meet {tol:g} within the default levels "
-            "(tolerance not met)")
+    first = plan.chains[0]
+    return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
+            f"met): the {first.element} levels of its first family solved to the finest, "
+            f"{first.solved[-1].mesh.n_nodes:,} nodes" if first.solved else
+            f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not met)")
 
 
 def _check_arguments(tol, levels, scene: Scene):
@@ -466,9 +469,10 @@ def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
 
 
 def _fallback(computed: list[Level], elements) -> Level:
-    """No level met the tolerance: the finest level of the first element."""
-    first = [lv for lv in computed if lv.element == elements[0]]
-    return first[-1]
+    """No level met the tolerance: the finest level of the first element
+    (of any, if none of it was solved)."""
+    first = [lv for lv in computed if lv.element == elements[0]] or computed
+    return max(first, key=lambda lv: lv.mesh.n_nodes)
 
 
 def _bound(computed: list[Level], level: Level):

@@ -22,7 +22,8 @@ is solved, and:
   :data:`EXTRA_BUDGET` times its solve time in all;
 * a chain whose next level would exceed the default sweep (its finest
   level) is finished, and when no chain can still meet the tolerance the
-  sweep stops with the tolerance not met.
+  first chain (the first element's family A) is solved to its end, the
+  budget of a tolerance that is not met, and the sweep stops there.
 
 The solve time of a level is predicted as ``t = a n^p`` in its node count
 ``n`` (a refined level has 4x its parent's nodes, known before it is
@@ -123,6 +124,7 @@ class Planner:
         self.cost = CostModel()
         self.extra_spent = 0.0
         self.stopped = ""             # why the sweep stopped (set by its driver)
+        self.best_effort = False      # no chain could meet the tolerance: the first one solved to its end
 
     def solved(self, chain: Chain, level) -> None:
         chain.solved.append(level)
@@ -175,7 +177,12 @@ class Planner:
         if best is None:
             costs = [(self.cost_to_meet(ch), i) for i, ch in enumerate(open_)]
             costs = [c for c in costs if math.isfinite(c[0])]
-            return open_[min(costs)[1]] if costs else None
+            if costs:
+                return open_[min(costs)[1]]
+            # no chain can meet the tolerance: the best effort, the first chain (the first
+            # element's family A) to its finest level, the budget of a tolerance not met
+            self.best_effort = True
+            return None if self.chains[0].done else self.chains[0]
         budget = EXTRA_BUDGET * best.t_solve - self.extra_spent
         options = [(self.cost.predict(ch.element, ch.predicted_nodes(len(ch.solved))), i)
                    for i, ch in enumerate(open_)]
