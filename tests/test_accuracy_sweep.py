@@ -8,11 +8,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from plush_opt.io import load_scene
-from plush_opt.solve.accuracy import Resolution, choose_levels, default_levels
+from plush_opt.solve.accuracy import Resolution
 from plush_opt.solve.accuracy_sweep import EXTRA_BUDGET, Chain, CostModel, Planner
-
-DATA = Path(__file__).parent / "data"
 
 
 def level(element, n, t, estimate=None, ratio=None):
@@ -68,29 +65,6 @@ def test_after_a_level_meets_only_cheaper_levels_are_solved_within_the_budget():
     assert plan.pick(best) is p2                    # 800 P2 nodes: predicted 0.4 s < 1.6 s
     plan.extra_spent = EXTRA_BUDGET * best.t_solve
     assert plan.pick(best) is None                  # the budget is spent
-
-
-@pytest.mark.slow
-def test_the_crescent_sweep_stops_at_the_first_level_that_meets_the_tolerance():
-    """An outline drawn in 0.5 mm steps forces a fine first mesh: the old
-    order (every P2 level up to the first estimate, 16x the first mesh's
-    nodes, then P1) solved 5 P2 levels up to that before picking anything.
-    Counted in levels and nodes, not seconds."""
-    scene = load_scene(DATA / "crescent.yaml")
-    best, levels, report = choose_levels(scene, 1.0)
-    assert report["reached"] and report["estimated_error"] <= 1.0
-    p2 = [res for res in default_levels(scene, "P2")]
-    first_estimate = [r for r in p2 if r.family == p2[0].family][2]          # P2 A2: the old sweep's minimum
-    from plush_opt.fem.mesh import build_mesh
-    import dataclasses
-    n_old = build_mesh(dataclasses.replace(scene, element="P2"), max_area=first_estimate.max_area, graded=True,
-                       refinements=first_estimate.refinements).n_nodes
-    solved_nodes = [lv.mesh.n_nodes for lv in levels]
-    assert max(solved_nodes) < n_old / 2, (solved_nodes, n_old)
-    assert sum(solved_nodes) < n_old, (solved_nodes, n_old)
-    # nothing is solved after the pick beyond the confirmation it needs and the extra budget
-    assert report["stopped"].startswith("stopped: the ")
-    assert report["not_solved"] and all(row["predicted_nodes"] > 0 for row in report["not_solved"])
 
 
 @pytest.mark.slow        # a sweep of mesh levels
