@@ -70,8 +70,8 @@ def test_a_newton_stall_on_the_round_off_floor_is_certified():
     """gtol below what float64 can resolve: Newton stalls on the floor; the
     certificate accepts the positive definite pose within it."""
     _, _, model, _ = built("hexapod_leg")
-    tight = EquilibriumOptions(gtol=1e-14, eigenvalue=False)
-    before = solve_equilibrium(model, [8.0], options=EquilibriumOptions(gtol=1e-14, eigenvalue=False, roundoff=0))
+    tight = EquilibriumOptions(gtol=1e-14, eigenvalue=False, roundoff=1.0)
+    before = solve_equilibrium(model, [8.0], options=EquilibriumOptions(gtol=1e-14, eigenvalue=False))
     assert not before.converged and before.status.startswith("residual stalled")
     eq = solve_equilibrium(model, [8.0], options=tight)
     assert eq.converged and eq.positive_definite
@@ -84,7 +84,8 @@ def test_a_newton_stall_on_the_round_off_floor_is_certified():
 
 def test_a_solve_that_is_not_converged_is_not_rescued_by_the_floor():
     _, _, model, _ = built("hexapod_leg")
-    eq = solve_equilibrium(model, [8.0], options=EquilibriumOptions(max_iterations=3, eigenvalue=False))
+    eq = solve_equilibrium(model, [8.0], options=EquilibriumOptions(max_iterations=3, eigenvalue=False,
+                                                                     roundoff=1.0))
     assert not eq.converged and eq.status.startswith("iteration limit (3)")
     assert eq.residual_norm > 1e3 * roundoff_floor(model, eq.x, eq.contraction)
 
@@ -93,7 +94,8 @@ def test_a_saddle_is_never_certified_by_the_floor():
     """The straight buckling strip past its critical contraction: the
     residual vanishes, the Hessian is indefinite: not converged."""
     _, _, model, _ = built("hard/buckling")
-    eq = solve_equilibrium(model, [2.0], options=EquilibriumOptions(escape_saddles=False, eigenvalue=False))
+    eq = solve_equilibrium(model, [2.0], options=EquilibriumOptions(escape_saddles=False, eigenvalue=False,
+                                                                     roundoff=1.0))
     assert not eq.converged and not eq.positive_definite
     assert eq.status.startswith("saddle")
     assert eq.residual_norm <= eq.force_scale * 1e-10

@@ -97,7 +97,9 @@ ELEMENT_ORDER = ("P2", "P1")
 #: within a factor of a few of 1e-10 (docs/notes/accuracy-measurements.md). A
 #: residual of 1e-9 moves the compared points by about 1e-9 of the
 #: displacement, far below any difference the estimate uses.
-LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9)
+#: A positive definite pose whose residual stalls within its round-off floor
+#: (plush_opt.solve.certificate.roundoff_floor) is converged as well.
+LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9, roundoff=1.0)
 
 
 def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:

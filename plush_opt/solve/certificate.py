@@ -92,7 +92,9 @@ class EquilibriumOptions:
         residual is above ``gtol * force_scale`` but within ``roundoff``
         times its round-off floor (:func:`roundoff_floor`) is converged:
         no float64 pose is closer to the equilibrium (a fine mesh's floor
-        can exceed gtol). 0: gtol alone.
+        can exceed gtol). 0 (default): gtol alone; 1: the floor as
+        computed (a sum of absolute values: already a worst case), what
+        the accuracy sweep's levels and ``--accuracy`` solves use.
     ipopt : raw IPOPT options (backend 'ipopt'), passed through.
     """
 
@@ -115,7 +117,7 @@ class EquilibriumOptions:
     stall_window: int = 20            # long enough that a slow linear phase is not taken for a stall
     stall_gain: float = 0.5           # progress means halving the best residual over a window
     continuation: int = 0
-    roundoff: float = 1.0             # the floor is a sum of absolute values: already a worst case
+    roundoff: float = 0.0             # opt-in (the accuracy levels, --accuracy): gtol alone by default
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
