@@ -16,7 +16,7 @@ from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import build_model
 from plush_opt.fem.objective import Targets
 from plush_opt.io import load_scene
-from plush_opt.solve.accuracy import equilibrium_at
+from plush_opt.solve.accuracy import default_levels, equilibrium_at
 from shipped import ROOT
 
 LEG = ROOT / "problems" / "hexapod_leg.yaml"
@@ -33,10 +33,11 @@ def _fine_p2(scene, contraction, points, max_area, refinements):
 
 @pytest.mark.slow
 def test_the_leg_at_tolerance_1_is_within_it_of_a_fine_p2_solve_at_its_answer(tmp_path):
-    """The sweep picks a 226-node P1 mesh whose estimate (0.998) holds at the
-    probe contractions; at the contraction control finds, it is 1.1 mm from
-    a fine P2 solve: the run estimates there, moves to a level that meets 1,
-    solves again from there, and the returned pose is within 1."""
+    """The sweep (P1 levels first, the cheapest way to an estimate) picks a
+    490-node P1 mesh; the run estimates again at the contraction control
+    finds, where it meets 1 as well (no second solve; the path where it
+    does not: tests/test_accuracy_sweep.py), and the returned pose is
+    within 1 of a fine P2 solve there."""
     out = tmp_path / "r.json"
     p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(LEG), "--accuracy", "1", "--out", str(out)],
                        capture_output=True, text=True, cwd=ROOT, timeout=900)
@@ -46,21 +47,23 @@ def test_the_leg_at_tolerance_1_is_within_it_of_a_fine_p2_solve_at_its_answer(tm
     assert at["met"] is True and at["estimated_error"] <= 1.0
     assert at["contraction"] == doc["contractions"]
     assert at["nodes"] == acc["nodes"] == len(doc["nodes"]) and at["element"] == acc["element"]
-    assert at["resolves"] >= 1                # the first mesh's pose was not within 1 at its answer
+    assert at["resolves"] == 0                # the picked mesh's pose is within 1 at its answer too
     first = doc["mesh_accuracy"]["at_result"][0]
-    assert first["met"] is False and first["estimated_error"] > 1.0
+    assert first["met"] is True and first["estimated_error"] <= 1.0
     assert at["summary"] in p.stderr and "warning" not in p.stderr
-    # progress by default: each level as it is solved, the check, the second solve
-    assert "plush-opt: accuracy: P2 level of 832 nodes solved at 2 contraction(s)" in p.stderr
+    # progress by default: each level as it is solved, why the sweep stopped, the check
+    assert "plush-opt: accuracy: P1 level of 226 nodes solved at 2 contraction(s)" in p.stderr
+    assert "plush-opt: accuracy: stopped: the P1 level of 490 nodes meets 1" in p.stderr
     assert "plush-opt: accuracy: estimating the error at the returned contractions on the" in p.stderr
-    assert "> 1 at the returned contractions: solving again on the P1 level of" in p.stderr
+    # the sweep stopped well before the old order's first estimate (P2 levels up to 12,469 nodes)
+    assert max(row["n_nodes"] for row in doc["mesh_accuracy"]["levels"]) < 12_469 / 3
     # the claim itself: the returned pose against a fine P2 solve at its contractions
     problem, _ = result_problem(LEG, out)
     scene = load_scene(LEG)
     points = np.array([t.at for t in scene.targets])
     y = Targets.at_points(problem.mesh, points, points).y(np.array(doc["nodes"]).reshape(-1))
     c = problem.contraction_vector(doc["contractions"])
-    a0 = next(r for r in doc["mesh_accuracy"]["levels"] if r["element"] == "P2")["max_area"]
+    a0 = default_levels(scene, "P2")[0].max_area           # the sweep's coarsest P2 mesh, refined twice
     fine, n = _fine_p2(scene, c, points, a0, 2)
     true = float(np.max(np.linalg.norm(y - fine, axis=1)))
     assert n > 10_000

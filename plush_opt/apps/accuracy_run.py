@@ -16,6 +16,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 
+import numpy as np
+
 from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..solve.accuracy import choose_levels, summary
@@ -81,12 +83,14 @@ class AccurateSolve:
             if used.meets(self.tol) or attempt == MAX_RESOLVES:
                 break
             k = cheapest_meeting(at, self.tol)
+            if k is None:             # no level solved so far meets it there: the sweep goes on, there too
+                k = self._extend(at, eq.contraction)
             if k is None:
                 break
             est = "no estimate" if used.bound is None else f"estimated {used.bound:.3g}"
             self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes is {est} > "
-                          f"{self.tol:g} at the returned contractions: solving again on the {at[k].element} "
-                          f"level of {at[k].mesh.n_nodes:,} nodes")
+                          f"{self.tol:g} at the returned contractions: solving again on the {self.levels[k].element} "
+                          f"level of {self.levels[k].mesh.n_nodes:,} nodes")
             solved = resolve(self._problem(k), dict(zip(p.winch_names, eq.contraction.tolist())))
         p, eq, doc, history = solved
         if rounds:
@@ -97,6 +101,25 @@ class AccurateSolve:
             doc["accuracy"]["at_result"] = at_result
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
+
+
+    def _extend(self, at, contraction) -> int | None:
+        """No level of the sweep meets the tolerance at ``contraction``
+        (``at``: the levels solved there): the sweep continues with it as
+        one more probe contraction, each level solved so far kept (its poses
+        at the probes and at ``contraction``). Its levels and report replace
+        the sweep's; returns the index of the cheapest level meeting the
+        tolerance (at ``contraction`` among the others), or None."""
+        c = np.asarray(contraction, dtype=np.float64).reshape(1, -1)
+        probes = np.vstack([np.asarray(self.report["contractions"], dtype=np.float64), c])
+        seeds = {(lv.element, lv.resolution): dataclasses.replace(
+                    lv, poses=list(lv.poses) + list(here.poses), y=np.concatenate([lv.y, here.y]))
+                 for lv, here in zip(self.levels, at)}
+        self.progress(f"accuracy: no level solved meets {self.tol:g} at the returned contractions: "
+                      "the sweep goes on with them as one more probe")
+        best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=probes, solved=seeds,
+                                                       progress=self.progress)
+        return self.levels.index(best) if self.report["reached"] else None
 
 
 def repick(report: dict, levels, k: int) -> dict:

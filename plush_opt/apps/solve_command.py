@@ -23,6 +23,12 @@ from ..control.result import INTERRUPTED
 
 log = logging.getLogger("plush_opt")
 
+#: Steps of the forward solve's continuation in the contraction, where the
+#: solve from rest fails (halved where a step fails): a few, as a user would.
+CONTINUATION_STEPS = 4
+#: With --accuracy, a positive definite pose whose residual stalls within its
+#: round-off floor is converged (EquilibriumOptions.roundoff; docs/accuracy.md).
+ACCURACY_ROUNDOFF = 1.0
 #: The status of a result whose solve a solver error ended (its ``reason`` says which).
 SOLVER_ERROR_STATUS = "solver_error"
 
@@ -136,15 +142,19 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
     eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
     log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
+    # --accuracy: a mesh fine enough that its residual's round-off floor can exceed gtol
+    roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None else 0.0
     if method == "forward":
         t_solve = time.perf_counter()
-        eq = p.equilibrium(contraction, options=EquilibriumOptions(backend=equilibrium, ipopt=eq_ipopt))
+        eq = p.equilibrium(contraction, options=EquilibriumOptions(
+            backend=equilibrium, ipopt=eq_ipopt, continuation=_continuation_steps(p), roundoff=roundoff))
         t_end = time.perf_counter()
         doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,
                           status=eq.status, total_s=t_end - t0, solve_s=t_end - t_solve,
-                          iterations=eq.iterations, extra=extra)
+                          iterations=eq.iterations,
+                          extra={**extra, "continuation_steps": getattr(eq, "continuation_steps", 0)})
         return p, eq, doc, ()
-    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False, ipopt=eq_ipopt)
+    quiet = EquilibriumOptions(backend=equilibrium, eigenvalue=False, ipopt=eq_ipopt, roundoff=roundoff)
     if method == "bilevel":
         options = BilevelOptions(equilibrium=quiet,
                                  ipopt={} if ipopt_print_level is None else {"print_level": ipopt_print_level})
@@ -187,13 +197,22 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     return p, res.equilibrium, doc, history
 
 
+def _continuation_steps(p) -> int:
+    """The forward solve's continuation in the contraction after a failure
+    from rest (EquilibriumOptions.continuation): on a history-free plant
+    only (with friction the path is the physics, and it is followed anyway)."""
+    from ..solve.elastic_plant import ElasticPlant
+    return CONTINUATION_STEPS if type(p.plant) is ElasticPlant else 0
+
+
 def accuracy_record(report: dict) -> dict:
     """The result JSON's keys for a mesh chosen by ``--accuracy``: ``accuracy``
     (tolerance, estimated_error, element, nodes, whether the tolerance was
     met, whether the mesh is graded, how often it was refined uniformly,
-    the summary) and ``mesh_accuracy``."""
+    the summary, why the sweep stopped) and ``mesh_accuracy`` (with the
+    levels solved and those left unsolved)."""
     keys = ("tolerance", "estimated_error", "element", "nodes", "reached", "status", "max_area",
-            "graded", "refinements", "summary")
+            "graded", "refinements", "summary", "stopped")
     return {"accuracy": {k: report.get(k) for k in keys}, "mesh_accuracy": report}
 
 

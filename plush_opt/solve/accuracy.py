@@ -4,8 +4,8 @@ accounts for the convergence rate.
 A finer mesh predicts the pose better and costs more per equilibrium solve
 (and much more in the bilevel method). :func:`choose_mesh` solves the
 equilibrium at a few contractions on a sequence of meshes, coarse to fine,
-for each element type (P2 first, then P1 as long as it can still be
-cheaper), and estimates the error of each level's predicted positions of a
+for each element type (in the order of their predicted cost, below), and
+estimates the error of each level's predicted positions of a
 few body points (the targets, or else the tendon stoppers and the scene's
 extra points). The levels are two families of nested meshes (a graded
 mesh refined uniformly, 4x the nodes per step), interleaved so that each
@@ -26,7 +26,11 @@ The picked level is the one with the least measured solve time whose
 estimate is below the tolerance, or whose distance to such a level plus
 that level's estimate is below it (:func:`bound_errors`: a coarse level
 without an estimate of its own can still be shown close enough);
-docs/accuracy.md has the reasoning and the measurements.
+docs/accuracy.md has the reasoning and the measurements. The estimates
+and bounds are :mod:`plush_opt.solve.accuracy_estimate`; the order in
+which the default levels are solved, from each level's predicted cost,
+and where the sweep stops (as soon as a level meets the tolerance) is
+:mod:`plush_opt.solve.accuracy_sweep`.
 
 :func:`transfer_pose` carries a pose from one mesh of a scene to another
 (interpolation of the displacement); the finer level's solve starts from
@@ -39,14 +43,17 @@ import dataclasses
 import logging
 import math
 import time
-from typing import NamedTuple
 
 import numpy as np
 
+# the estimate's names are also this module's (callers import them from here)
+from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
+                                _json_number, bound_errors, estimate_errors, estimate_levels)
+from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
+from ..base.linalg import NotPositiveDefinite
 from ..base.geometry import body_area
-from ..fem.elements import ELEMENTS
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -78,20 +85,11 @@ GRADED = True
 #: A level counts as finer than the previous one only with this many times
 #: its nodes (explicit levels; family B is dropped below this).
 MIN_REFINEMENT = 1.3
-#: Element types tried, in this order (P2 first: its solve time bounds how
-#: far the P1 sweep has to go).
+#: Element types of the sweep (explicit levels: swept in this order, P2
+#: first, its solve time bounding how far the P1 sweep goes; the default
+#: levels: in the order of plush_opt.solve.accuracy_sweep, the first
+#: element the fallback when nothing meets the tolerance).
 ELEMENT_ORDER = ("P2", "P1")
-#: Best convergence order (in the mesh size h) of point displacements
-#: expected of each element (h^(k+1) for degree k): the estimate never
-#: assumes faster convergence than this, whatever two levels happened to show.
-EXPECTED_ORDER = {e.name: e.degree + 1.0 for e in ELEMENTS}
-#: Differences shrinking by less than this per level are not converging
-#: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
-MAX_RATIO = 0.8
-#: The geometric tail times this: on unstructured, non-nested meshes the
-#: differences of consecutive levels scatter about their trend; Roache's
-#: grid convergence index uses 1.25 with three or more grids (3 for two).
-SAFETY = 1.25
 #: The levels' equilibria are solved to this residual (relative to the force
 #: scale), not the default 1e-10: the force scale, a 2-norm of nodal forces,
 #: halves with each uniform refinement while the residual's round-off floor
@@ -99,7 +97,9 @@ SAFETY = 1.25
 #: within a factor of a few of 1e-10 (docs/notes/accuracy-measurements.md). A
 #: residual of 1e-9 moves the compared points by about 1e-9 of the
 #: displacement, far below any difference the estimate uses.
-LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9)
+#: A positive definite pose whose residual stalls within its round-off floor
+#: (plush_opt.solve.certificate.roundoff_floor) is converged as well.
+LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9, roundoff=1.0)
 
 
 def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
@@ -155,17 +155,6 @@ def base_area(scene: Scene) -> float:
     return body / 400.0
 
 
-class Resolution(NamedTuple):
-    """One level of a sweep: the graded mesh at ``max_area``, refined
-    uniformly ``refinements`` times. ``family`` is the coarse mesh's
-    max_area for a nested family (the estimate compares a level only with
-    its own family), None for an explicit sequence of independent meshes."""
-
-    max_area: float
-    refinements: int = 0
-    family: float | None = None
-
-
 def default_levels(scene: Scene, element: str = "P2",
                    refinements: int = REFINEMENTS) -> tuple[Resolution, ...]:
     """The default sweep of one element, coarse to fine: families A and B
@@ -218,114 +207,6 @@ def probe_contractions(scene: Scene) -> np.ndarray:
     return np.array(cs)
 
 
-@dataclasses.dataclass
-class Level:
-    """One mesh level of one element type: its mesh, cost and predictions."""
-
-    element: str
-    resolution: Resolution
-    mesh: Mesh
-    t_mesh: float
-    t_solve: float
-    newton_iterations: int
-    poses: list                      # certified equilibria, one per contraction
-    y: np.ndarray                    # (m contractions, k points, 2) predicted positions
-    difference_to_next: float | None = None
-    ratio: float | None = None
-    estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
-    confirmed: bool = False          # usable as an anchor of bounds (see estimate_errors)
-    bound: float | None = None       # error bound the pick uses (see bound_errors)
-    bound_via: int | None = None     # the level (index among those bounded together) it comes from
-
-    @property
-    def max_area(self) -> float:
-        return self.resolution.max_area
-
-    def meets(self, tol: float) -> bool:
-        return self.bound is not None and self.bound <= tol
-
-    def row(self) -> dict:
-        return {"element": self.element, "max_area": self.max_area,
-                "refinements": self.resolution.refinements, "nested": self.resolution.family is not None,
-                "n_nodes": self.mesh.n_nodes,
-                "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
-                "newton_iterations": self.newton_iterations,
-                "difference_to_next": self.difference_to_next, "ratio": self.ratio,
-                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed,
-                "error_bound": _json_number(self.bound), "bound_via": self.bound_via}
-
-
-def _json_number(v):
-    return None if v is None or not math.isfinite(v) else float(v)
-
-
-def estimate_errors(ys, nodes, element: str, nested: bool = False) -> list[dict]:
-    """Error estimates of a sequence of levels of one element, coarse to fine.
-
-    Parameters
-    ----------
-    ys : per level, the predicted point positions (any shape ending in 2).
-    nodes : per level, its number of nodes.
-    element : "P1" or "P2" (sets the expected order).
-    nested : the levels are one family of nested meshes (each the one
-        before refined uniformly). Their differences shrink smoothly, so
-        the ratio is the one observed on the coarse side (levels k - 1,
-        k, k + 1) and the estimate stands on its own. Independent meshes
-        scatter: the ratio is the larger of both sides (level k + 2 too)
-        and the estimate must be confirmed by the next level's.
-
-    Returns
-    -------
-    per level a dict: ``difference`` (max distance to the next level, None
-    for the last), ``ratio`` (the ratio used, None without a previous
-    difference), ``estimate`` (d / (1 - ratio) x SAFETY; None where it needs
-    a level that is missing, inf where the differences do not shrink by
-    MAX_RATIO per level) and ``confirmed``.
-    """
-    n = len(ys)
-    d = [float(np.max(np.linalg.norm(np.asarray(ys[k]) - np.asarray(ys[k + 1]), axis=-1), initial=0.0))
-         for k in range(n - 1)] + [None]
-    out = []
-    for k in range(n):
-        ratio = estimate = None
-        if 0 < k < n - 1:
-            theory = (nodes[k] / nodes[k + 1]) ** (EXPECTED_ORDER[element] / 2)
-            sides = (k - 1,) if nested else (k - 1, k)
-            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0 for j in sides if j + 1 < n - 1]
-            ratio = max(observed + [theory])
-            estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
-        out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
-    for k in range(n - 1):
-        here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
-        usable = here is not None and math.isfinite(here)
-        out[k]["confirmed"] = usable and (nested or (nxt is not None and math.isfinite(nxt)
-                                                     and nxt <= here))
-    return out
-
-
-def bound_errors(levels: list[Level]) -> None:
-    """Set each level's error bound: the least, over the levels M whose
-    estimate is confirmed (the level itself included), of
-
-        max |y - y_M| + estimate_M
-
-    (the triangle inequality: the distance of y to the converged answer is
-    at most its distance to y_M plus y_M's). A coarse level whose own
-    differences scatter too much to be estimated is then still shown within
-    a tolerance by a finer level solved anyway to confirm that one, and a
-    level of one element by a level of the other (a coarse P1 level
-    through a finer P2 level). Never below the
-    estimate of the level it comes from, so no optimism is added."""
-    anchors = [(j, m) for j, m in enumerate(levels)
-               if m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]
-    for lv in levels:
-        lv.bound = lv.bound_via = None
-        for j, m in anchors:
-            b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.y - m.y, axis=-1))))
-            if lv.bound is None or b < lv.bound:
-                lv.bound, lv.bound_via = b, j
-
-
 def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
                  options: EquilibriumOptions) -> Level | None:
     """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
@@ -341,10 +222,13 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         return None
     model = build_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
-    solve_equilibrium(model, cs[-1], None, options)      # CHOLMOD's symbolic analysis: setup
-    t0 = time.perf_counter()
+    try:                          # the factorisation's symbolic analysis: setup, not timed
+        model.factorizer.factor(model.evaluate(model.X, cs[-1], order=2).hessian_form)
+    except NotPositiveDefinite:   # (analysed all the same)
+        pass
+    t0 = time.process_time()          # CPU seconds: the cost, whatever else runs on the machine
     cold = solve_equilibrium(model, cs[-1], None, options)
-    t_solve = time.perf_counter() - t0
+    t_solve = time.process_time() - t0
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
@@ -359,20 +243,6 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys))
-
-
-def estimate_levels(levels: list[Level]) -> None:
-    """Set the estimates of levels of one element (coarse to fine): each
-    nested family on its own, an explicit sequence as one; then the
-    bounds (:func:`bound_errors`)."""
-    for family in dict.fromkeys(lv.resolution.family for lv in levels):
-        group = [lv for lv in levels if lv.resolution.family == family]
-        est = estimate_errors([lv.y for lv in group], [lv.mesh.n_nodes for lv in group],
-                              group[0].element, nested=family is not None)
-        for lv, e in zip(group, est):
-            lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
-            lv.confirmed = e["confirmed"]
-    bound_errors(levels)
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
@@ -405,6 +275,77 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
         if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
             break
     return done
+
+
+def _cheapest_meeting(levels: list[Level], tol: float) -> Level | None:
+    """The level with the least solve time whose bound is within ``tol`` (bounds set first)."""
+    bound_errors(levels)
+    meeting = [lv for lv in levels if lv.meets(tol)]
+    return min(meeting, key=lambda lv: lv.t_solve) if meeting else None
+
+
+def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solved: dict | None = None,
+                  progress=None) -> tuple[Level | None, list[Level], Planner]:
+    """The default levels of ``elements`` solved in the order
+    :class:`~plush_opt.solve.accuracy_sweep.Planner` gives (the cheapest
+    predicted way to a level that meets ``tol``) until it stops: (the
+    cheapest level meeting ``tol`` or None, the levels solved in the order
+    solved, the planner: its ``stopped`` says why it stopped,
+    ``not_solved()`` the levels it left). ``solved``, ``progress``: as in
+    :func:`sweep`."""
+    solved = {} if solved is None else solved
+    chains = []
+    for element in elements:
+        s = dataclasses.replace(scene, element=element)
+        levels = default_levels(scene, element)
+        for family in dict.fromkeys(res.family for res in levels):
+            n0 = build_mesh(s, max_area=family, graded=GRADED).n_nodes
+            chains.append(Chain(element, tuple(res for res in levels if res.family == family), [n0]))
+    plan = Planner(chains, tol)
+    computed: list[Level] = []
+    best = None
+    while (chain := plan.pick(best)) is not None:
+        res, element = chain.next, chain.element
+        predicted = plan.cost.predict(element, chain.predicted_nodes(len(chain.solved))) if plan.cost.samples \
+            else None
+        level = solved.get((element, res))
+        if level is None:
+            prev = [lv for lv in computed if lv.element == element]
+            t0 = time.perf_counter()
+            level = _solve_level(dataclasses.replace(scene, element=element), res, cs, points,
+                                 prev[-1] if prev else None, options)
+            solved[(element, res)] = level
+            if progress is not None:
+                progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
+                         f"contraction(s) in {time.perf_counter() - t0:.1f} s (one solve {level.t_solve:.2f} CPU s"
+                         + ("" if predicted is None else f", predicted {predicted:.2f}") + ")")
+        if best is not None:
+            plan.extra_spent += level.t_solve
+        plan.solved(chain, level)
+        computed.append(level)
+        for el in dict.fromkeys(lv.element for lv in computed):
+            estimate_levels([lv for lv in computed if lv.element == el])
+        best = _cheapest_meeting(computed, tol)
+    plan.stopped = _stopped(plan, best, tol)
+    if progress is not None:
+        left = plan.not_solved()
+        skipped = "" if not left else "; not solved: " + ", ".join(
+            f"{row['element']} ~{row['predicted_nodes']:,} nodes ({row['predicted_t_solve_s']:.2g} s)"
+            for row in sorted(left, key=lambda row: row["predicted_nodes"]))
+        progress(f"accuracy: {plan.stopped}{skipped}")
+    return best, computed, plan
+
+
+def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
+    """Why the planned sweep stopped, in words."""
+    if best is not None:
+        return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
+                f"level left is predicted to solve faster within {EXTRA_BUDGET:g} x its solve time")
+    first = plan.chains[0]
+    return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
+            f"met): the {first.element} levels of its first family solved to the finest, "
+            f"{first.solved[-1].mesh.n_nodes:,} nodes" if first.solved else
+            f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not met)")
 
 
 def _check_arguments(tol, levels, scene: Scene):
@@ -489,15 +430,14 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
         np.asarray(contractions, dtype=np.float64).reshape(-1, len(scene.winches))
     computed: list[Level] = []
     best: Level | None = None
-    for element in elements:
-        done = sweep(scene, element, default_levels(scene, element) if levels is None else levels,
-                     cs, points, tol, options,
-                     math.inf if best is None else best.t_solve, solved, progress)
-        computed += done
-        bound_errors(computed)
-        for lv in computed:
-            if lv.meets(tol) and (best is None or lv.t_solve < best.t_solve):
-                best = lv
+    plan = None
+    if levels is None:
+        best, computed, plan = planned_sweep(scene, tol, elements, cs, points, options, solved, progress)
+    else:
+        for element in elements:
+            computed += sweep(scene, element, levels, cs, points, tol, options,
+                              math.inf if best is None else best.t_solve, solved, progress)
+            best = _cheapest_meeting(computed, tol)
     reached = best is not None
     if not reached:
         best = _fallback(computed, elements)
@@ -511,6 +451,9 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
         "points": kind, "n_points": int(len(points)),
         "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],
     }
+    if plan is not None:
+        report["not_solved"] = plan.not_solved()
+        report["stopped"] = plan.stopped
     report["summary"] = summary(report)
     report["point_coordinates"] = points.tolist()
     return best, computed, report
@@ -528,9 +471,10 @@ def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
 
 
 def _fallback(computed: list[Level], elements) -> Level:
-    """No level met the tolerance: the finest level of the first element."""
-    first = [lv for lv in computed if lv.element == elements[0]]
-    return first[-1]
+    """No level met the tolerance: the finest level of the first element
+    (of any, if none of it was solved)."""
+    first = [lv for lv in computed if lv.element == elements[0]] or computed
+    return max(first, key=lambda lv: lv.mesh.n_nodes)
 
 
 def _bound(computed: list[Level], level: Level):

@@ -83,6 +83,19 @@ class EquilibriumOptions:
         ill-conditioned H can set a floor above gtol), more than
         2 * stall_window iterations ran, and the best residual of the last
         ``stall_window`` is not below ``stall_gain`` times the best before.
+    continuation : where Newton from the given start fails, solve again
+        by continuation in the contraction from the rest contraction (0
+        clipped to the bounds) in this many equal steps (halved where one
+        fails), each from the last pose plus the sensitivity's predictor;
+        0 (default): no retry. For a history-free model only (the forward
+        solve of ``plush-opt solve`` sets it).
+    roundoff : a pose whose Hessian is positive definite and whose
+        residual is above ``gtol * force_scale`` but within ``roundoff``
+        times its round-off floor (:func:`roundoff_floor`) is converged:
+        no float64 pose is closer to the equilibrium (a fine mesh's floor
+        can exceed gtol). 0 (default): gtol alone; 1: the floor as
+        computed (a sum of absolute values: already a worst case), what
+        the accuracy sweep's levels and ``--accuracy`` solves use.
     ipopt : raw IPOPT options (backend 'ipopt'), passed through.
     """
 
@@ -104,6 +117,8 @@ class EquilibriumOptions:
     stall_residual: float = 1e-6      # a stall only counts near the tolerance, not in the global phase
     stall_window: int = 20            # long enough that a slow linear phase is not taken for a stall
     stall_gain: float = 0.5           # progress means halving the best residual over a window
+    continuation: int = 0
+    roundoff: float = 0.0             # opt-in (the accuracy levels, --accuracy): gtol alone by default
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -123,6 +138,10 @@ class EquilibriumOptions:
         for name in ("max_backtracks", "escape_halvings", "max_shifts", "stall_window"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name}: expected >= 1, got {getattr(self, name)!r}")
+        if not (0 <= self.roundoff < 1e3):
+            raise ValueError(f"roundoff: expected a number in [0, 1000), got {self.roundoff!r}")
+        if self.continuation < 0:
+            raise ValueError(f"continuation: expected >= 0 steps, got {self.continuation!r}")
         if self.max_escapes < 0:
             raise ValueError(f"max_escapes: expected >= 0, got {self.max_escapes!r}")
 
@@ -145,6 +164,9 @@ class Equilibrium:
     iterations, t_wall : Newton (or IPOPT) iterations and seconds.
     backend : 'newton' or 'ipopt'.
     saddle_escapes : saddles escaped on the way.
+    continuation_steps : contraction steps of the continuation that reached
+        it after the solve from the given start failed (0: solved directly;
+        ``EquilibriumOptions.continuation``).
     factor : Cholesky factor of the Hessian at x (for sensitivities), or None.
     """
 
@@ -161,6 +183,7 @@ class Equilibrium:
     t_wall: float
     backend: str
     saddle_escapes: int = 0
+    continuation_steps: int = 0
     factor: Factor | None = field(default=None, repr=False, compare=False)
 
     __repr__ = compact_repr      # no pose dumped: arrays by shape
@@ -245,3 +268,51 @@ def try_factor(model: Model, H) -> Factor | None:
         return model.factorizer.factor(H)
     except NotPositiveDefinite:
         return None
+
+
+def roundoff_floor(model: Model, x, contraction) -> float:
+    """The round-off floor of the residual at the pose ``x`` (n_dofs,),
+    force units (2-norm): how far from zero a float64 evaluation of grad_x E
+    can be at the float64 pose nearest the equilibrium.
+
+    Two parts, per dof i, times machine epsilon:
+
+    * ``sum_j |H_ij| |x_j|``: each coordinate is known to eps |x_j| (the
+      pose is stored in absolute coordinates), and a change of x by that
+      moves the gradient by H times it; summed with absolute values (no
+      cancellation assumed), so the part is an upper bound of that effect;
+    * ``sum_terms |g_term,i|``: the terms' gradients (elastic, pins,
+      tendons, gravity) are added, each to eps of its own size, and large
+      opposite forces (a taut tendon against the body) cancel in the sum.
+
+    A fine mesh has more dofs and stiffer rows relative to the force scale,
+    so its floor relative to the force scale grows with refinement; this is
+    the floor a stalled Newton solve sits on."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    c = np.asarray(contraction, dtype=np.float64).reshape(-1)
+    ev = model.evaluate(x, c, order=2)
+    if not ev.admissible or ev.hessian is None:
+        return 0.0
+    per_dof = abs(ev.hessian) @ np.abs(x)
+    for term in model.terms:
+        part = term.evaluate(x, c, 1)
+        if part.gradient is not None:
+            per_dof = per_dof + np.abs(part.gradient)
+    return float(np.finfo(np.float64).eps * np.linalg.norm(per_dof))
+
+
+def at_roundoff_floor(model: Model, eq: Equilibrium, options: EquilibriumOptions) -> Equilibrium:
+    """``eq`` certified where it is not converged only because its residual
+    cannot be made smaller in float64: its Hessian was factored without a
+    shift (positive definite) and its residual is finite and within
+    ``options.roundoff`` times :func:`roundoff_floor`. Anything else is
+    returned unchanged (never converged by this)."""
+    if eq.converged or options.roundoff == 0 or not eq.positive_definite \
+            or not np.isfinite(eq.residual_norm) or not np.isfinite(eq.force_scale):
+        return eq
+    floor = options.roundoff * roundoff_floor(model, eq.x, eq.contraction)
+    if not eq.residual_norm <= floor:
+        return eq
+    status = (f"converged to the round-off floor: residual {eq.relative_residual:.1e} of the force scale "
+              f"(floor {floor / eq.force_scale:.1e}, above gtol {options.gtol:g}); the solver said: {eq.status}")
+    return replace(eq, converged=True, status=status)

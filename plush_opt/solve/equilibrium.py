@@ -16,21 +16,38 @@ Two backends on the same energy:
 Both return an :class:`Equilibrium` that is *certified* by the same test
 (:mod:`plush_opt.solve.certificate`): ``converged`` only if the residual
 |grad_x E| is within tolerance relative to the force scale and the
-Hessian is positive definite (Cholesky succeeds).
+Hessian is positive definite (Cholesky succeeds). A positive definite pose
+whose residual stalled above the tolerance but within its round-off floor
+(:func:`~plush_opt.solve.certificate.roundoff_floor`: no float64 pose is
+closer) is converged too, and its status says so. With
+``EquilibriumOptions.continuation``, a solve that fails from its start
+tries again by continuation in the contraction (:func:`continuation`) and
+says so (``continuation_steps``, the status).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
 from ..base.errors import SolverError
 from ..fem.model import Model
-from .certificate import BACKENDS, LEFT_BRANCH, Equilibrium, EquilibriumOptions, certify, residual
+from .certificate import (BACKENDS, LEFT_BRANCH, Equilibrium, EquilibriumOptions, at_roundoff_floor, certify,
+                          residual, roundoff_floor)
 from .ipopt_equilibrium import IpoptEquilibrium
 from .newton import solve_newton
 
 __all__ = ["BACKENDS", "LEFT_BRANCH", "Equilibrium", "EquilibriumOptions", "IpoptEquilibrium", "certify",
-           "residual", "solve_equilibrium"]
+           "continuation", "residual", "roundoff_floor", "solve_equilibrium"]
+
+#: A continuation step that fails is halved, at most this many times in a
+#: row (then the continuation fails): 2^-6 of the first step is far below
+#: any step a smooth path of equilibria needs.
+CONTINUATION_HALVINGS = 6
+#: After a step that converged, the next is this much longer (up to the
+#: first step): the path is often steep only at its start.
+CONTINUATION_GROWTH = 1.5
 
 
 def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOptions | None = None,
@@ -43,6 +60,13 @@ def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOp
     ``chord`` : the factor of a nearby certified equilibrium (Newton's
     first steps reuse it while they converge fast: :func:`solve_newton`)."""
     options = options or EquilibriumOptions()
+    eq = _solve_once(model, contraction, x0, options, ipopt, chord)
+    if eq.converged or options.continuation == 0:
+        return eq
+    return continuation(model, eq, x0, options, ipopt)
+
+
+def _solve_once(model: Model, contraction, x0, options: EquilibriumOptions, ipopt, chord) -> Equilibrium:
     c = np.array(contraction, dtype=np.float64).reshape(-1)
     if c.shape != (model.n_winches,):
         raise SolverError(f"contraction: expected {model.n_winches} values, got {c.size}")
@@ -54,5 +78,62 @@ def solve_equilibrium(model: Model, contraction, x0=None, options: EquilibriumOp
             ipopt = IpoptEquilibrium(model)
         elif ipopt.model is not model:
             raise ValueError("ipopt: an IpoptEquilibrium of another model")
-        return ipopt.solve(c, x, options)
-    return solve_newton(model, c, x, options, chord)
+        return at_roundoff_floor(model, ipopt.solve(c, x, options), options)
+    return at_roundoff_floor(model, solve_newton(model, c, x, options, chord), options)
+
+
+def continuation(model: Model, failed: Equilibrium, x0=None, options: EquilibriumOptions | None = None,
+                 ipopt: IpoptEquilibrium | None = None) -> Equilibrium:
+    """After ``failed`` (a solve at ``failed.contraction`` from ``x0``, default
+    the rest pose, that did not converge): the equilibrium there by
+    continuation in the contraction from the rest contraction c0 (0 clipped
+    to the bounds), in ``options.continuation`` equal steps, each from the
+    last certified pose moved by the sensitivity's predictor dx/dc dc (the
+    last pose where that is not admissible). A step that fails is halved
+    (at most :data:`CONTINUATION_HALVINGS` times in a row); after one that
+    converges the next grows by :data:`CONTINUATION_GROWTH`, up to the first.
+
+    Returns the certified equilibrium with ``continuation_steps`` (steps
+    solved) and a status that says it was reached by continuation, or a
+    failed :class:`Equilibrium` (``converged`` False) whose status gives
+    both failures: the solve from the start and where the continuation
+    stopped."""
+    options = options or EquilibriumOptions()
+    once = replace(options, continuation=0)
+    c = np.asarray(failed.contraction, dtype=np.float64)
+    c0 = np.clip(np.zeros_like(c), model.lower, model.upper)
+    eq = _solve_once(model, c0, x0, once, ipopt, None)
+    first = 1.0 / max(options.continuation, 1)
+    s, ds, halvings, steps = 0.0, first, 0, 0
+    while eq.converged and s < 1.0:
+        ds = min(ds, 1.0 - s)
+        target = c0 + min(s + ds, 1.0) * (c - c0)
+        trial = _solve_once(model, target, _predicted(model, eq, target), once, ipopt, None)
+        if trial.converged:
+            s, eq, steps, halvings = s + ds, trial, steps + 1, 0
+            ds = min(first, CONTINUATION_GROWTH * ds)
+        elif halvings < CONTINUATION_HALVINGS:
+            ds, halvings = 0.5 * ds, halvings + 1
+        else:
+            eq = trial
+    if eq.converged:
+        status = (f"{eq.status} by continuation in the contraction: {steps} steps from {c0.tolist()} "
+                  f"(from the start: {failed.status})")
+        return replace(eq, status=status, continuation_steps=steps)
+    status = (f"{failed.status}; continuation in the contraction from {c0.tolist()} failed at "
+              f"{np.asarray(eq.contraction).tolist()} after {steps} steps: {eq.status}")
+    return replace(failed, status=status, continuation_steps=steps)
+
+
+def _predicted(model: Model, eq: Equilibrium, target) -> np.ndarray:
+    """The pose at ``target`` predicted from the certified ``eq``:
+    x + dx/dc (target - c), dx/dc = -H^-1 d2E/dxdc; ``eq.x`` where there
+    is no factor or the prediction is not admissible."""
+    if eq.factor is None:
+        return eq.x
+    try:
+        dx = -eq.factor.solve(model.mixed(eq.x, eq.contraction) @ (np.asarray(target) - eq.contraction))
+    except SolverError:
+        return eq.x
+    x = eq.x + dx
+    return x if np.all(np.isfinite(x)) and model.admissible(x) else eq.x

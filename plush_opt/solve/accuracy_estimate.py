@@ -1,0 +1,165 @@
+"""The error estimate of an accuracy sweep's mesh levels: per nested family
+(or explicit sequence) the estimate from the differences of consecutive
+levels and their observed ratio, and the bounds of every level through the
+estimates of others (the reasoning: :mod:`plush_opt.solve.accuracy` and
+docs/accuracy.md). Pure arithmetic on the levels' predicted points; the
+sweep that solves them is :mod:`plush_opt.solve.accuracy`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ..fem.elements import ELEMENTS
+from ..fem.mesh import Mesh
+
+#: Best convergence order (in the mesh size h) of point displacements
+#: expected of each element (h^(k+1) for degree k): the estimate never
+#: assumes faster convergence than this, whatever two levels happened to show.
+EXPECTED_ORDER = {e.name: e.degree + 1.0 for e in ELEMENTS}
+#: Differences shrinking by less than this per level are not converging
+#: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
+MAX_RATIO = 0.8
+#: The geometric tail times this: on unstructured, non-nested meshes the
+#: differences of consecutive levels scatter about their trend; Roache's
+#: grid convergence index uses 1.25 with three or more grids (3 for two).
+SAFETY = 1.25
+
+
+class Resolution(NamedTuple):
+    """One level of a sweep: the graded mesh at ``max_area``, refined
+    uniformly ``refinements`` times. ``family`` is the coarse mesh's
+    max_area for a nested family (the estimate compares a level only with
+    its own family), None for an explicit sequence of independent meshes."""
+
+    max_area: float
+    refinements: int = 0
+    family: float | None = None
+
+
+@dataclasses.dataclass
+class Level:
+    """One mesh level of one element type: its mesh, cost and predictions
+    (``t_mesh`` wall seconds; ``t_solve`` CPU seconds of one Newton solve
+    from rest, after the factorisation's symbolic analysis)."""
+
+    element: str
+    resolution: Resolution
+    mesh: Mesh
+    t_mesh: float
+    t_solve: float
+    newton_iterations: int
+    poses: list                      # certified equilibria, one per contraction
+    y: np.ndarray                    # (m contractions, k points, 2) predicted positions
+    difference_to_next: float | None = None
+    ratio: float | None = None
+    estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
+    confirmed: bool = False          # usable as an anchor of bounds (see estimate_errors)
+    bound: float | None = None       # error bound the pick uses (see bound_errors)
+    bound_via: int | None = None     # the level (index among those bounded together) it comes from
+
+    @property
+    def max_area(self) -> float:
+        return self.resolution.max_area
+
+    def meets(self, tol: float) -> bool:
+        return self.bound is not None and self.bound <= tol
+
+    def row(self) -> dict:
+        return {"element": self.element, "max_area": self.max_area,
+                "refinements": self.resolution.refinements, "nested": self.resolution.family is not None,
+                "n_nodes": self.mesh.n_nodes,
+                "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
+                "newton_iterations": self.newton_iterations,
+                "difference_to_next": self.difference_to_next, "ratio": self.ratio,
+                "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed,
+                "error_bound": _json_number(self.bound), "bound_via": self.bound_via}
+
+
+def _json_number(v):
+    return None if v is None or not math.isfinite(v) else float(v)
+
+
+def estimate_errors(ys, nodes, element: str, nested: bool = False) -> list[dict]:
+    """Error estimates of a sequence of levels of one element, coarse to fine.
+
+    Parameters
+    ----------
+    ys : per level, the predicted point positions (any shape ending in 2).
+    nodes : per level, its number of nodes.
+    element : "P1" or "P2" (sets the expected order).
+    nested : the levels are one family of nested meshes (each the one
+        before refined uniformly). Their differences shrink smoothly, so
+        the ratio is the one observed on the coarse side (levels k - 1,
+        k, k + 1) and the estimate stands on its own. Independent meshes
+        scatter: the ratio is the larger of both sides (level k + 2 too)
+        and the estimate must be confirmed by the next level's.
+
+    Returns
+    -------
+    per level a dict: ``difference`` (max distance to the next level, None
+    for the last), ``ratio`` (the ratio used, None without a previous
+    difference), ``estimate`` (d / (1 - ratio) x SAFETY; None where it needs
+    a level that is missing, inf where the differences do not shrink by
+    MAX_RATIO per level) and ``confirmed``.
+    """
+    n = len(ys)
+    d = [float(np.max(np.linalg.norm(np.asarray(ys[k]) - np.asarray(ys[k + 1]), axis=-1), initial=0.0))
+         for k in range(n - 1)] + [None]
+    out = []
+    for k in range(n):
+        ratio = estimate = None
+        if 0 < k < n - 1:
+            theory = (nodes[k] / nodes[k + 1]) ** (EXPECTED_ORDER[element] / 2)
+            sides = (k - 1,) if nested else (k - 1, k)
+            observed = [d[j + 1] / d[j] if d[j] > 0 else 0.0 for j in sides if j + 1 < n - 1]
+            ratio = max(observed + [theory])
+            estimate = math.inf if ratio >= MAX_RATIO else SAFETY * d[k] / (1.0 - ratio)
+        out.append({"difference": d[k], "ratio": ratio, "estimate": estimate, "confirmed": False})
+    for k in range(n - 1):
+        here, nxt = out[k]["estimate"], out[k + 1]["estimate"]
+        usable = here is not None and math.isfinite(here)
+        out[k]["confirmed"] = usable and (nested or (nxt is not None and math.isfinite(nxt)
+                                                     and nxt <= here))
+    return out
+
+
+def bound_errors(levels: list[Level]) -> None:
+    """Set each level's error bound: the least, over the levels M whose
+    estimate is confirmed (the level itself included), of
+
+        max |y - y_M| + estimate_M
+
+    (the triangle inequality: the distance of y to the converged answer is
+    at most its distance to y_M plus y_M's). A coarse level whose own
+    differences scatter too much to be estimated is then still shown within
+    a tolerance by a finer level solved anyway to confirm that one, and a
+    level of one element by a level of the other (a coarse P1 level
+    through a finer P2 level). Never below the
+    estimate of the level it comes from, so no optimism is added."""
+    anchors = [(j, m) for j, m in enumerate(levels)
+               if m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]
+    for lv in levels:
+        lv.bound = lv.bound_via = None
+        for j, m in anchors:
+            b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.y - m.y, axis=-1))))
+            if lv.bound is None or b < lv.bound:
+                lv.bound, lv.bound_via = b, j
+
+
+def estimate_levels(levels: list[Level]) -> None:
+    """Set the estimates of levels of one element (coarse to fine): each
+    nested family on its own, an explicit sequence as one; then the
+    bounds (:func:`bound_errors`)."""
+    for family in dict.fromkeys(lv.resolution.family for lv in levels):
+        group = [lv for lv in levels if lv.resolution.family == family]
+        est = estimate_errors([lv.y for lv in group], [lv.mesh.n_nodes for lv in group],
+                              group[0].element, nested=family is not None)
+        for lv, e in zip(group, est):
+            lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
+            lv.confirmed = e["confirmed"]
+    bound_errors(levels)

@@ -1,0 +1,101 @@
+"""A forward solve that fails from rest tries continuation in the
+contraction and says so; the residual's round-off floor certifies a pose
+whose Newton solve stalled on it, and nothing else."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from plush_opt import load
+from plush_opt.solve.equilibrium import EquilibriumOptions, roundoff_floor, solve_equilibrium
+from cli_helpers import cli
+from shipped import built
+
+DATA = Path(__file__).parent / "data"
+
+
+@pytest.fixture(scope="module")
+def strip():
+    return load(DATA / "thin_strip.yaml").model
+
+
+def test_the_thin_strip_fails_from_rest_and_continuation_finds_its_pose(strip):
+    plain = solve_equilibrium(strip, [30.0], options=EquilibriumOptions(eigenvalue=False))
+    assert not plain.converged and plain.continuation_steps == 0
+    assert plain.status.startswith("iteration limit")
+    eq = solve_equilibrium(strip, [30.0], options=EquilibriumOptions(eigenvalue=False, continuation=4))
+    assert eq.converged and eq.positive_definite
+    assert eq.relative_residual <= 1e-10
+    assert eq.continuation_steps >= 4
+    assert "by continuation in the contraction" in eq.status and "iteration limit" in eq.status
+    assert np.array_equal(eq.contraction, [30.0])
+    # the same pose as a careful continuation by hand (1 mm steps from rest)
+    x = None
+    for c in np.arange(1.0, 30.01, 1.0):
+        step = solve_equilibrium(strip, [c], x, EquilibriumOptions(eigenvalue=False))
+        assert step.converged, step.status
+        x = step.x
+    assert np.abs(eq.x - x).max() <= 1e-6
+
+
+def test_a_continuation_that_fails_is_never_called_converged(strip):
+    opts = EquilibriumOptions(eigenvalue=False, continuation=2, max_iterations=5)
+    eq = solve_equilibrium(strip, [30.0], options=opts)
+    assert not eq.converged
+    assert "continuation in the contraction from [0.0] failed" in eq.status
+    assert eq.status.startswith("iteration limit (5) reached")
+
+
+def test_a_solve_that_converges_directly_is_unchanged_by_the_option():
+    _, _, model, _ = built("hexapod_leg")
+    plain = solve_equilibrium(model, [8.0])
+    cont = solve_equilibrium(model, [8.0], options=EquilibriumOptions(continuation=4))
+    assert cont.continuation_steps == 0 and cont.status == plain.status == "converged"
+    assert np.array_equal(plain.x, cont.x) and plain.iterations == cont.iterations
+
+
+def test_plush_opt_solve_says_it_used_continuation(tmp_path):
+    out = tmp_path / "strip.json"
+    r = cli("solve", str(DATA / "thin_strip.yaml"), "--contraction", "pull=30", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "by continuation in the contraction" in r.stdout
+    doc = json.loads(out.read_text())
+    assert doc["converged"] and doc["continuation_steps"] >= 4
+    assert "by continuation" in doc["status"]
+
+
+def test_a_newton_stall_on_the_round_off_floor_is_certified():
+    """gtol below what float64 can resolve: Newton stalls on the floor; the
+    certificate accepts the positive definite pose within it."""
+    _, _, model, _ = built("hexapod_leg")
+    tight = EquilibriumOptions(gtol=1e-14, eigenvalue=False, roundoff=1.0)
+    before = solve_equilibrium(model, [8.0], options=EquilibriumOptions(gtol=1e-14, eigenvalue=False))
+    assert not before.converged and before.status.startswith("residual stalled")
+    eq = solve_equilibrium(model, [8.0], options=tight)
+    assert eq.converged and eq.positive_definite
+    assert eq.status.startswith("converged to the round-off floor")
+    floor = roundoff_floor(model, eq.x, eq.contraction)
+    assert 1e-14 * eq.force_scale < eq.residual_norm <= floor
+    reference = solve_equilibrium(model, [8.0], options=EquilibriumOptions(eigenvalue=False))
+    assert np.abs(eq.x - reference.x).max() <= 1e-9
+
+
+def test_a_solve_that_is_not_converged_is_not_rescued_by_the_floor():
+    _, _, model, _ = built("hexapod_leg")
+    eq = solve_equilibrium(model, [8.0], options=EquilibriumOptions(max_iterations=3, eigenvalue=False,
+                                                                     roundoff=1.0))
+    assert not eq.converged and eq.status.startswith("iteration limit (3)")
+    assert eq.residual_norm > 1e3 * roundoff_floor(model, eq.x, eq.contraction)
+
+
+def test_a_saddle_is_never_certified_by_the_floor():
+    """The straight buckling strip past its critical contraction: the
+    residual vanishes, the Hessian is indefinite: not converged."""
+    _, _, model, _ = built("hard/buckling")
+    eq = solve_equilibrium(model, [2.0], options=EquilibriumOptions(escape_saddles=False, eigenvalue=False,
+                                                                     roundoff=1.0))
+    assert not eq.converged and not eq.positive_definite
+    assert eq.status.startswith("saddle")
+    assert eq.residual_norm <= eq.force_scale * 1e-10
