@@ -54,6 +54,7 @@ problem file's own mesh is what its max_area says.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 import triangle as _triangle
 
 from ..base.geometry import body_area, ring_area, triangle_areas
@@ -140,9 +141,10 @@ def singular_points(scene: Scene) -> np.ndarray:
     if not pts:
         return np.zeros((0, 2))
     pts = np.array(pts, dtype=np.float64)
-    # one copy of each point
-    keep = [i for i in range(len(pts))
-            if not any(np.linalg.norm(pts[j] - pts[i]) <= scene.tolerance for j in range(i))]
+    # one copy of each point: the first of those within the tolerance of each other
+    keep = np.ones(len(pts), dtype=bool)
+    for i, j in cKDTree(pts).query_pairs(scene.tolerance):
+        keep[max(i, j)] = False
     return pts[keep]
 
 

@@ -10,6 +10,7 @@ checked by :func:`plush_opt.io.load_scene`.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -240,9 +241,10 @@ class Scene:
     def frozen(self) -> np.ndarray:
         return np.array([w.frozen for w in self.winches], dtype=bool)
 
-    @property
+    @functools.cached_property
     def diameter(self) -> float:
-        """Body diameter (largest distance between two body points), length units."""
+        """Body diameter (largest distance between two body points), length
+        units; computed once per scene (``tolerance`` asks for it often)."""
         return diameter(self.outline if self.outline is not None else self.nodes)
 
     @property
