@@ -62,7 +62,7 @@ class AccurateSolve:
         ``at_result`` (and ``mesh_accuracy`` with each check's levels)."""
         if self.levels is None:
             return solved
-        rounds = []
+        rounds, resolves = [], 0
         for attempt in range(MAX_RESOLVES + 1):
             p, eq, doc, history = solved
             if not eq.converged:            # no certified pose: nothing to estimate at, and nothing claimed
@@ -82,11 +82,16 @@ class AccurateSolve:
                            "levels": [lv.row() for lv in at]})
             if used.meets(self.tol) or attempt == MAX_RESOLVES:
                 break
-            k = cheapest_meeting(at, self.tol)
+            k, extended = cheapest_meeting(at, self.tol), False
             if k is None:             # no level solved so far meets it there: the sweep goes on, there too
-                k = self._extend(at, eq.contraction)
+                k, extended = self._extend(at, eq.contraction), True
             if k is None:
                 break
+            if (self.levels[k].element, self.levels[k].resolution) == (used.element, used.resolution):
+                if extended:          # the same level: estimate again on the sweep's levels, no new solve
+                    continue
+                break
+            resolves += 1
             est = "no estimate" if used.bound is None else f"estimated {used.bound:.3g}"
             self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes is {est} > "
                           f"{self.tol:g} at the returned contractions: solving again on the {self.levels[k].element} "
@@ -96,7 +101,7 @@ class AccurateSolve:
         if rounds:
             last = rounds[-1]
             at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
-            at_result["resolves"] = len(rounds) - 1
+            at_result["resolves"] = resolves
             at_result["summary"] = at_result_summary(at_result, self.tol)
             doc["accuracy"]["at_result"] = at_result
             doc["mesh_accuracy"]["at_result"] = rounds
