@@ -25,7 +25,8 @@ pytestmark = pytest.mark.slow  # each runs and interrupts a command-line run
 
 CHILD = Path(__file__).with_name("cli_child.py")
 SIGNALS = ("SIGTERM", "SIGHUP", "SIGINT")
-POSE = {"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30}}
+# streamed, so that the run is still sending commands when the signal comes
+POSE = {"pose": {"targets": [{"at": [0, 0], "to": [1, 1]}], "max_time": 30, "stream": True}}
 #: point of the run -> (steps, predicate on the log lines so far)
 POINTS = {
     "start": ([POSE], lambda lines: lines is not None and len(lines) == 0),
