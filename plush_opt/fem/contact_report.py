@@ -5,6 +5,8 @@ the force at every node that feels one."""
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 
 from . import contact_geometry as geo
 from .contact import ContactTerm
@@ -58,33 +60,27 @@ def patches(term: ContactTerm, x: np.ndarray, nodes: list[dict]) -> list[dict]:
     ``nodes`` is :func:`node_forces` at ``x``; patches are sorted by thing,
     then by their first node."""
     pos = x.reshape(-1, 2)
-    local = {int(n): k for k, n in enumerate(term.boundary.nodes)}
+    segments = term.boundary.segments
     found = []
     for label in sorted({e["with"] for e in nodes}):
-        force = {e["node"]: np.asarray(e["normal_force"]) + np.asarray(e["friction_force"])
-                 for e in nodes if e["with"] == label}
-        # union-find over the boundary segments whose both ends touch this thing
-        root = {n: n for n in force}
-
-        def find(n):
-            while root[n] != n:
-                root[n] = root[root[n]]
-                n = root[n]
-            return n
-
-        for a, b in term.boundary.segments:
-            if int(a) in force and int(b) in force:
-                root[find(int(a))] = find(int(b))
-        groups: dict[int, list[int]] = {}
-        for n in sorted(force, key=lambda n: local.get(n, n)):
-            groups.setdefault(find(n), []).append(n)
-        for members in groups.values():
-            members = sorted(members)
-            f = np.sum([force[n] for n in members], axis=0)
-            size = np.array([np.linalg.norm(force[n]) for n in members])
-            at = (size @ pos[members]) / size.sum() if size.sum() > 0 else pos[members].mean(axis=0)
-            found.append({"with": label, "nodes": members, "force": [float(f[0]), float(f[1])],
-                          "at": [float(at[0]), float(at[1])]})
+        touched = np.array(sorted(e["node"] for e in nodes if e["with"] == label))
+        force = np.zeros((len(touched), 2))
+        for e in nodes:
+            if e["with"] == label:
+                force[np.searchsorted(touched, e["node"])] += np.add(e["normal_force"], e["friction_force"])
+        # the boundary segments whose both ends touch this thing join them into patches
+        ends = np.isin(segments, touched).all(axis=1)
+        a, b = np.searchsorted(touched, segments[ends].T)
+        graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(touched),) * 2)
+        _, patch = connected_components(graph, directed=False)
+        for k in np.unique(patch):
+            members = np.flatnonzero(patch == k)
+            f = force[members].sum(axis=0)
+            size = np.linalg.norm(force[members], axis=1)
+            where = pos[touched[members]]
+            at = (size @ where) / size.sum() if size.sum() > 0 else where.mean(axis=0)
+            found.append({"with": label, "nodes": [int(n) for n in touched[members]],
+                          "force": [float(f[0]), float(f[1])], "at": [float(at[0]), float(at[1])]})
     return sorted(found, key=lambda p: (p["with"], p["nodes"][0]))
 
 
