@@ -99,3 +99,38 @@ def test_a_saddle_is_never_certified_by_the_floor():
     assert not eq.converged and not eq.positive_definite
     assert eq.status.startswith("saddle")
     assert eq.residual_norm <= eq.force_scale * 1e-10
+
+
+@pytest.fixture(scope="module")
+def strip_with_target():
+    return load(DATA / "thin_strip.yaml").with_targets([{"at": [150, 0], "to": [120, 40]}])
+
+
+def test_control_whose_start_fails_from_rest_starts_by_continuation(strip_with_target):
+    from plush_opt.base.errors import SolverError
+    from plush_opt.control import ControlOptions
+    with pytest.raises(SolverError, match="starting equilibrium is not certified"):
+        strip_with_target.control("reparam", {"pull": 30.0},
+                                  options=ControlOptions(start_continuation=0, max_iterations=1))
+    res = strip_with_target.control("reparam", {"pull": 30.0}, options=ControlOptions(max_iterations=2))
+    start = res.history[0]
+    assert np.array_equal(start.contraction, [30.0])
+    assert "by continuation in the contraction" in start.equilibrium.status
+    assert start.equilibrium.continuation_steps >= 4
+    assert res.history[-1].objective < start.objective      # and the loop went on from there
+
+
+@pytest.mark.slow
+def test_bilevel_whose_start_fails_from_rest_starts_by_continuation(strip_with_target):
+    from plush_opt.control import BilevelOptions
+    res = strip_with_target.control("bilevel", {"pull": 30.0}, options=BilevelOptions(max_iter=3))
+    assert res.history[0].objective > res.objective
+    assert res.equilibrium is not None and res.equilibrium.converged
+
+
+def test_start_continuation_is_checked():
+    from plush_opt.control import BilevelOptions, ControlOptions
+    with pytest.raises(ValueError, match="start_continuation"):
+        ControlOptions(start_continuation=-1)
+    with pytest.raises(ValueError, match="start_continuation"):
+        BilevelOptions(start_continuation=1.5)

@@ -206,7 +206,7 @@ def _checked_start(model: Model, contraction0, frozen) -> tuple[np.ndarray, np.n
 def _start(model: Model, targets: Targets, c0, frozen, x0, options: BilevelOptions):
     """The certified starting equilibrium, with the slack taken up; (eq, winches taken up)."""
     quick = replace(options.equilibrium, eigenvalue=False)
-    start = solve_equilibrium(model, c0, x0, quick)
+    start = solve_equilibrium(model, c0, x0, replace(quick, continuation=options.start_continuation))
     if not start.converged:
         raise SolverError(f"the starting equilibrium is not certified: {start.status}")
     if not (options.take_up_slack and targets.n_targets):

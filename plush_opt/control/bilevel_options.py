@@ -91,6 +91,9 @@ class BilevelOptions:
     pose_tol : largest distance (length units) between IPOPT's pose and the
         certified one for the result to count as converged; None: 1e-6 x
         the body diameter.
+    start_continuation : where the starting equilibrium fails from its
+        start pose, it is sought by continuation in the contraction in this
+        many steps (``EquilibriumOptions.continuation``); 0: not.
     equilibrium : options of the Newton solves (start and certification).
     ipopt : raw IPOPT options, passed through last (keys without the
         ``ipopt.`` prefix, e.g. ``{"linear_solver": "ma27"}``).
@@ -120,12 +123,15 @@ class BilevelOptions:
     expand: bool = True
     residual_tol: float = 1e-6
     pose_tol: float | None = None
+    start_continuation: int = 4
     equilibrium: EquilibriumOptions = field(default_factory=EquilibriumOptions)
     ipopt: dict = field(default_factory=dict)
 
     def __post_init__(self):
         if self.formulation not in FORMULATIONS:
             raise ValueError(f"formulation: expected one of {FORMULATIONS}, got {self.formulation!r}")
+        if not (isinstance(self.start_continuation, int) and self.start_continuation >= 0):
+            raise ValueError(f"start_continuation: expected an integer >= 0, got {self.start_continuation!r}")
         if not (isinstance(self.hessian_damping, (int, float)) and self.hessian_damping >= 0):
             raise ValueError(f"hessian_damping: expected a number >= 0, got {self.hessian_damping!r}")
         if not (isinstance(self.patience, int) and self.patience >= 1):

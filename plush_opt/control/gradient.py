@@ -173,7 +173,9 @@ class Controller:
 
     def _start(self) -> Iterate:
         self._t0 = time.perf_counter()
-        eq = self._solve(self.contraction, self._x0)
+        steps = 0 if self.plant.path_dependent else self.options.start_continuation
+        eq = self._solve(self.contraction, self._x0,
+                         dataclasses.replace(self.options.equilibrium, continuation=steps))
         if not eq.converged:
             raise SolverError(f"the starting equilibrium is not certified: {eq.status}")
         self._eq = eq

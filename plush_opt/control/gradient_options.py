@@ -72,6 +72,11 @@ class ControlOptions:
         the current iterate's stable branch (plush_opt/solve/branch.py): past a
         limit point it fails in a few iterations, and the step is cut
         instead of followed across a snap-through (docs/control.md).
+    start_continuation : where the starting equilibrium fails from its
+        start pose, it is sought by continuation in the contraction in this
+        many steps (``EquilibriumOptions.continuation``) before the loop
+        gives up; 0: not. A history-free plant only: with history (friction)
+        the path is the physics and is followed anyway.
     equilibrium : options of every equilibrium solve.
     """
 
@@ -96,6 +101,7 @@ class ControlOptions:
     probe_fractions: tuple[float, ...] = (0.05, 0.15, 0.4)
     probe_gain: float = 1e-3
     trial_newton: int = 100
+    start_continuation: int = 4
     equilibrium: EquilibriumOptions = field(
         default_factory=lambda: EquilibriumOptions(eigenvalue=False))
 
@@ -116,6 +122,8 @@ class ControlOptions:
             raise ValueError(f"probe_fractions: expected fractions in (0, 1), got {self.probe_fractions!r}")
         if not (isinstance(self.trial_newton, int) and self.trial_newton >= 1):
             raise ValueError(f"trial_newton: expected an integer >= 1, got {self.trial_newton!r}")
+        if not (isinstance(self.start_continuation, int) and self.start_continuation >= 0):
+            raise ValueError(f"start_continuation: expected an integer >= 0, got {self.start_continuation!r}")
         if not 0 < self.slope_floor <= 1:
             raise ValueError(f"slope_floor: expected 0 < slope_floor <= 1, got {self.slope_floor!r}")
 
