@@ -242,3 +242,28 @@ def test_the_trace_and_run_pictures_take_the_problems_units(monkeypatch):
     finally:
         for fig in figures:
             plt.close(fig)
+
+
+BOARD_M = """\
+format: plush-board/1
+name: strip_m
+winches:
+  - {name: pull, axis: 0, spool_radius: 0.006, ticks_per_rev: 12, gear_ratio: 100, direction: 1,
+     limits: [0.0, 0.02], max_speed: 0.015}
+"""
+
+
+def test_a_run_of_a_metres_file_speaks_metres(metres, tmp_path, caplog):
+    """The run's log messages and progress line use the problem's length unit
+    (the board file's lengths are in it too)."""
+    from plush_opt.apps.planner import ControlPlanner
+    from plush_opt.apps.runs import run_script
+    (tmp_path / "board.yaml").write_text(BOARD_M)
+    script = tmp_path / "run.yaml"
+    script.write_text(f"format: plush-opt-run/1\nproblem: {metres.name}\nboard: board.yaml\nrate: 20\n"
+                      "steps:\n  - set: {pull: 0.005}\n  - hold: 0.1\n")
+    with caplog.at_level(logging.INFO, logger="plush_opt"):
+        run_script(script, dry_run=True, log_path=tmp_path / "run.jsonl", planner=ControlPlanner(metres))
+    said = "\n".join(r.getMessage() for r in caplog.records)
+    assert "pull 0.005 m" in said
+    assert " mm" not in said

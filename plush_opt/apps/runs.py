@@ -41,6 +41,7 @@ from plush_opt.apps.run_schedule import PlannedClock, PoseDispatch
 from plush_opt.board import BoardCalibration, BoardLink, DryRunLink, load_calibration, open_board
 from plush_opt.board.limits import allowed_ranges, check_contractions
 from plush_opt.base.errors import HardwareError, SceneError, SolverError, interrupt_status, one_line
+from plush_opt.io.problem_file import file_units
 from plush_opt.io.run_script import RunScript, Step, load_run_script
 
 log = logging.getLogger(__name__)
@@ -171,6 +172,7 @@ class _Runner:
         self.lower = {n: float(v) for n, v in zip(self.names, planner.lower)}
         self.upper = {n: float(v) for n, v in zip(self.names, planner.upper)}
         self.period = 1.0 / script.rate
+        self.unit = file_units(script.problem).length   # the problem's length unit (board lengths too)
         # Polls also feed the board's watchdog.
         self.poll_period = min(self.period, calibration.port.watchdog_ms / 1000.0 / WATCHDOG_POLLS)
         self.t0 = t0
@@ -212,7 +214,7 @@ class _Runner:
             c = self.commanded.get(n)
             m = (self.measured or {}).get(n)
             parts.append(f"{n} {c:.1f}" + (f">{m:.1f}" if m is not None else "") if c is not None else n)
-        self.progress.update("  ".join(parts) + " mm")
+        self.progress.update("  ".join(parts) + f" {self.unit}")
 
     # -- board I/O ---------------------------------------------------------
     def _read(self):
@@ -265,11 +267,12 @@ class _Runner:
             if clock() >= deadline:
                 at = self.measured or {}
                 late = max(off or self.names, key=lambda n: abs(self.commanded[n] - at.get(n, self.commanded[n])))
-                where = f" (at {at[late]:.3f} mm, tolerance {tolerance[late]:.3f} mm)" if late in at else ""
+                where = (f" (at {at[late]:.3f} {self.unit}, tolerance {tolerance[late]:.3f} {self.unit})"
+                         if late in at else "")
                 why = ("the board holds it there: tolerance below the board's deadband?" if not moving
                        else "tendon jammed or motor stalled?")
                 raise HardwareError(f"{self.script.path}: steps[{i}].{kind}: winch {late!r} did not reach "
-                                    f"{self.commanded[late]:.3f} mm within {timeout:.1f} s{where}: {why}")
+                                    f"{self.commanded[late]:.3f} {self.unit} within {timeout:.1f} s{where}: {why}")
             time.sleep(self.poll_period)
 
     def _forward(self, contraction):
@@ -294,7 +297,7 @@ class _Runner:
 
     def run_step(self, i: int, step: Step):
         self._step = (i, step.kind)
-        log.info("step %d/%d %s: %s", i + 1, len(self.script.steps), step.kind, _describe_step(step))
+        log.info("step %d/%d %s: %s", i + 1, len(self.script.steps), step.kind, _describe_step(step, self.unit))
         getattr(self, f"_step_{step.kind}")(i, step)
         self.steps_done += 1
 
@@ -411,15 +414,16 @@ class _Runner:
         n = len(self.script.steps)
         if far is not None and err > far:
             self.far_poses.append(i)
-            log.warning("%s: steps[%d].pose ended %.3g mm RMS from its targets (more than %.3g mm; %s)",
-                        self.script.path.name, i, err, far, result.get("status"))
+            log.warning("%s: steps[%d].pose ended %.3g %s RMS from its targets (more than %.3g %s; %s)",
+                        self.script.path.name, i, err, self.unit, far, self.unit, result.get("status"))
         else:
-            log.info("step %d/%d pose: %s; %.3g mm RMS from its targets", i + 1, n, result.get("status"), err)
+            log.info("step %d/%d pose: %s; %.3g %s RMS from its targets", i + 1, n, result.get("status"), err,
+                     self.unit)
 
 
-def _describe_step(step: Step) -> str:
+def _describe_step(step: Step, unit: str) -> str:
     if step.kind == "set":
-        return ", ".join(f"{n} {v:g} mm" for n, v in step.contraction.items())
+        return ", ".join(f"{n} {v:g} {unit}" for n, v in step.contraction.items())
     if step.kind == "pose":
         return f"solving for {len(step.targets)} target(s), at most {step.max_time:g} s"
     if step.kind == "hold":
