@@ -173,9 +173,7 @@ class Controller:
 
     def _start(self) -> Iterate:
         self._t0 = time.perf_counter()
-        steps = 0 if self.plant.path_dependent else self.options.start_continuation
-        eq = self._solve(self.contraction, self._x0,
-                         dataclasses.replace(self.options.equilibrium, continuation=steps))
+        eq = self._solve(self.contraction, self._x0, _start_options(self.options, self.plant))
         if not eq.converged:
             raise SolverError(f"the starting equilibrium is not certified: {eq.status}")
         self._eq = eq
@@ -415,6 +413,13 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
     elif move is not None:
         log.info("probe: moving %s to %.4g lowered O", names[move.winch], move.contraction[move.winch])
     return move, tried
+
+
+def _start_options(options: ControlOptions, plant: Plant) -> EquilibriumOptions:
+    """The starting solve's options: continuation where it fails from the
+    start pose, on a history-free plant (with history the path is the physics)."""
+    steps = 0 if plant.path_dependent else options.start_continuation
+    return dataclasses.replace(options.equilibrium, continuation=steps)
 
 
 #: The status of a line search that found no decrease.

@@ -33,6 +33,7 @@ import scipy.sparse as sp
 from ..base.errors import SceneError, format_point
 from . import contact_geometry as geo
 from .contact_boundary import Boundary, build_boundary
+from .contact_symbolic import obstacle_energy
 from .mesh import Mesh
 from .terms import Term, TermEvaluation, node_dofs
 from ..io.scene import Scene
@@ -335,20 +336,24 @@ class ContactTerm(Term):
         return t
 
     def expression(self, x, c):
-        if self.obstacles or self.self_contact:
-            raise SceneError(f"{self.source}: contact: the IPOPT backends (--equilibrium ipopt, "
-                             "--method bilevel) take the floor only, not obstacles or self-contact; "
-                             "use Newton and the gradient loop")
-        if self.ground is None:
-            return ca.MX(0)
+        if self.self_contact:
+            raise SceneError(f"{self.source}: contact.self: the IPOPT backends (--equilibrium ipopt, "
+                             "BilevelOptions(formulation='full')) take the floor and obstacles, not "
+                             "self-contact (its pairs grow with the square of the boundary); use Newton")
         P = ca.reshape(x, 2, self.n_dofs // 2)[:, self.boundary.nodes.tolist()]
-        n = self._normal
-        d = n[0] * P[0, :] + n[1] * P[1, :] - self._offset
-        u = d * d - self.dhat2
-        # log(d / d_hat) (not of d^2): a pose below the floor evaluates to NaN,
-        # which IPOPT's line search backs off from
-        b = ca.if_else(d < self.distance, -u * u * 2 * ca.log(d / self.distance), 0)
-        return self.stiffness * ca.dot(ca.DM(self.boundary.weight), b.T)
+        energy = ca.MX(0)
+        if self.ground is not None:
+            n = self._normal
+            d = n[0] * P[0, :] + n[1] * P[1, :] - self._offset
+            u = d * d - self.dhat2
+            # log(d / d_hat) (not of d^2): a pose below the floor evaluates to NaN,
+            # which IPOPT's line search backs off from
+            b = ca.if_else(d < self.distance, -u * u * 2 * ca.log(d / self.distance), 0)
+            energy += self.stiffness * ca.dot(ca.DM(self.boundary.weight), b.T)
+        if self.obstacles:
+            energy += obstacle_energy(P, self.boundary.local, self.boundary.weight, self._obstacle_edges,
+                                      self._obstacle_weight, self.stiffness, self.dhat2)
+        return energy
 
     # -- the rest pose --------------------------------------------------------
 

@@ -64,18 +64,23 @@ def test_the_sweep_covers_every_problem_file():
 @pytest.mark.parametrize("name, backend", list(_params()))
 def test_equilibria_are_certified_or_honest(name, backend):
     _, _, model, _ = built(name)
-    if backend == "ipopt" and model.contact is not None and (model.contact.obstacles or model.contact.self_contact):
-        # IPOPT takes the floor only: obstacle and self pairs change with the pose; refused in one line
-        with pytest.raises(SceneError, match="take the floor only"):
+    settings = settings_of(model)
+    if backend == "ipopt" and model.contact is not None and model.contact.self_contact:
+        # self-contact's pairs grow with the square of the boundary: refused in one line
+        with pytest.raises(SceneError, match="not self-contact"):
             solve_equilibrium(model, model.lower, options=eq_options(backend))
         return
+    if backend == "ipopt" and model.contact is not None and model.contact.obstacles:
+        # every obstacle pair in one expression: IPOPT takes ~15 s a solve here, so one
+        # setting (tests/test_contact_ipopt.py compares it with Newton on a small body)
+        settings = settings[1:2]
     claimed = 0
-    for c in settings_of(model):
+    for c in settings:
         eq = solve_equilibrium(model, c, options=eq_options(backend))
         assert_honest(model, eq, f"{name} {backend} c={np.round(c, 3).tolist()}")
         claimed += eq.converged
     if name in SHIPPED_NAMES and backend == "newton":
-        assert claimed == 4, f"{name}: a shipped problem should solve at every setting"
+        assert claimed == len(settings), f"{name}: a shipped problem should solve at every setting"
 
 
 @pytest.mark.slow

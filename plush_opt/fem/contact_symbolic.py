@@ -1,0 +1,84 @@
+"""The contact barrier as a CasADi expression, for the IPOPT backends
+(the equilibrium cross-check and the full bilevel formulation).
+
+Newton evaluates the barrier over the pairs a broad phase finds at each
+pose (:mod:`plush_opt.fem.contact`); an expression is built once, so it
+holds every pair that can ever touch: the floor against every boundary
+node, and each obstacle edge against every boundary node and each
+obstacle vertex against every boundary segment (a few thousand pairs for
+a gripper around an object). Self-contact pairs are every pair of
+boundary nodes and segments, quadratic in the boundary: it stays with
+Newton. The expression is the same energy as the numeric one, pair type
+by pair type (:func:`~plush_opt.fem.contact_geometry.pair_type`'s rule,
+the same squared distances and the same IPC barrier), so IPOPT and Newton
+balance the same forces.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+def barrier(s, dhat2: float):
+    """The IPC barrier of :func:`~plush_opt.fem.contact_geometry.barrier`
+    on a symbolic squared distance ``s``: -(s - dhat2)^2 ln(s / dhat2)
+    below dhat2, 0 above (a pose with s <= 0 evaluates to inf or NaN,
+    which IPOPT's line search backs off from)."""
+    u = s - dhat2
+    return ca.if_else(s < dhat2, -u * u * ca.log(s / dhat2), 0)
+
+
+def point_segment_sq(px, py, ax, ay, bx, by):
+    """Squared distance from p to segment [a, b], elementwise over
+    symbolic or numeric rows (each argument a row of the same length or a
+    scalar): to the end a where the projection falls before it, to b
+    past it, else to the line, as
+    :func:`~plush_opt.fem.contact_geometry.point_segment_sq` decides."""
+    ex, ey = bx - ax, by - ay
+    qx, qy = px - ax, py - ay
+    length2 = ex * ex + ey * ey
+    along = qx * ex + qy * ey
+    cross = ex * qy - ey * qx
+    to_a = qx * qx + qy * qy
+    to_b = (px - bx) ** 2 + (py - by) ** 2
+    # the line's form is evaluated everywhere; a zero-length segment is its end a
+    line = cross * cross / ca.fmax(length2, np.finfo(float).tiny)
+    return ca.if_else(along <= 0, to_a, ca.if_else(along >= length2, to_b, line))
+
+
+def _pair_kernel(dhat2: float) -> ca.Function:
+    """The barrier of one point-segment pair, (p, a, b) -> b(s), compiled
+    from scalar operations (mapped over every pair: one small graph whose
+    derivatives CasADi takes once)."""
+    p, a, b = ca.SX.sym("p", 2), ca.SX.sym("a", 2), ca.SX.sym("b", 2)
+    s = point_segment_sq(p[0], p[1], a[0], a[1], b[0], b[1])
+    return ca.Function("contact_pair", [p, a, b], [barrier(s, dhat2)])
+
+
+def obstacle_energy(P, local: np.ndarray, node_weight: np.ndarray, edges, vertex_weights,
+                    stiffness: float, dhat2: float):
+    """kappa times the weighted barrier of every obstacle pair.
+
+    ``P`` (2, b) the boundary nodes' symbolic positions; ``local`` (m, 2)
+    each boundary segment's ends as indices into them; ``node_weight``
+    (b,); ``edges`` a list of (A, B), each (k, 2), the obstacles' edges;
+    ``vertex_weights`` a list of (k,) arrays, each obstacle vertex's weight
+    (half its two edges)."""
+    n_nodes, n_segments = P.shape[1], len(local)
+    oa = np.concatenate([a for a, _ in edges])
+    ob = np.concatenate([b for _, b in edges])
+    ow = np.concatenate(list(vertex_weights))
+    k = len(oa)
+    # body node i against obstacle edge e, for every (i, e)
+    node = np.repeat(np.arange(n_nodes), k)
+    edge = np.tile(np.arange(k), n_nodes)
+    # obstacle vertex v against body segment j, for every (v, j)
+    vertex = np.repeat(np.arange(k), n_segments)
+    segment = np.tile(np.arange(n_segments), k)
+    point = ca.horzcat(P[:, node.tolist()], ca.DM(oa[vertex].T))
+    start = ca.horzcat(ca.DM(oa[edge].T), P[:, local[segment, 0].tolist()])
+    end = ca.horzcat(ca.DM(ob[edge].T), P[:, local[segment, 1].tolist()])
+    weight = np.concatenate([node_weight[node], ow[vertex]])
+    pairs = _pair_kernel(dhat2).map(len(weight))
+    return stiffness * ca.dot(ca.DM(weight), pairs(point, start, end).T)
