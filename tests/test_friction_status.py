@@ -18,6 +18,7 @@ def test_gripper_friction_says_it_stalled_on_friction(tmp_path):
     assert doc["converged"] is False and doc["reason"] == "no_decrease"
     assert doc["status"].startswith("stalled: no trial step lowered O (friction at via points")
     assert "best certified iterate, not a proven optimum" in doc["status"]
+    assert "another path may end lower: --method clip" in doc["status"]      # what to do
     assert "line search failed" not in doc["status"]
     assert p.stderr.strip().splitlines() == [f"plush-opt: not converged: {doc['status']}"]
     assert doc["residual_norm"] is not None and doc["residual_norm"] < 1e-8    # a certified equilibrium

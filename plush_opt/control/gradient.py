@@ -434,7 +434,8 @@ def stalled_on(cause: str) -> str:
     it at any length."""
     return (f"stalled: no trial step lowered O ({cause}: O is not smooth in the contractions, "
             "the sensitivities hold for the current stick/slip state only); the pose is the best certified "
-            "iterate, not a proven optimum")
+            "iterate, not a proven optimum (another path may end lower: --method clip, --direction gradient "
+            "or other starting contractions)")
 
 
 #: A held winch within this fraction of its range from its bound is "at" it.
