@@ -1,8 +1,11 @@
-"""The wheel is self-sufficient: built, installed into a fresh virtualenv
-without the cholmod extra, and used from an empty folder as a new user
+"""The wheel is self-sufficient: built, installed into a virtualenv of its
+locked dependencies without the cholmod extra (made fresh the first time
+for each interpreter and lock, then kept: see ``_venv``), and used from an empty folder as a new user
 would (the shipped examples, the demo, a run on the emulator compiled on
 first use, the four calls of docs/api.md)."""
 
+import fcntl
+import hashlib
 import os
 import shutil
 import subprocess
@@ -47,7 +50,7 @@ def _interpreter(version: str) -> str | None:
 
 
 def _install(tmp, python: str):
-    """(venv bin folder, environment) of a fresh venv of ``python`` with the built wheel installed."""
+    """(venv bin folder, environment) of a venv of ``python`` with the built wheel installed."""
     if shutil.which("c++") is None and shutil.which("g++") is None:
         pytest.skip("no C++ compiler: the emulator cannot be compiled on first use")
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PLUSH_BOARD_EMU")}
@@ -59,10 +62,42 @@ def _install(tmp, python: str):
                                                              "__pycache__", ".pytest_cache", ".hypothesis"))
     _sh([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp / "dist"), str(src)], tmp, env)
     wheel = next((tmp / "dist").glob("plush_opt-*.whl"))
-    _sh([python, "-m", "venv", str(tmp / "venv")], tmp, env)
-    bin_ = tmp / "venv" / "bin"
+    bin_ = _venv(python, wheel, tmp, env)
+    # this wheel anew, and its dependencies checked against the lock (installed where missing)
+    _sh([bin_ / "python", "-m", "pip", "install", "-q", "--force-reinstall", "--no-deps", str(wheel)], tmp, env)
     _sh([bin_ / "python", "-m", "pip", "install", "-q", "-c", str(ROOT / "requirements.lock"), str(wheel)], tmp, env)
     return bin_, env
+
+
+def _venv(python: str, wheel: Path, tmp: Path, env) -> Path:
+    """The bin folder of a venv of ``python`` where a wheel of the package
+    was installed with its locked dependencies.
+
+    It is made fresh the first time and kept across test runs, keyed by the
+    interpreter, the lock and pyproject.toml (like pip's cache, it saves
+    downloading and unpacking the same wheels again: a minute per venv);
+    any change of those makes a new one. ``PLUSH_TEST_FRESH_VENV=1`` makes
+    it in the test's own folder every time."""
+    version = subprocess.run([python, "-c", "import sys; print(sys.version)"], capture_output=True,
+                             text=True).stdout
+    key = hashlib.sha256("\n".join([version, (ROOT / "requirements.lock").read_text(),
+                                     (ROOT / "pyproject.toml").read_text()]).encode()).hexdigest()[:16]
+    if os.environ.get("PLUSH_TEST_FRESH_VENV") == "1":
+        where = tmp / "venv"
+    else:
+        cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "plush_opt-test-venvs"
+        where = cache / f"{Path(python).name}-{key}"
+    where.parent.mkdir(parents=True, exist_ok=True)
+    with open(where.parent / f"{where.name}.lock", "a") as lock:
+        fcntl.flock(lock.fileno(), fcntl.LOCK_EX)      # two test sessions at once build it once
+        done = where / ".dependencies-installed"
+        if not done.is_file():
+            shutil.rmtree(where, ignore_errors=True)      # a venv left half-made by an interrupted run
+            _sh([python, "-m", "venv", str(where)], tmp, env)
+            _sh([where / "bin" / "python", "-m", "pip", "install", "-q", "-c", str(ROOT / "requirements.lock"),
+                 str(wheel)], tmp, env)
+            done.touch()
+    return where / "bin"
 
 
 @pytest.fixture(scope="module")
