@@ -78,15 +78,15 @@ def test_jobs_are_checked():
 
 
 @pytest.mark.slow
-def test_dask_local_cluster_runs_a_20_item_study():
+def test_dask_local_cluster_runs_a_study():
     distributed = pytest.importorskip("distributed")
-    varies = [parse_vary("material.youngs_modulus=0.01:0.05:5"), parse_vary("tendons.friction=0,0.1,0.2,0.3")]
+    varies = [parse_vary("material.youngs_modulus=0.01:0.05:2"), parse_vary("tendons.friction=0,0.2")]
     options = StudyOptions(max_area=300.0, sweep_steps=1)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, distributed.Client(cluster) as client:
         result = run_study(GRIPPER, varies, options, scheduler=client)
     assert result.batch.backend == "dask" and result.batch.jobs == 2
-    assert len(result.rows) == 20 and all(r["certified"] for r in result.rows), result.rows
+    assert len(result.rows) == 4 and all(r["certified"] for r in result.rows), result.rows
     # the same answers as this process gives, in the same order
     serial = run_study(GRIPPER, varies[:1], options, jobs=1)
     assert _timeless(serial.rows) == [
