@@ -1,12 +1,12 @@
-"""The contact barrier as a CasADi expression, for the IPOPT backends
-(the equilibrium cross-check and the full bilevel formulation).
+"""The obstacles' contact barrier as a CasADi expression, for the IPOPT
+backends (the equilibrium cross-check and the full bilevel formulation;
+the floor's is in :meth:`~plush_opt.fem.contact.ContactTerm.expression`).
 
 Newton evaluates the barrier over the pairs a broad phase finds at each
 pose (:mod:`plush_opt.fem.contact`); an expression is built once, so it
-holds every pair that can ever touch: the floor against every boundary
-node, and each obstacle edge against every boundary node and each
-obstacle vertex against every boundary segment (a few thousand pairs for
-a gripper around an object). Self-contact pairs are every pair of
+holds every pair that can ever touch: each obstacle edge against every
+boundary node and each obstacle vertex against every boundary segment (a
+few thousand pairs for a gripper around an object). Self-contact pairs are every pair of
 boundary nodes and segments, quadratic in the boundary: it stays with
 Newton. The expression is the same energy as the numeric one, pair type
 by pair type (:func:`~plush_opt.fem.contact_geometry.pair_type`'s rule,
