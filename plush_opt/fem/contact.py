@@ -137,6 +137,11 @@ class ContactTerm(Term):
         if self.ground is not None:
             self._normal = self.ground.normal
             self._offset = float(self._normal @ np.array([0.0, self.ground.height]))
+            # where a node's floor Hessian curv n n^T has entries (one for a level floor)
+            nn = np.outer(self._normal, self._normal)
+            i, j = np.nonzero(nn)
+            self._ground_rows, self._ground_cols = self.node_dofs[:, i], self.node_dofs[:, j]
+            self._ground_nn = nn[i, j]
         self._obstacle_edges = [(o.outline, np.roll(o.outline, -1, axis=0)) for o in self.obstacles]
         self._obstacle_weight = [0.5 * (np.linalg.norm(b - a, axis=1)
                                         + np.roll(np.linalg.norm(b - a, axis=1), 1))
@@ -239,13 +244,14 @@ class ContactTerm(Term):
         g = np.zeros(self.n_dofs) if order >= 1 else None
         rows, cols, vals = [], [], []
         if self.ground is not None:
-            e, parts = self.ground_part(x, order)
+            e, parts = self.ground_part(x, order, entries=True)
             energy += e
             if order >= 1:
                 dofs, grad, hess = parts
                 g[dofs.ravel()] = grad.ravel()          # (each boundary node once)
                 if order == 2:
-                    _collect(rows, cols, vals, dofs, hess)
+                    for a, b in zip((rows, cols, vals), hess):
+                        a.append(b)
         pairs = self.pairs(x)
         if len(pairs.weight):
             e, grad, hess = self.pair_part(pairs, order)
@@ -266,9 +272,10 @@ class ContactTerm(Term):
         # the contact forces in balance (0 where nothing touches: the other terms set the scale)
         return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
 
-    def ground_part(self, x, order):
+    def ground_part(self, x, order, entries: bool = False):
         """The floor's energy and, per active node, its dofs (k, 2), gradient
-        (k, 2) and Hessian (k, 2, 2)."""
+        (k, 2) and Hessian (k, 2, 2); with ``entries`` the Hessian as COO
+        (rows, cols, data) of its nonzero entries instead."""
         d = self.ground_gaps(x)
         act = np.flatnonzero(d < self.distance)
         s = d[act] ** 2
@@ -282,8 +289,34 @@ class ContactTerm(Term):
         hess = None
         if order == 2:
             curv = kw * (d2b * 4 * s + db * 2)
-            hess = curv[:, None, None] * np.outer(n, n)[None]
+            if entries:
+                hess = (self._ground_rows[act].ravel(), self._ground_cols[act].ravel(),
+                        (curv[:, None] * self._ground_nn[None, :]).ravel())
+            else:
+                hess = curv[:, None, None] * np.outer(n, n)[None]
         return energy, (self.node_dofs[act], grad, hess)
+
+    def translation_slope(self, x: np.ndarray, u: np.ndarray):
+        """The derivative in t of this term's energy at the pose ``x``
+        translated rigidly by t ``u`` (``u`` (2,), a unit vector), as a
+        function of t; None with obstacles or self-contact (their pairs
+        change along the way: ask :meth:`evaluate` instead). Against a floor
+        alone every gap moves by t (n . u), so each call is a few array
+        operations on the boundary, not an evaluation."""
+        if self.obstacles or self.self_contact:
+            return None
+        if self.ground is None:
+            return lambda t: 0.0
+        d0 = self.ground_gaps(x)
+        rate = float(self._normal @ u)
+        kw = self.stiffness * self.boundary.weight
+
+        def slope(t: float) -> float:
+            d = d0 + t * rate
+            act = np.flatnonzero(d < self.distance)
+            _, db, _ = geo.barrier(d[act] ** 2, self.dhat2)
+            return float(np.sum(kw[act] * db * 2 * d[act])) * rate
+        return slope
 
     def pair_part(self, pairs: Pairs, order):
         s, ds, d2s = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=order)
