@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
 from .free_fall import free_fall
@@ -63,8 +63,11 @@ CHORD_STEPS = 12
 # Kept-factor steps stop where a fresh factorisation is predicted to reach
 # the tolerance more cheaply (_chord_pays): a factorisation costs about
 # sqrt(n_dofs / this) kept-factor steps (a 2D mesh's factorisation grows as
-# n^1.5 with its fill, a step's evaluation and solve as n) ...
+# n^1.5, a step's evaluation and solve as n) ...
 FRESH_COST_DOFS = 150.0
+# ... times the Hessian's entries per row over this many (a P1 mesh's: a
+# node and its six neighbours, two dofs each; tendons and P2 fill more)
+P1_ROW_ENTRIES = 14.0
 # ... and the evaluation of a Hessian not yet in hand about this many more
 # (the evaluation itself and the Hessian's assembly).
 HESSIAN_COST = 2.0
@@ -212,22 +215,26 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0, False
 
 
-def _chord_pays(n_dofs: int, rate: float, norm: float, target: float, room: int, in_hand: bool) -> bool:
+def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: bool) -> bool:
     """Whether a step with a kept factor, whose steps cut the residual by
     ``rate`` each, reaches ``target`` from ``norm`` (or takes the ``room``
     steps left to the factor) more cheaply than a fresh factorisation here
-    (``FRESH_COST_DOFS``, and ``HESSIAN_COST`` unless this pose's Hessian
-    is ``in_hand``). A fresh factor's steps are taken to cut it by
-    ``rate`` squared: the factors' difference from the Hessian shrinks
-    with the distance to the equilibrium, and this pose is nearer by at
-    least the kept factor's cut. ``n_dofs``: the model's unknowns."""
+    (``FRESH_COST_DOFS`` and ``P1_ROW_ENTRIES`` on the size and entries of
+    ``H``, the kept factor's matrix; and ``HESSIAN_COST`` unless this
+    pose's Hessian is ``in_hand``). A fresh factor's steps are taken to
+    cut it by ``rate`` squared: the factors' difference from the Hessian
+    shrinks with the distance to the equilibrium, and this pose is nearer
+    by at least the kept factor's cut."""
     if rate >= CHORD_CUT:
         return False
     if rate <= 0.0:
         return True
     need = np.log(target / norm)
     keep, fresh = min(need / np.log(rate), room), need / np.log(rate * rate)
-    return keep <= fresh + np.sqrt(n_dofs / FRESH_COST_DOFS) + (0.0 if in_hand else HESSIAN_COST)
+    n = H.shape[0]
+    entries = H.body.nnz + H.Q.nnz if isinstance(H, LowRankHessian) else H.nnz
+    factorisation = np.sqrt(n / FRESH_COST_DOFS) * entries / (n * P1_ROW_ENTRIES)
+    return keep <= fresh + factorisation + (0.0 if in_hand else HESSIAN_COST)
 
 
 def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
@@ -261,9 +268,9 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         if pays and since == 0 and ev1.hessian_form is not None:
             dx = -factor.solve(g)
             rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
-            pays = _chord_pays(model.n_dofs, rate, norm, target, CHORD_STEPS, True)
+            pays = _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
         elif pays and since > 0:
-            pays = _chord_pays(model.n_dofs, norm / last, norm, target, CHORD_STEPS - since, False)
+            pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
         last = norm
         taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
         if taken is None:
