@@ -24,6 +24,8 @@ collision detection so that no step passes through anything.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import casadi as ca
@@ -244,7 +246,7 @@ class ContactTerm(Term):
         g = np.zeros(self.n_dofs) if order >= 1 else None
         rows, cols, vals = [], [], []
         if self.ground is not None:
-            e, parts = self.ground_part(x, order, entries=True)
+            e, parts = self.ground_part(x, order)
             energy += e
             if order >= 1:
                 dofs, grad, hess = parts
@@ -272,10 +274,10 @@ class ContactTerm(Term):
         # the contact forces in balance (0 where nothing touches: the other terms set the scale)
         return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
 
-    def ground_part(self, x, order, entries: bool = False):
-        """The floor's energy and, per active node, its dofs (k, 2), gradient
-        (k, 2) and Hessian (k, 2, 2); with ``entries`` the Hessian as COO
-        (rows, cols, data) of its nonzero entries instead."""
+    def ground_part(self, x, order):
+        """The floor's energy and, per active node, its dofs (k, 2) and
+        gradient (k, 2), and the Hessian's nonzero entries as COO (rows,
+        cols, data)."""
         d = self.ground_gaps(x)
         act = np.flatnonzero(d < self.distance)
         s = d[act] ** 2
@@ -289,34 +291,21 @@ class ContactTerm(Term):
         hess = None
         if order == 2:
             curv = kw * (d2b * 4 * s + db * 2)
-            if entries:
-                hess = (self._ground_rows[act].ravel(), self._ground_cols[act].ravel(),
-                        (curv[:, None] * self._ground_nn[None, :]).ravel())
-            else:
-                hess = curv[:, None, None] * np.outer(n, n)[None]
+            hess = (self._ground_rows[act].ravel(), self._ground_cols[act].ravel(),
+                    (curv[:, None] * self._ground_nn[None, :]).ravel())
         return energy, (self.node_dofs[act], grad, hess)
 
     def translation_slope(self, x: np.ndarray, u: np.ndarray):
-        """The derivative in t of this term's energy at the pose ``x``
-        translated rigidly by t ``u`` (``u`` (2,), a unit vector), as a
-        function of t; None with obstacles or self-contact (their pairs
-        change along the way: ask :meth:`evaluate` instead). Against a floor
-        alone every gap moves by t (n . u), so each call is a few array
-        operations on the boundary, not an evaluation."""
+        """d/dt of the energy at ``x`` translated rigidly by t ``u`` ((2,),
+        unit) as a function of t; None with obstacles or self-contact (their
+        pairs change on the way). A floor's gaps move by t (n . u): each
+        call costs a few array operations on the boundary."""
         if self.obstacles or self.self_contact:
             return None
         if self.ground is None:
             return lambda t: 0.0
-        d0 = self.ground_gaps(x)
-        rate = float(self._normal @ u)
-        kw = self.stiffness * self.boundary.weight
-
-        def slope(t: float) -> float:
-            d = d0 + t * rate
-            act = np.flatnonzero(d < self.distance)
-            _, db, _ = geo.barrier(d[act] ** 2, self.dhat2)
-            return float(np.sum(kw[act] * db * 2 * d[act])) * rate
-        return slope
+        return functools.partial(_floor_slope, self.ground_gaps(x), float(self._normal @ u),
+                                 self.stiffness * self.boundary.weight, self.distance, self.dhat2)
 
     def pair_part(self, pairs: Pairs, order):
         s, ds, d2s = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=order)
@@ -413,6 +402,15 @@ class ContactTerm(Term):
         bad = self.violation(X)
         if bad is not None:
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
+
+
+def _floor_slope(d0: np.ndarray, rate: float, kw: np.ndarray, distance: float, dhat2: float, t: float) -> float:
+    """d/dt of the floor's barrier energy where the gaps ``d0`` (b,) move by
+    t ``rate`` (``kw`` (b,) the nodes' stiffness x weight)."""
+    d = d0 + t * rate
+    act = np.flatnonzero(d < distance)
+    _, db, _ = geo.barrier(d[act] ** 2, dhat2)
+    return float(np.sum(kw[act] * db * 2 * d[act])) * rate
 
 
 def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:
