@@ -66,7 +66,13 @@ def test_the_sensitivity_is_that_of_going_on_from_the_committed_state(contractio
 
 
 @pytest.mark.slow
-def test_control_with_friction_at_contacts_names_its_cause():
+def test_control_with_friction_at_contacts_lifts_both_legs_together_and_names_its_cause():
+    """At rest dO/dc > 0 for both winches (the first millimetres of one
+    leg's pull alone lift nothing), so both are held at their lower bound
+    and the look-further probe moves them together. Moving one leg alone
+    first dragged its foot through the friction into an asymmetric pose
+    the other leg could not undo (O = 6.1 mm^2 at a = 18.7, b = 11.8; on a
+    frictionless floor 0.59 at a = 12.0, b = 12.2)."""
     from plush_opt.problem import Problem
     from plush_opt.fem.objective import Targets
     model, plant = _hexapod(0.5)
@@ -76,3 +82,9 @@ def test_control_with_friction_at_contacts_names_its_cause():
     assert "via points" not in result.status
     if not result.converged:
         assert "friction at contacts" in result.status, result.status
+    start, probe = result.history[0], result.history[1]
+    assert list(start.active_bounds) == ["a", "b"]
+    assert probe.contraction[0] == probe.contraction[1] > 0
+    a, b = result.contractions["a"], result.contractions["b"]
+    assert abs(a - b) <= 0.02 * (a + b)
+    assert result.objective < 1.5 < start.objective

@@ -186,6 +186,35 @@ def test_a_slack_winch_is_reeled_in_and_kept_only_if_pulling_then_helps(monkeypa
     assert move is None
 
 
+def test_winches_held_together_are_probed_together_and_the_probe_that_lowers_o_most_is_taken():
+    model = _line_model(3)
+    rule = ProbeRule(stuck_fraction=0.5, fractions=(0.05, 0.15), gain=1e-3)
+    site = _site([0.0, 0.0, 5.0], 1.0, 1.0, held=[0, 1])
+    seen = []
+
+    def both(c):                      # each winch alone raises O, both together lower it
+        seen.append(c.copy())
+        return (0.8 if c[0] > 0 and c[1] > 0 else 1.1), "eq"
+    move, tried = look_further(rule, site, {}, model, both, None)
+    assert [s.tolist() for s in seen] == [[0.5, 0.0, 5.0], [0.0, 0.5, 5.0], [0.5, 0.5, 5.0]]
+    assert move.kind == "probe" and move.winches == (0, 1) and move.contraction.tolist() == [0.5, 0.5, 5.0]
+    assert move.describe(["a", "b", "c"]) == "a, b to 0.5, 0.5"
+    assert tried == {0: 1.0, 1: 1.0}
+    # where one winch alone lowers O most it is that one, and only it counts as tried
+    move, tried = look_further(rule, site, {}, model, lambda c: (1.0 - 0.1 * c[1] + 0.2 * c[0], "eq"), None)
+    assert move.winches == (1,) and move.winch == 1 and move.contraction.tolist() == [0.0, 0.5, 5.0]
+    assert tried == {1: 1.0}
+    # nothing lowers O: no move, every fraction tried alone and together, every winch tried
+    seen.clear()
+    move, tried = look_further(rule, site, {}, model, lambda c: seen.append(c.copy()) or (1.0, "eq"), None)
+    assert move is None and len(seen) == 6 and tried == {0: 1.0, 1: 1.0}
+    # a single held winch is probed alone only
+    seen.clear()
+    look_further(rule, _site([0.0, 0.0, 5.0], 1.0, 1.0, held=[1]), {}, model,
+                 lambda c: seen.append(c.copy()) or (1.0, "eq"), None)
+    assert [s.tolist() for s in seen] == [[0.0, 0.5, 5.0], [0.0, 1.5, 5.0]]
+
+
 def test_the_loop_tries_a_winch_once_the_reduced_search_again_after_a_real_decrease():
     once = ProbeRule(0.5, (0.05,), 1e-3, retry=False)
     again = ProbeRule(0.5, (0.05,), 1e-3, retry=True)

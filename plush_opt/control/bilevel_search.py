@@ -221,7 +221,7 @@ class ReducedRun:
         name = model.winch_names[move.winch]
         if move.kind == "slack":
             return self._moved(move.result, f"took up the slack of {name}")
-        return self._moved(move.result, f"probe moved {name} to {move.contraction[move.winch]:.4g}")
+        return self._moved(move.result, f"probe moved {move.describe(model.winch_names)}")
 
     def _moved(self, point: Point, what: str) -> Point:
         log.info("bilevel: %s (O = %.6g)", what, point.objective)

@@ -411,7 +411,7 @@ def _look_further(options: ControlOptions, model: Model, last: Iterate, objectiv
     if move is not None and move.kind == "slack":
         log.info("took up the slack of %s", names[move.winch])
     elif move is not None:
-        log.info("probe: moving %s to %.4g lowered O", names[move.winch], move.contraction[move.winch])
+        log.info("probe: moving %s lowered O", move.describe(names))
     return move, tried
 
 

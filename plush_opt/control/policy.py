@@ -214,13 +214,25 @@ class ProbeSite:
 
 @dataclass(frozen=True)
 class Move:
-    """A look-further move taken: winch ``winch`` to ``contraction[winch]``,
-    ``kind`` 'slack' (taken up) or 'probe', ``result`` what ``solve`` gave."""
+    """A look-further move taken: the winches ``winches`` (one, or the held
+    set probed together) to their ``contraction`` (n_winches,), ``kind``
+    'slack' (taken up) or 'probe', ``result`` what ``solve`` gave."""
 
-    winch: int
+    winches: tuple[int, ...]
     contraction: np.ndarray
     kind: str
     result: Any
+
+    @property
+    def winch(self) -> int:
+        """The first (for a single-winch move, the only) winch moved."""
+        return self.winches[0]
+
+    def describe(self, names) -> str:
+        """The move in words, e.g. ``a to 1`` or ``a, b to 1, 1``
+        (``names``: the model's winch names)."""
+        return (", ".join(names[w] for w in self.winches) + " to "
+                + ", ".join(f"{self.contraction[w]:.4g}" for w in self.winches))
 
 
 def probe_candidates(rule: ProbeRule, site: ProbeSite, tried: Mapping[int, float]) -> list[int]:
@@ -244,9 +256,8 @@ def look_further(rule: ProbeRule, site: ProbeSite, tried: Mapping[int, float], m
     which engage the "wrong" tendon first, although pulling further helps.
     For those winches the slack is reeled in (:func:`~.slack.take_up`,
     which leaves the pose unchanged) and kept if pulling then helps; and
-    when the run is stuck near its start, probes go inwards by each of
-    ``rule.fractions`` of the range, each taken only if it lowers O by
-    ``rule.gain``.
+    when the run is stuck near its start, the held winches are probed
+    inwards (:func:`_probe_held`).
 
     ``tried`` maps a winch to O where its moves were last tried;
     ``solve(c)`` gives (O, result) at contractions c (n_winches,) for a
@@ -257,19 +268,13 @@ def look_further(rule: ProbeRule, site: ProbeSite, tried: Mapping[int, float], m
     lower, upper = model.lower, model.upper
     span = upper - lower
     c0 = site.contraction
-    for w in probe_candidates(rule, site, tried):
+    candidates = probe_candidates(rule, site, tried)
+    for w in (w for w in candidates if w in site.slack):
         # a winch counts as tried once its moves are spent or one is taken
         tried[w] = site.objective
         for frac in (0.0, *rule.fractions):
             c = c0.copy()
-            if w in site.slack:
-                c[w] = take_up(model, site.x, c0, w)
-                inward = 1.0
-            elif frac == 0.0:
-                continue
-            else:                        # away from the nearer bound
-                inward = 1.0 if c[w] <= lower[w] + 0.5 * span[w] else -1.0
-            c[w] = float(np.clip(c[w] + inward * frac * span[w], lower[w], upper[w]))
+            c[w] = float(np.clip(take_up(model, site.x, c0, w) + frac * span[w], lower[w], upper[w]))
             if c[w] == c0[w]:
                 continue
             found = solve(c)
@@ -279,10 +284,46 @@ def look_further(rule: ProbeRule, site: ProbeSite, tried: Mapping[int, float], m
             if frac == 0.0:
                 # slack reeled in: keep it if pulling now helps
                 if gradient(result)[w] < 0 and value <= site.objective * (1 + TAKE_UP_TOLERANCE):
-                    return Move(w, c, "slack", result), tried
+                    return Move((w,), c, "slack", result), tried
             elif value < site.objective * (1 - rule.gain):
-                return Move(w, c, "probe", result), tried
-    return None, tried
+                return Move((w,), c, "probe", result), tried
+    held = [w for w in candidates if w not in site.slack]
+    move = _probe_held(rule, site, held, model, solve)
+    tried.update((w, site.objective) for w in (held if move is None else move.winches))
+    return move, tried
+
+
+def _probe_held(rule: ProbeRule, site: ProbeSite, held: list[int], model, solve) -> Move | None:
+    """The probes of the ``held`` winches: each one alone, and where
+    several are held, all of them together, inwards (away from the nearer
+    bound) by each of ``rule.fractions`` of their ranges in turn; at the
+    first fraction where some probe lowers O by ``rule.gain``, the one
+    that lowers it most (the first on a tie: single winches before the
+    set). Probing the set together matters where winches act together (a
+    robot's legs lifting its body): a gradient that points out of every
+    bound says nothing about moving them all, and where the pose depends
+    on the path (friction), moving one alone first can lead where the
+    others cannot undo it. None where no probe lowers O."""
+    lower, upper = model.lower, model.upper
+    span = upper - lower
+    c0 = site.contraction
+    groups = [(w,) for w in held] + ([tuple(held)] if len(held) > 1 else [])
+    for frac in rule.fractions:
+        best = None
+        for group in groups:
+            c = c0.copy()
+            for w in group:
+                inward = 1.0 if c[w] <= lower[w] + 0.5 * span[w] else -1.0
+                c[w] = float(np.clip(c[w] + inward * frac * span[w], lower[w], upper[w]))
+            if np.array_equal(c, c0):
+                continue
+            found = solve(c)
+            if found is not None and found[0] < site.objective * (1 - rule.gain) and \
+                    (best is None or found[0] < best[0]):
+                best = (found[0], Move(group, c, "probe", found[1]))
+        if best is not None:
+            return best[1]
+    return None
 
 
 # -- warm start ---------------------------------------------------------

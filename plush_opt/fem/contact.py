@@ -24,6 +24,8 @@ collision detection so that no step passes through anything.
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import casadi as ca
@@ -138,6 +140,11 @@ class ContactTerm(Term):
         if self.ground is not None:
             self._normal = self.ground.normal
             self._offset = float(self._normal @ np.array([0.0, self.ground.height]))
+            # where a node's floor Hessian curv n n^T has entries (one for a level floor)
+            nn = np.outer(self._normal, self._normal)
+            i, j = np.nonzero(nn)
+            self._ground_rows, self._ground_cols = self.node_dofs[:, i], self.node_dofs[:, j]
+            self._ground_nn = nn[i, j]
         self._obstacle_edges = [(o.outline, np.roll(o.outline, -1, axis=0)) for o in self.obstacles]
         self._obstacle_weight = [0.5 * (np.linalg.norm(b - a, axis=1)
                                         + np.roll(np.linalg.norm(b - a, axis=1), 1))
@@ -246,7 +253,8 @@ class ContactTerm(Term):
                 dofs, grad, hess = parts
                 g[dofs.ravel()] = grad.ravel()          # (each boundary node once)
                 if order == 2:
-                    _collect(rows, cols, vals, dofs, hess)
+                    for a, b in zip((rows, cols, vals), hess):
+                        a.append(b)
         pairs = self.pairs(x)
         if len(pairs.weight):
             e, grad, hess = self.pair_part(pairs, order)
@@ -268,8 +276,9 @@ class ContactTerm(Term):
         return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
 
     def ground_part(self, x, order):
-        """The floor's energy and, per active node, its dofs (k, 2), gradient
-        (k, 2) and Hessian (k, 2, 2)."""
+        """The floor's energy and, per active node, its dofs (k, 2) and
+        gradient (k, 2), and the Hessian's nonzero entries as COO (rows,
+        cols, data)."""
         d = self.ground_gaps(x)
         act = np.flatnonzero(d < self.distance)
         s = d[act] ** 2
@@ -283,8 +292,21 @@ class ContactTerm(Term):
         hess = None
         if order == 2:
             curv = kw * (d2b * 4 * s + db * 2)
-            hess = curv[:, None, None] * np.outer(n, n)[None]
+            hess = (self._ground_rows[act].ravel(), self._ground_cols[act].ravel(),
+                    (curv[:, None] * self._ground_nn[None, :]).ravel())
         return energy, (self.node_dofs[act], grad, hess)
+
+    def translation_slope(self, x: np.ndarray, u: np.ndarray):
+        """d/dt of the energy at ``x`` translated rigidly by t ``u`` ((2,),
+        unit) as a function of t; None with obstacles or self-contact (their
+        pairs change on the way). A floor's gaps move by t (n . u): each
+        call costs a few array operations on the boundary."""
+        if self.obstacles or self.self_contact:
+            return None
+        if self.ground is None:
+            return lambda t: 0.0
+        return functools.partial(_floor_slope, self.ground_gaps(x), float(self._normal @ u),
+                                 self.stiffness * self.boundary.weight, self.distance, self.dhat2)
 
     def pair_part(self, pairs: Pairs, order):
         s, ds, d2s = geo.point_segment_sq(pairs.P, pairs.A, pairs.B, order=order)
@@ -385,6 +407,15 @@ class ContactTerm(Term):
         bad = self.violation(X)
         if bad is not None:
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
+
+
+def _floor_slope(d0: np.ndarray, rate: float, kw: np.ndarray, distance: float, dhat2: float, t: float) -> float:
+    """d/dt of the floor's barrier energy where the gaps ``d0`` (b,) move by
+    t ``rate`` (``kw`` (b,) the nodes' stiffness x weight)."""
+    d = d0 + t * rate
+    act = np.flatnonzero(d < distance)
+    _, db, _ = geo.barrier(d[act] ** 2, dhat2)
+    return float(np.sum(kw[act] * db * 2 * d[act])) * rate
 
 
 def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:

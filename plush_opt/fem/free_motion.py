@@ -38,16 +38,18 @@ NAMES = ("translation in x", "translation in y", "rotation")
 
 
 def rigid_motions(x: np.ndarray) -> np.ndarray:
-    """(n_dofs, 3) unit rigid motions of the pose ``x``: translations in x
-    and y, rotation about its centroid."""
+    """(n_dofs, 3) orthonormal rigid motions of the pose ``x``: translations
+    in x and y, rotation about its centroid (orthogonal to both: the
+    centred positions sum to zero)."""
     P = x.reshape(-1, 2)
     n = len(P)
-    V = np.zeros((2 * n, 3))
-    V[0::2, 0] = V[1::2, 1] = 1.0 / np.sqrt(n)
+    V = np.zeros((n, 2, 3))
+    V[:, 0, 0] = V[:, 1, 1] = 1.0 / np.sqrt(n)
     d = P - P.mean(axis=0)
-    r = np.sqrt(np.dot(d.ravel(), d.ravel()))
-    V[0::2, 2], V[1::2, 2] = -d[:, 1] / r, d[:, 0] / r
-    return V
+    d *= 1.0 / np.sqrt(np.vdot(d, d))
+    V[:, 0, 2] = -d[:, 1]
+    V[:, 1, 2] = d[:, 0]
+    return V.reshape(2 * n, 3)
 
 
 def flat_motions(H, x: np.ndarray, diagonal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -62,10 +64,7 @@ def flat_motions(H, x: np.ndarray, diagonal: np.ndarray | None = None) -> tuple[
     scale = float(np.max(np.abs(diagonal), initial=0.0))
     flat = np.sqrt(np.maximum(lam, 0.0)) <= FLAT * max(scale, 1e-300)
     Qf = Q[:, flat]
-    R = V @ Qf
-    # V's columns are orthonormal only up to the rotation's overlap with them
-    R, _ = np.linalg.qr(R) if R.shape[1] else (R, None)
-    return R, Qf.T
+    return V @ Qf, Qf.T                          # orthonormal: V's columns and Qf's are
 
 
 def free_motions(H, x: np.ndarray, g: np.ndarray, force_scale: float) -> np.ndarray:

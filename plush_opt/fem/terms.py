@@ -216,6 +216,12 @@ class PinTerm(Term):
         hessian = {"pin_stiffness": self.stiffness} if order == 2 else {}
         return TermEvaluation(energy, f_pin, hessian, np.linalg.norm(f_pin))
 
+    def translation_slope(self, x, u):
+        """d/dt of E at the pose ``x`` translated rigidly by t ``u`` ((2,),
+        unit): k (sum of (x_p - X_p) . u + t n_pins), as a function of t."""
+        pull = float(np.sum((x[self.dofs] - self._rest).reshape(-1, 2) @ u))
+        return lambda t: self.stiffness * (pull + t * len(self.nodes))
+
     def expression(self, x, c):
         dp = x[self.dofs.tolist()] - ca.DM(self._rest)
         return self.stiffness / 2 * ca.sumsqr(dp)

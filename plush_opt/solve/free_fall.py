@@ -93,11 +93,10 @@ def _fall_length(model, c, x: np.ndarray, d: np.ndarray) -> float | None:
     moving = [term for term in model.terms if not term.translation_invariant]
     # a term linear in x (gravity) has the same slope everywhere along d
     constant = sum(float(term.evaluate(x, c, 1).gradient @ d) for term in moving if term.linear)
-    moving = [term for term in moving if not term.linear]
+    slopes = [_slope_along(term, c, x, d) for term in moving if not term.linear]
 
     def slope(t: float) -> float:
-        xt = x + t * d
-        return constant + sum(float(term.evaluate(xt, c, 1).gradient @ d) for term in moving)
+        return constant + sum(s(t) for s in slopes)
 
     P = x.reshape(-1, 2)
     reach = float(np.linalg.norm(P.max(axis=0) - P.min(axis=0)))
@@ -114,6 +113,17 @@ def _fall_length(model, c, x: np.ndarray, d: np.ndarray) -> float | None:
             return _root(slope, t, s, end, FALL_XTOL * reach)
         t, s = end, s_end
     return t
+
+
+def _slope_along(term, c, x: np.ndarray, d: np.ndarray):
+    """t -> d/dt of ``term``'s energy at x + t d (``d`` a unit translation
+    of every node): the term's own ``translation_slope`` where it has one
+    (a floor: no evaluation), else through its gradient."""
+    fast = getattr(term, "translation_slope", None)
+    along = fast(x, d[:2]) if fast is not None else None
+    if along is not None:
+        return along
+    return lambda t: float(term.evaluate(x + t * d, c, 1).gradient @ d)
 
 
 def _root(slope, start: float, s_start: float, end: float, xtol: float) -> float:

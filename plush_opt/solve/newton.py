@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
 from .free_fall import free_fall
@@ -60,6 +60,17 @@ CHORD_CUT = 0.5
 CHORD_START = 0.25
 # ... and at most this many in a row (then a fresh factorisation).
 CHORD_STEPS = 12
+# Kept-factor steps stop where a fresh factorisation is predicted to reach
+# the tolerance more cheaply (_chord_pays): a factorisation costs about
+# sqrt(n_dofs / this) kept-factor steps (a 2D mesh's factorisation grows as
+# n^1.5, a step's evaluation and solve as n) ...
+FRESH_COST_DOFS = 150.0
+# ... times the Hessian's entries per row over this many (a P1 mesh's: a
+# node and its six neighbours, two dofs each; tendons and P2 fill more)
+P1_ROW_ENTRIES = 14.0
+# ... and the evaluation of a Hessian not yet in hand about this many more
+# (the evaluation itself and the Hessian's assembly).
+HESSIAN_COST = 2.0
 # They go on below the tolerance, to this fraction of it: a converging
 # Newton step lands decades below it, and callers that difference poses
 # (finite differences, sensitivities checked against re-solves) rely on
@@ -204,6 +215,28 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0, False
 
 
+def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: bool) -> bool:
+    """Whether a step with a kept factor, whose steps cut the residual by
+    ``rate`` each, reaches ``target`` from ``norm`` (or takes the ``room``
+    steps left to the factor) more cheaply than a fresh factorisation here
+    (``FRESH_COST_DOFS`` and ``P1_ROW_ENTRIES`` on the size and entries of
+    ``H``, the kept factor's matrix; and ``HESSIAN_COST`` unless this
+    pose's Hessian is ``in_hand``). A fresh factor's steps are taken to
+    cut it by ``rate`` squared: the factors' difference from the Hessian
+    shrinks with the distance to the equilibrium, and this pose is nearer
+    by at least the kept factor's cut."""
+    if rate >= CHORD_CUT:
+        return False
+    if rate <= 0.0:
+        return True
+    need = np.log(target / norm)
+    keep, fresh = min(need / np.log(rate), room), need / np.log(rate * rate)
+    n = H.shape[0]
+    entries = H.body.nnz + H.Q.nnz if isinstance(H, LowRankHessian) else H.nnz
+    factorisation = np.sqrt(n / FRESH_COST_DOFS) * entries / (n * P1_ROW_ENTRIES)
+    return keep <= fresh + factorisation + (0.0 if in_hand else HESSIAN_COST)
+
+
 def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
                  options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
     """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
@@ -211,21 +244,35 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     ``Model.max_step``) only if it is admissible, does not raise the energy
     (Armijo, or at round-off level) and cuts the residual by
     ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is ``CHORD_DEPTH`` times the tolerance, or after ``CHORD_STEPS`` with
-    one factor. Where they would stop short of the tolerance in the local
-    phase, a factor of a low-rank Hessian goes on with its low-rank term
-    set up afresh at the current pose (``FRESH_LOW_RANK``).
+    is ``CHORD_DEPTH`` times the tolerance, after ``CHORD_STEPS`` with one
+    factor, or where a fresh factorisation is predicted to get there more
+    cheaply (:func:`_chord_pays`, on the rate the last step cut the
+    residual by; before the first, on the cut predicted from the Hessian
+    in hand: g + H dx = (H - F) dx). Where they would stop short of the
+    tolerance in the local phase, a factor of a low-rank Hessian goes on
+    with its low-rank term set up afresh at the current pose
+    (``FRESH_LOW_RANK``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
     steps, since, refreshed = 0, 0, 0      # steps; steps with this factor; refreshes
     ev1 = ev
+    last = 0.0                             # the residual before the last step
     while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
-        if norm <= CHORD_DEPTH * options.gtol * ev1.force_scale:
+        target = CHORD_DEPTH * options.gtol * ev1.force_scale
+        if norm <= target:
             break
-        taken = _chord_step(model, c, x, ev1, factor, norm, options) if since < CHORD_STEPS else None
+        dx, pays = None, since < CHORD_STEPS
+        if pays and since == 0 and ev1.hessian_form is not None:
+            dx = -factor.solve(g)
+            rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
+            pays = _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
+        elif pays and since > 0:
+            pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
+        last = norm
+        taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
         if taken is None:
             # the tendons' stiffness changes fastest: the kept factor's
             # sparse part with the low-rank term of this pose
@@ -245,13 +292,13 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     return x, ev, 0
 
 
-def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
-                options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
+def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float, options: EquilibriumOptions,
+                dx: np.ndarray | None = None) -> tuple[np.ndarray, Evaluation] | None:
     """One step of :func:`_chord_steps` from (``x``, ``ev``, residual norm
-    ``norm``): the pose and its evaluation (order 1), or None where the
-    step fails its tests."""
+    ``norm``; ``dx``: the step -F^-1 g if already solved for): the pose and
+    its evaluation (order 1), or None where the step fails its tests."""
     g = ev.gradient
-    dx = -factor.solve(g)
+    dx = -factor.solve(g) if dx is None else dx
     if model.max_step(x, dx) < 1.0:
         return None
     xt = x + dx
