@@ -68,6 +68,25 @@ def test_a_fall_never_passes_through_the_floor_and_keeps_every_gap_positive():
     assert 0 < gaps.min() < model.contact.distance
 
 
+def test_the_evaluation_at_the_falls_end_reuses_the_rest_and_matches_a_fresh_one():
+    model = _block(3.0)
+    c = np.zeros(1)
+    ev = model.evaluate(model.X, c)
+    assert ev.parts is not None                       # kept only for a body that falls
+    x = model.X + np.tile([0.0, -3.2], model.n_nodes)  # 0.3 into the barrier's reach: it carries load
+    moved, fresh = model.evaluate_moved(x, c, ev), model.evaluate(x, c)
+    assert moved.admissible and fresh.admissible
+    assert moved.energy == pytest.approx(fresh.energy, rel=1e-12)
+    scale = np.abs(fresh.gradient).max()
+    assert np.abs(moved.gradient - fresh.gradient).max() <= 1e-12 * scale
+    assert abs(moved.hessian - fresh.hessian).max() <= 1e-12 * abs(fresh.hessian).max()
+    assert (moved.unbalanced is None) == (fresh.unbalanced is None)
+    # the reused parts are the translation-invariant terms' own
+    for term, part in zip(model.terms, ev.parts):
+        if term.translation_invariant:
+            assert part.energy == pytest.approx(term.evaluate(x, c, 0).energy, rel=1e-12)
+
+
 def test_a_body_held_by_the_floor_does_not_fall():
     model = _block(-0.5)                              # BLOCK as it is: within d_hat at rest
     assert model.evaluate(model.X, np.zeros(1)).unbalanced is None

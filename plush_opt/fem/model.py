@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import functools
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import casadi as ca
 import numpy as np
@@ -66,6 +66,9 @@ class Evaluation:
     ``unbalanced`` (a gauged evaluation of a body without pins, order 2):
     (n_dofs, k) orthonormal rigid motions along which the Hessian is flat
     but a net force acts (the body falls or slides), or None.
+    ``parts`` (only where ``unbalanced`` is set): the terms' own
+    evaluations, which a rigid translation of the pose leaves unchanged for
+    its translation-invariant terms (``sum_terms``' ``moved_from``).
     """
 
     energy: float
@@ -74,6 +77,7 @@ class Evaluation:
     force_scale: float
     admissible: bool
     unbalanced: np.ndarray | None = None
+    parts: tuple | None = field(default=None, repr=False, compare=False)
 
     @functools.cached_property
     def hessian(self) -> sp.csc_matrix | None:
@@ -81,18 +85,24 @@ class Evaluation:
 
 
 def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order: int,
-              gauge: bool = False) -> Evaluation:
+              gauge: bool = False, moved_from: Evaluation | None = None) -> Evaluation:
     """The sum of ``terms`` at flat pose ``x`` (n_dofs,) and contractions
     ``c`` (n_winches,): E (order 0), plus grad_x E (order 1), plus the
     Hessian (order 2), every term's parts assembled once by ``layout``.
     Energies and gradients are added in the order of ``terms``. ``gauge``
     (a body without pins): the Hessian gets the gauge of :func:`gauged`.
+    ``moved_from``: an evaluation of the same ``terms`` and ``c`` at a
+    pose of which ``x`` is a rigid translation, holding ``parts`` and of
+    ``order``: its translation-invariant terms' parts are taken as they are.
 
     Where x is not finite or a term finds it inadmissible (or the energy is
     not finite), E = +inf and no derivatives are returned."""
-    if not (np.all(np.isfinite(x)) and all(term.admissible(x) for term in terms)):
+    kept = moved_from.parts if moved_from is not None else None
+    kept = kept if kept is not None and len(kept) == len(terms) else (None,) * len(terms)
+    reused = [part if term.translation_invariant else None for term, part in zip(terms, kept)]
+    if not (np.all(np.isfinite(x)) and all(term.admissible(x) for term, part in zip(terms, reused) if part is None)):
         return Evaluation(np.inf, None, None, np.nan, False)
-    parts = [term.evaluate(x, c, order) for term in terms]
+    parts = [term.evaluate(x, c, order) if part is None else part for term, part in zip(terms, reused)]
     energy = 0.0
     for part in parts:
         energy += part.energy
@@ -110,7 +120,11 @@ def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order:
     for part in parts:
         hessian.update(part.hessian)
     ev = Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
-    return gauged(ev, x) if gauge else ev
+    if not gauge:
+        return ev
+    ev = gauged(ev, x)
+    # a body that falls is moved rigidly next (plush_opt/solve/free_fall.py): keep what it reuses
+    return ev if ev.unbalanced is None else replace(ev, parts=tuple(parts))
 
 
 def gauged(ev: Evaluation, x: np.ndarray) -> Evaluation:
@@ -159,6 +173,12 @@ class HeldTerms:
     def evaluate(self, x, c, order: int = 2) -> Evaluation:
         return sum_terms(self.terms, self.layout, np.asarray(x, dtype=np.float64).reshape(-1),
                          np.asarray(c, dtype=np.float64).reshape(-1), order, gauge=self.unpinned)
+
+    def evaluate_moved(self, x, c, moved_from: Evaluation) -> Evaluation:
+        """:meth:`evaluate` (order 2) at ``x``, a rigid translation of the pose of ``moved_from``."""
+        return sum_terms(self.terms, self.layout, np.asarray(x, dtype=np.float64).reshape(-1),
+                         np.asarray(c, dtype=np.float64).reshape(-1), 2, gauge=self.unpinned,
+                         moved_from=moved_from)
 
     def max_step(self, x, dx) -> float:
         """The smallest of the terms' (see :meth:`Model.max_step`)."""
@@ -374,6 +394,13 @@ class Model:
         """
         return sum_terms(self.terms, self.hessian_layout, np.asarray(x, dtype=np.float64).reshape(-1),
                          self._c(c), order, gauge=self.unpinned)
+
+    def evaluate_moved(self, x, c, moved_from: Evaluation) -> Evaluation:
+        """:meth:`evaluate` (order 2) at ``x``, a rigid translation of the
+        pose of ``moved_from`` (:func:`sum_terms`): the elastic and tendon
+        parts are taken from it."""
+        return sum_terms(self.terms, self.hessian_layout, np.asarray(x, dtype=np.float64).reshape(-1),
+                         self._c(c), 2, gauge=self.unpinned, moved_from=moved_from)
 
     def free_motions(self, x, c, extra: tuple[Term, ...] = ()) -> list[str]:
         """The rigid motions the contact leaves free at flat pose ``x`` (an

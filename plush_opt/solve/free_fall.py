@@ -64,7 +64,7 @@ def free_fall(model, c, x: np.ndarray, ev):
     if t is None or t <= 0.0:
         return x, ev
     x_new = x + t * d
-    ev_new = model.evaluate(x_new, c, order=2)
+    ev_new = model.evaluate_moved(x_new, c, ev)     # the elastic and tendon parts as they are
     if not (ev_new.admissible and np.isfinite(ev_new.energy) and ev_new.energy < ev.energy):
         return x, ev
     log.debug("newton: the body falls %.3e along (%.3f, %.3f)", t, d[0], d[1])
