@@ -12,7 +12,8 @@ vanishes (what holds it carries the load), bounded by the first time of
 impact (:meth:`~plush_opt.fem.model.Model.max_step`), so that no move
 passes through anything. Along a rigid translation the elastic and tendon
 energies do not change; only the other terms (gravity, contact, friction,
-pins) are evaluated along it, which costs a fraction of one evaluation.
+pins) are evaluated along it, which costs a fraction of one evaluation,
+and the evaluation at its end takes their parts from the one at rest.
 
 The move is taken only where the full evaluation at its end is admissible
 and has a lower energy; Newton then goes on from there and the pose it
