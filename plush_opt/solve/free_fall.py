@@ -65,7 +65,8 @@ def free_fall(model, c, x: np.ndarray, ev):
     if t is None or t <= 0.0:
         return x, ev
     x_new = x + t * d
-    ev_new = model.evaluate_moved(x_new, c, ev)     # the elastic and tendon parts as they are
+    moved = getattr(model, "evaluate_moved", None)    # the elastic and tendon parts as they are
+    ev_new = moved(x_new, c, ev) if moved is not None else model.evaluate(x_new, c, order=2)
     if not (ev_new.admissible and np.isfinite(ev_new.energy) and ev_new.energy < ev.energy):
         return x, ev
     log.debug("newton: the body falls %.3e along (%.3f, %.3f)", t, d[0], d[1])
