@@ -17,8 +17,11 @@ Variants (module constants switched between runs, nothing else changes):
 - ``kernels``: that, and the elastic kernels compiled with their loop
   (``mapped.COMPILE_MAPPED_MIN``; the variants above call them once per
   element, on a second model of the same mesh);
-- ``now``: that, and the kept factor's low-rank term set up afresh where
-  its steps stall (``newton.FRESH_LOW_RANK``): the shipped code.
+- ``refresh``: that, and the kept factor's low-rank term set up afresh
+  where its steps stall (``newton.FRESH_LOW_RANK``);
+- ``now``: that, and an inexact Newton step (conjugate gradients
+  preconditioned by the kept factor) where they stall even so
+  (``newton.KRYLOV_STEPS``): the shipped code.
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -59,12 +62,23 @@ from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
 # (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
-#  elastic kernels compiled with their loop)
-VARIANTS = {"reference": (False, 0, 0, 0, False), "halves": (True, 0, 0, 0, False),
-            "chord": (True, newton.CHORD_STEPS, 0, 0, False),
-            "tentative": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, False),
-            "kernels": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, True),
-            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK, True)}
+#  newton.KRYLOV_STEPS, elastic kernels compiled with their loop)
+SWITCHES = ("WOODBURY_HALVES", "CHORD_STEPS", "TENTATIVE_FAILURES", "FRESH_LOW_RANK", "KRYLOV_STEPS")
+_CHORD, _TENTATIVE, _FRESH, _KRYLOV = (newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
+                                       newton.KRYLOV_STEPS)
+VARIANTS = {"reference": (False, 0, 0, 0, 0, False), "halves": (True, 0, 0, 0, 0, False),
+            "chord": (True, _CHORD, 0, 0, 0, False),
+            "tentative": (True, _CHORD, _TENTATIVE, 0, 0, False),
+            "kernels": (True, _CHORD, _TENTATIVE, 0, 0, True),
+            "refresh": (True, _CHORD, _TENTATIVE, _FRESH, 0, True),
+            "now": (True, _CHORD, _TENTATIVE, _FRESH, _KRYLOV, True)}
+
+
+def _switch(values) -> None:
+    """Set the variant's module constants (:data:`SWITCHES`)."""
+    linalg.WOODBURY_HALVES = values[0]
+    for name, value in zip(SWITCHES[1:], values[1:]):
+        setattr(newton, name, value)
 
 
 def _counting(model) -> dict:
@@ -127,6 +141,7 @@ def _part_functions() -> list[tuple[str, object, str]]:
             ("low-rank set-up (Woodbury)", linalg._WoodburySolve.__init__, "all"),
             ("model evaluations", Model.evaluate, "all"),
             ("solves with a factor", linalg.Factor.solve, "all"),
+            ("inexact Newton steps (their solves too)", newton._krylov_step, "all"),
             ("end-of-branch check (its solves too)", branch._at_the_end, "all"),
             ("sensitivities (their solves too)", sensitivity.state_sensitivity, "all")]
 
@@ -194,7 +209,7 @@ def main(argv=None):
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK)
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problems = {True: from_scene(scene, mesh_for_nodes(scene, nodes))}
@@ -209,12 +224,11 @@ def main(argv=None):
         try:
             for _ in range(args.repeats):
                 for name, (*switches, loop) in VARIANTS.items():
-                    (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES,
-                     newton.FRESH_LOW_RANK) = switches
+                    _switch(switches)
                     problem = problems[loop]
                     runs[name].append({**_forward(problem.model, c), **_control(problem.model, problem.targets)})
         finally:
-            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK = saved
+            _switch(saved)
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]
