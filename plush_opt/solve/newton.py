@@ -100,6 +100,10 @@ KRYLOV_STEPS = 2
 # ... and where the relative residual is at most this: from farther away
 # the kept factor's Hessian is no preconditioner for this one.
 KRYLOV_BELOW = 1.0
+# ... and on models of at least this many unknowns: below, a factorisation
+# costs about what a dozen solves and products with H do (at 1,000 nodes
+# the steps saved two factorisations of eight and no time).
+KRYLOV_MIN_DOFS = 10_000
 # Each runs at most this many iterations (where it converges it takes 3-9
 # on these meshes; past a dozen, the solves cost what a factorisation does) ...
 KRYLOV_ITERATIONS = 12
@@ -263,18 +267,20 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
             break
         taken = _chord_step(model, c, x, ev1, factor, norm, options) if since < CHORD_STEPS else None
         if taken is None:
-            if not options.gtol < norm / ev1.force_scale <= max(FRESH_BELOW, KRYLOV_BELOW):
-                break                   # (not in the local phase, or converged: its certificate next)
+            rel = norm / ev1.force_scale
+            refresh = refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW
+            inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
+            if not (refresh or inexact):
+                break                   # (converged: its certificate next; or far from it)
             ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
             # the tendons' stiffness changes fastest: the kept factor's
             # sparse part with the low-rank term of this pose
-            fresh = factor.with_low_rank_of(ev1.hessian_form) \
-                if refreshed < FRESH_LOW_RANK and norm / ev1.force_scale <= FRESH_BELOW else None
+            fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
             if fresh is not None:
                 factor, refreshed, since = fresh, refreshed + 1, 0
                 continue
             # the rest of the Hessian moved too: an inexact Newton step
-            taken = _krylov_step(model, c, x, ev1, factor, norm, options) if krylov < KRYLOV_STEPS else None
+            taken = _krylov_step(model, c, x, ev1, factor, norm, options) if inexact else None
             if taken is None:
                 break
             krylov, since = krylov + 1, 0
@@ -348,13 +354,20 @@ def _kept_step(model: Model, c, x, ev: Evaluation, dx, norm: float,
     return xt, et
 
 
+def _inexact_pays(g: np.ndarray, relative: float, options: EquilibriumOptions) -> bool:
+    """Whether an inexact Newton step is worth trying at a pose with
+    gradient ``g`` and relative residual ``relative``: not converged, within
+    ``KRYLOV_BELOW``, and a model of at least ``KRYLOV_MIN_DOFS`` unknowns."""
+    return g.size >= KRYLOV_MIN_DOFS and options.gtol < relative <= KRYLOV_BELOW
+
+
 def _inexact_first(model: Model, c, x, ev: Evaluation, factor: Factor, options: EquilibriumOptions):
     """Before factoring at (``x``, ``ev``): an inexact Newton step with the
     last Newton step's ``factor`` (:func:`_krylov_step`) where the relative
     residual is at most ``KRYLOV_BELOW`` (and above the tolerance), then the
     kept-factor steps after it: (pose, evaluation with its Hessian) or None."""
     norm = float(np.linalg.norm(ev.gradient))
-    if KRYLOV_STEPS == 0 or not options.gtol < norm / ev.force_scale <= KRYLOV_BELOW:
+    if KRYLOV_STEPS == 0 or not _inexact_pays(ev.gradient, norm / ev.force_scale, options):
         return None
     taken = _krylov_step(model, c, x, ev, factor, norm, options)
     if taken is None:
