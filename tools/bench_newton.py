@@ -35,12 +35,12 @@ instead builds the model and solves once from rest in this process (the
 shipped code, nothing switched) and prints the process's peak resident
 memory.
 
-    python tools/bench_newton.py --parts --nodes 10000 30000
+    python tools/bench_newton.py --parts --nodes 10000 30000 [--variant refresh]
 
-instead profiles the shipped code (cProfile on CPU time) and prints where
-the time goes: of a forward solve from rest, and of a reparam control run's
-iterates after the starting solve (the control run only up to
-``--inverse-max-nodes`` nodes).
+instead profiles the shipped code, or a variant's switches (cProfile on
+CPU time), and prints where the time goes: of a forward solve from rest,
+and of a reparam control run's iterates after the starting solve (the
+control run only up to ``--inverse-max-nodes`` nodes).
 """
 
 from __future__ import annotations
@@ -166,10 +166,23 @@ def _parts_of(run) -> tuple[list[tuple[str, float]], object]:
     return parts, out
 
 
-def _parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
+def _parts(problem: str, nodes_list, inverse_max_nodes: int, variant: str = "now") -> None:
     """Where the time goes (:func:`_parts_of`): a forward solve from rest
     and, up to ``inverse_max_nodes`` nodes, a reparam control run's iterates
-    after its starting solve; a Markdown table."""
+    after its starting solve, with the solver switches of ``variant`` (one
+    with the elastic kernels compiled with their loop); a Markdown table."""
+    *switches, loop = VARIANTS[variant]
+    if not loop:
+        raise SystemExit(f"--variant {variant}: --parts profiles the variants with the compiled kernel loop")
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
+    _switch(switches)
+    try:
+        _profile_parts(problem, nodes_list, inverse_max_nodes)
+    finally:
+        _switch(saved)
+
+
+def _profile_parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
     print("| nodes | run | part | CPU [s] | share |")
     print("|---|---|---|---|---|")
     options = EquilibriumOptions(eigenvalue=False)
@@ -199,13 +212,15 @@ def main(argv=None):
     ap.add_argument("--peak-memory", type=int, metavar="NODES",
                     help="one forward solve at about NODES nodes; print the peak resident memory")
     ap.add_argument("--parts", action="store_true", help="profile the shipped code: where the time goes")
+    ap.add_argument("--variant", choices=[name for name, v in VARIANTS.items() if v[-1]], default="now",
+                    help="--parts: the solver switches of this variant (default: the shipped code)")
     ap.add_argument("--inverse-max-nodes", type=int, default=12000,
                     help="--parts: the control run only up to this many nodes")
     args = ap.parse_args(argv)
     if args.peak_memory:
         return _peak_memory(args.problem, args.peak_memory)
     if args.parts:
-        return _parts(args.problem, args.nodes, args.inverse_max_nodes)
+        return _parts(args.problem, args.nodes, args.inverse_max_nodes, args.variant)
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
