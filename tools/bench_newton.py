@@ -3,6 +3,7 @@ control loop with and without them, interleaved in one run (CPU times, one
 BLAS thread).
 
     OPENBLAS_NUM_THREADS=1 python tools/bench_newton.py --nodes 1000 10000 --repeats 3
+    OPENBLAS_NUM_THREADS=1 python tools/bench_newton.py --nodes 30000 --no-control --variants refresh now
 
 Variants (module constants switched between runs, nothing else changes):
 
@@ -122,6 +123,9 @@ def _control(model, targets) -> dict:
             "factorisations_per_iterate": count["n"] / max(len(times), 1), "objective": res.objective}
 
 
+_NO_CONTROL: dict = {}
+
+
 def _peak_memory(name: str, nodes: int) -> None:
     import resource
     scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element="P1")
@@ -212,6 +216,9 @@ def main(argv=None):
     ap.add_argument("--peak-memory", type=int, metavar="NODES",
                     help="one forward solve at about NODES nodes; print the peak resident memory")
     ap.add_argument("--parts", action="store_true", help="profile the shipped code: where the time goes")
+    ap.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
+                    help="the variants to run (default: all)")
+    ap.add_argument("--no-control", action="store_true", help="the forward solves alone (no control runs)")
     ap.add_argument("--variant", choices=[name for name, v in VARIANTS.items() if v[-1]], default="now",
                     help="--parts: the solver switches of this variant (default: the shipped code)")
     ap.add_argument("--inverse-max-nodes", type=int, default=12000,
@@ -228,28 +235,33 @@ def main(argv=None):
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problems = {True: from_scene(scene, mesh_for_nodes(scene, nodes))}
-        compile_min, mapped.COMPILE_MAPPED_MIN = mapped.COMPILE_MAPPED_MIN, np.inf
-        try:
-            problems[False] = from_scene(scene, problems[True].mesh)      # kernels called per element
-        finally:
-            mapped.COMPILE_MAPPED_MIN = compile_min
+        if not all(VARIANTS[name][-1] for name in args.variants):
+            compile_min, mapped.COMPILE_MAPPED_MIN = mapped.COMPILE_MAPPED_MIN, np.inf
+            try:
+                problems[False] = from_scene(scene, problems[True].mesh)      # kernels called per element
+            finally:
+                mapped.COMPILE_MAPPED_MIN = compile_min
         model = problems[True].model
         c = model.scene.contraction if args.problem != "gripper" else np.full(model.n_winches, 10.0)
-        runs = {name: [] for name in VARIANTS}
+        runs = {name: [] for name in args.variants}
         try:
             for _ in range(args.repeats):
-                for name, (*switches, loop) in VARIANTS.items():
+                for name in args.variants:
+                    *switches, loop = VARIANTS[name]
                     _switch(switches)
                     problem = problems[loop]
-                    runs[name].append({**_forward(problem.model, c), **_control(problem.model, problem.targets)})
+                    control = _NO_CONTROL if args.no_control else _control(problem.model, problem.targets)
+                    runs[name].append({**_forward(problem.model, c), **control})
         finally:
             _switch(saved)
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]
+            control = "— | — | — | —" if args.no_control else (
+                f"{1e3 * med('iterate_cpu'):.1f} | {r['factorisations_per_iterate']:.2f} | {r['iterates']} | "
+                f"{r['objective']:.10g}")
             print(f"| {model.n_nodes} | {name} | {1e3 * med('cpu'):.1f} | {r['iterations']} | {r['factorisations']} | "
-                  f"{1e3 * med('iterate_cpu'):.1f} | {r['factorisations_per_iterate']:.2f} | {r['iterates']} | "
-                  f"{r['objective']:.10g} |", flush=True)
+                  f"{control} |", flush=True)
 
 
 if __name__ == "__main__":
