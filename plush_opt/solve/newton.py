@@ -98,8 +98,9 @@ FRESH_BELOW = 1e-3
 # kept-factor steps stall; at most this many per run of such steps ...
 KRYLOV_STEPS = 2
 # ... and where the relative residual is at most this: from farther away
-# the kept factor's Hessian is no preconditioner for this one.
-KRYLOV_BELOW = 1.0
+# the kept factor's Hessian is no preconditioner for this one (the attempts
+# from near 1 failed on the gripper at 10,000 and 30,000 nodes).
+KRYLOV_BELOW = 0.5
 # ... and on models of at least this many unknowns: below, a factorisation
 # costs about what a dozen solves and products with H do (at 1,000 nodes
 # the steps saved two factorisations of eight and no time).
@@ -468,7 +469,8 @@ def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Facto
     H's own, or None where it was regularised): the line search, a
     tentative step or the judging of the one before (``dog``), then the
     kept-factor steps (``keep``: allowed). (pose, evaluation, the pose to
-    go back to if kept-factor steps were taken) or None (line search failed)."""
+    go back to if kept-factor steps were taken, whether they were tried:
+    their inexact step too) or None (line search failed)."""
     g = ev.gradient
     dx = -step_factor.solve(g)
     accepted, alpha, tentative = _line_search(model, c, x, ev, dx, options, dog.allows(factor))
@@ -476,12 +478,15 @@ def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Facto
               step_factor.shift, alpha, " (tentative)" if tentative else "")
     if tentative:
         dog.watch(model, x, ev, dx, options, step_factor)
-        return accepted[0], accepted[1], None
+        return accepted[0], accepted[1], None, False
     accepted, alpha = dog.judge(model, c, accepted, alpha, options)
     if accepted is None:
         return None
+    # (as _keep_factor decides)
+    tried = keep and factor is not None and alpha == 1.0 and \
+        np.linalg.norm(accepted[1].gradient) <= CHORD_START * np.linalg.norm(g)
     x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
-    return x, ev, (accepted if kept else None)
+    return x, ev, (accepted if kept else None), tried
 
 
 #: the status of a solve whose line search found no admissible step that lowers the energy
@@ -576,7 +581,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if stepped is None:
             status = LINE_SEARCH_FAILED
             break
-        x, ev, undo = stepped
-        last = dog.factor_of_step(factor)
+        x, ev, undo, tried = stepped
+        last = None if tried else dog.factor_of_step(factor)     # (tried: at this pose with factor)
     return certified(model, c, x, ev, factor, converged, _why_not(model, c, x, converged, status), it, t0,
                      options, "newton", escapes)
