@@ -106,8 +106,8 @@ KRYLOV_BELOW = 1.0
 # costs about what a dozen solves and products with H do (at 1,000 nodes
 # the steps saved two factorisations of eight and no time).
 KRYLOV_MIN_DOFS = 10_000
-# Each runs at most this many iterations (where it converges it takes 3-9
-# on these meshes; past a dozen, the solves cost what a factorisation does) ...
+# Each runs at most this many iterations (where it converges it took 4-8
+# on the gripper; past a dozen, the solves cost what a factorisation does) ...
 KRYLOV_ITERATIONS = 12
 # ... and stops after this many if |H dx + g| is still above this fraction
 # of |g| (it will not reach the tolerance below in time) ...
