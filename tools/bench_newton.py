@@ -3,6 +3,7 @@ control loop with and without them, interleaved in one run (CPU times, one
 BLAS thread).
 
     OPENBLAS_NUM_THREADS=1 python tools/bench_newton.py --nodes 1000 10000 --repeats 3
+    OPENBLAS_NUM_THREADS=1 python tools/bench_newton.py --nodes 30000 --no-control --variants refresh now
 
 Variants (module constants switched between runs, nothing else changes):
 
@@ -17,8 +18,11 @@ Variants (module constants switched between runs, nothing else changes):
 - ``kernels``: that, and the elastic kernels compiled with their loop
   (``mapped.COMPILE_MAPPED_MIN``; the variants above call them once per
   element, on a second model of the same mesh);
-- ``now``: that, and the kept factor's low-rank term set up afresh where
-  its steps stall (``newton.FRESH_LOW_RANK``): the shipped code.
+- ``refresh``: that, and the kept factor's low-rank term set up afresh
+  where its steps stall (``newton.FRESH_LOW_RANK``);
+- ``now``: that, and an inexact Newton step (conjugate gradients
+  preconditioned by the kept factor) where they stall even so
+  (``newton.KRYLOV_STEPS``): the shipped code.
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -32,12 +36,12 @@ instead builds the model and solves once from rest in this process (the
 shipped code, nothing switched) and prints the process's peak resident
 memory.
 
-    python tools/bench_newton.py --parts --nodes 10000 30000
+    python tools/bench_newton.py --parts --nodes 10000 30000 [--variant refresh]
 
-instead profiles the shipped code (cProfile on CPU time) and prints where
-the time goes: of a forward solve from rest, and of a reparam control run's
-iterates after the starting solve (the control run only up to
-``--inverse-max-nodes`` nodes).
+instead profiles the shipped code, or a variant's switches (cProfile on
+CPU time), and prints where the time goes: of a forward solve from rest,
+and of a reparam control run's iterates after the starting solve (the
+control run only up to ``--inverse-max-nodes`` nodes).
 """
 
 from __future__ import annotations
@@ -59,12 +63,23 @@ from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
 # (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
-#  elastic kernels compiled with their loop)
-VARIANTS = {"reference": (False, 0, 0, 0, False), "halves": (True, 0, 0, 0, False),
-            "chord": (True, newton.CHORD_STEPS, 0, 0, False),
-            "tentative": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, False),
-            "kernels": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, 0, True),
-            "now": (True, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK, True)}
+#  newton.KRYLOV_STEPS, elastic kernels compiled with their loop)
+SWITCHES = ("WOODBURY_HALVES", "CHORD_STEPS", "TENTATIVE_FAILURES", "FRESH_LOW_RANK", "KRYLOV_STEPS")
+_CHORD, _TENTATIVE, _FRESH, _KRYLOV = (newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
+                                       newton.KRYLOV_STEPS)
+VARIANTS = {"reference": (False, 0, 0, 0, 0, False), "halves": (True, 0, 0, 0, 0, False),
+            "chord": (True, _CHORD, 0, 0, 0, False),
+            "tentative": (True, _CHORD, _TENTATIVE, 0, 0, False),
+            "kernels": (True, _CHORD, _TENTATIVE, 0, 0, True),
+            "refresh": (True, _CHORD, _TENTATIVE, _FRESH, 0, True),
+            "now": (True, _CHORD, _TENTATIVE, _FRESH, _KRYLOV, True)}
+
+
+def _switch(values) -> None:
+    """Set the variant's module constants (:data:`SWITCHES`)."""
+    linalg.WOODBURY_HALVES = values[0]
+    for name, value in zip(SWITCHES[1:], values[1:]):
+        setattr(newton, name, value)
 
 
 def _counting(model) -> dict:
@@ -108,6 +123,9 @@ def _control(model, targets) -> dict:
             "factorisations_per_iterate": count["n"] / max(len(times), 1), "objective": res.objective}
 
 
+_NO_CONTROL: dict = {}
+
+
 def _peak_memory(name: str, nodes: int) -> None:
     import resource
     scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element="P1")
@@ -127,6 +145,7 @@ def _part_functions() -> list[tuple[str, object, str]]:
             ("low-rank set-up (Woodbury)", linalg._WoodburySolve.__init__, "all"),
             ("model evaluations", Model.evaluate, "all"),
             ("solves with a factor", linalg.Factor.solve, "all"),
+            ("inexact Newton steps (their solves too)", newton._krylov_step, "all"),
             ("end-of-branch check (its solves too)", branch._at_the_end, "all"),
             ("sensitivities (their solves too)", sensitivity.state_sensitivity, "all")]
 
@@ -151,10 +170,23 @@ def _parts_of(run) -> tuple[list[tuple[str, float]], object]:
     return parts, out
 
 
-def _parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
+def _parts(problem: str, nodes_list, inverse_max_nodes: int, variant: str = "now") -> None:
     """Where the time goes (:func:`_parts_of`): a forward solve from rest
     and, up to ``inverse_max_nodes`` nodes, a reparam control run's iterates
-    after its starting solve; a Markdown table."""
+    after its starting solve, with the solver switches of ``variant`` (one
+    with the elastic kernels compiled with their loop); a Markdown table."""
+    *switches, loop = VARIANTS[variant]
+    if not loop:
+        raise SystemExit(f"--variant {variant}: --parts profiles the variants with the compiled kernel loop")
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
+    _switch(switches)
+    try:
+        _profile_parts(problem, nodes_list, inverse_max_nodes)
+    finally:
+        _switch(saved)
+
+
+def _profile_parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
     print("| nodes | run | part | CPU [s] | share |")
     print("|---|---|---|---|---|")
     options = EquilibriumOptions(eigenvalue=False)
@@ -184,43 +216,52 @@ def main(argv=None):
     ap.add_argument("--peak-memory", type=int, metavar="NODES",
                     help="one forward solve at about NODES nodes; print the peak resident memory")
     ap.add_argument("--parts", action="store_true", help="profile the shipped code: where the time goes")
+    ap.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS),
+                    help="the variants to run (default: all)")
+    ap.add_argument("--no-control", action="store_true", help="the forward solves alone (no control runs)")
+    ap.add_argument("--variant", choices=[name for name, v in VARIANTS.items() if v[-1]], default="now",
+                    help="--parts: the solver switches of this variant (default: the shipped code)")
     ap.add_argument("--inverse-max-nodes", type=int, default=12000,
                     help="--parts: the control run only up to this many nodes")
     args = ap.parse_args(argv)
     if args.peak_memory:
         return _peak_memory(args.problem, args.peak_memory)
     if args.parts:
-        return _parts(args.problem, args.nodes, args.inverse_max_nodes)
+        return _parts(args.problem, args.nodes, args.inverse_max_nodes, args.variant)
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK)
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problems = {True: from_scene(scene, mesh_for_nodes(scene, nodes))}
-        compile_min, mapped.COMPILE_MAPPED_MIN = mapped.COMPILE_MAPPED_MIN, np.inf
-        try:
-            problems[False] = from_scene(scene, problems[True].mesh)      # kernels called per element
-        finally:
-            mapped.COMPILE_MAPPED_MIN = compile_min
+        if not all(VARIANTS[name][-1] for name in args.variants):
+            compile_min, mapped.COMPILE_MAPPED_MIN = mapped.COMPILE_MAPPED_MIN, np.inf
+            try:
+                problems[False] = from_scene(scene, problems[True].mesh)      # kernels called per element
+            finally:
+                mapped.COMPILE_MAPPED_MIN = compile_min
         model = problems[True].model
         c = model.scene.contraction if args.problem != "gripper" else np.full(model.n_winches, 10.0)
-        runs = {name: [] for name in VARIANTS}
+        runs = {name: [] for name in args.variants}
         try:
             for _ in range(args.repeats):
-                for name, (*switches, loop) in VARIANTS.items():
-                    (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES,
-                     newton.FRESH_LOW_RANK) = switches
+                for name in args.variants:
+                    *switches, loop = VARIANTS[name]
+                    _switch(switches)
                     problem = problems[loop]
-                    runs[name].append({**_forward(problem.model, c), **_control(problem.model, problem.targets)})
+                    control = _NO_CONTROL if args.no_control else _control(problem.model, problem.targets)
+                    runs[name].append({**_forward(problem.model, c), **control})
         finally:
-            linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK = saved
+            _switch(saved)
         for name, rs in runs.items():
             med = lambda key: float(np.median([r[key] for r in rs]))  # noqa: E731
             r = rs[-1]
+            control = "— | — | — | —" if args.no_control else (
+                f"{1e3 * med('iterate_cpu'):.1f} | {r['factorisations_per_iterate']:.2f} | {r['iterates']} | "
+                f"{r['objective']:.10g}")
             print(f"| {model.n_nodes} | {name} | {1e3 * med('cpu'):.1f} | {r['iterations']} | {r['factorisations']} | "
-                  f"{1e3 * med('iterate_cpu'):.1f} | {r['factorisations_per_iterate']:.2f} | {r['iterates']} | "
-                  f"{r['objective']:.10g} |", flush=True)
+                  f"{control} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -21,9 +21,14 @@ Each such step must cut the residual by ``CHORD_CUT`` and pass the same
 admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
 follow one factorisation. Where they stall on a low-rank Hessian, the
 kept factor's sparse part serves on with the current pose's low-rank term
-(``FRESH_LOW_RANK``). They are not iterations: ``iterations`` (and
-``max_iterations``) count Newton steps, each with its own factorisation. The certificate never rests on a kept factor: the pose they
-reach is factored afresh, and only that factor certifies it.
+(``FRESH_LOW_RANK``). Before each Newton step's factorisation, and where
+kept-factor steps stall, an inexact Newton step is tried: conjugate
+gradients on the current Hessian preconditioned by the kept factor, to
+``KRYLOV_TOL`` of the residual, taken only if it passes the same tests
+(``KRYLOV_STEPS``). They are not iterations: ``iterations`` (and
+``max_iterations``) count Newton steps, each with its own factorisation.
+The certificate never rests on a kept factor: the pose they reach is
+factored afresh, and only that factor certifies it.
 """
 
 from __future__ import annotations
@@ -97,6 +102,30 @@ FRESH_LOW_RANK = 1
 # ... and only in the local phase: relative residual at most this (and
 # above the tolerance: a converged pose needs its certificate, no more steps).
 FRESH_BELOW = 1e-3
+# An inexact Newton step instead of a factorisation: conjugate gradients on
+# the current Hessian preconditioned by the factor kept from a nearby pose
+# (one solve and one product with H per iteration), tried before each
+# Newton step's factorisation with the last one's factor, and where
+# kept-factor steps stall; at most this many per run of such steps ...
+KRYLOV_STEPS = 2
+# ... and where the relative residual is at most this: from farther away
+# the kept factor's Hessian is no preconditioner for this one (a first step
+# from rest starts at 1; 0.5 instead cost the gripper's control run at
+# 10,000 nodes 2.75 factorisations per iterate instead of 2.00).
+KRYLOV_BELOW = 1.0
+# ... and on models of at least this many unknowns: below, a factorisation
+# costs about what a dozen solves and products with H do (at 1,000 nodes
+# the steps saved two factorisations of eight and no time).
+KRYLOV_MIN_DOFS = 10_000
+# Each runs at most this many iterations (where it converges it took 4-8
+# on the gripper; past a dozen, the solves cost what a factorisation does) ...
+KRYLOV_ITERATIONS = 12
+# ... and stops after this many if |H dx + g| is still above this fraction
+# of |g| (it will not reach the tolerance below in time) ...
+KRYLOV_CHECK, KRYLOV_CHECK_CUT = 5, 0.1
+# ... or once |H dx + g| is this fraction of |g|: the step then cuts the
+# residual about as far, and the kept-factor steps after it go on.
+KRYLOV_TOL = 1e-3
 
 
 def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -161,6 +190,17 @@ def escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOption
         return None
     log.info("escaped a saddle (lambda_min = %.3g) by a step of %.3g", lam, s)
     return best[1], model.evaluate(best[1], c, order=2)
+
+
+def _escape_at_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOptions, escapes: int):
+    """At a converged pose whose Hessian is not positive definite: the
+    escaped (pose, evaluation) (:func:`escape_saddle`), or None where
+    escapes are off, used up, or find nothing. (Not when staying on a
+    branch: a converged point with an indefinite Hessian there is the fold
+    at its end, past which the escape would snap through.)"""
+    if options.escape_saddles and options.regularise and escapes < options.max_escapes:
+        return escape_saddle(model, c, x, ev, options)
+    return None
 
 
 def _left_branch(it: int) -> str:
@@ -251,11 +291,13 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     in hand: g + H dx = (H - F) dx). Where they would stop short of the
     tolerance in the local phase, a factor of a low-rank Hessian goes on
     with its low-rank term set up afresh at the current pose
-    (``FRESH_LOW_RANK``).
+    (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
+    step preconditioned by the kept factor is tried (:func:`_krylov_step`,
+    ``KRYLOV_STEPS``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
-    steps, since, refreshed = 0, 0, 0      # steps; steps with this factor; refreshes
+    steps, since, refreshed, krylov = 0, 0, 0, 0    # steps; with this factor; refreshes; inexact Newton
     ev1 = ev
     last = 0.0                             # the residual before the last step
     while True:
@@ -274,20 +316,27 @@ def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         last = norm
         taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
         if taken is None:
+            rel = norm / ev1.force_scale
+            refresh = refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW
+            inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
+            if not (refresh or inexact):
+                break                   # (converged: its certificate next; or far from it)
+            ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
             # the tendons' stiffness changes fastest: the kept factor's
             # sparse part with the low-rank term of this pose
-            fresh = None
-            if refreshed < FRESH_LOW_RANK and options.gtol < norm / ev1.force_scale <= FRESH_BELOW:
-                ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
-                fresh = factor.with_low_rank_of(ev1.hessian_form)
-            if fresh is None:
+            fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
+            if fresh is not None:
+                factor, refreshed, since = fresh, refreshed + 1, 0
+                continue
+            # the rest of the Hessian moved too: an inexact Newton step
+            taken = _krylov_step(model, c, x, ev1, factor, norm, options) if inexact else None
+            if taken is None:
                 break
-            factor, refreshed, since = fresh, refreshed + 1, 0
-            continue
+            krylov, since = krylov + 1, 0
         (x, ev1), steps, since = taken, steps + 1, since + 1
     if steps:
-        log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es)), residual %.3e", steps,
-                  refreshed, np.linalg.norm(ev1.gradient) / ev1.force_scale)
+        log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es), %d inexact Newton), "
+                  "residual %.3e", steps, refreshed, krylov, np.linalg.norm(ev1.gradient) / ev1.force_scale)
         return x, (ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)), steps
     return x, ev, 0
 
@@ -297,8 +346,50 @@ def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
     """One step of :func:`_chord_steps` from (``x``, ``ev``, residual norm
     ``norm``; ``dx``: the step -F^-1 g if already solved for): the pose and
     its evaluation (order 1), or None where the step fails its tests."""
+    dx = -factor.solve(ev.gradient) if dx is None else dx
+    return _kept_step(model, c, x, ev, dx, norm, options)
+
+
+def _krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
+                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
+    """An inexact Newton step from (``x``, ``ev`` with its Hessian, residual
+    norm ``norm``): H dx = -g by conjugate gradients preconditioned with the
+    kept ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests
+    of a kept-factor step. None where CG meets a curvature that is not
+    positive (H is not positive definite along its search), does not
+    converge, or the step fails its tests."""
+    g, H = ev.gradient, ev.hessian_form
+    r = -g
+    z = factor.solve(r)
+    p, rz = z.copy(), float(r @ z)
+    dx = np.zeros_like(g)
+    for i in range(KRYLOV_ITERATIONS):
+        Hp = H @ p
+        curvature = float(p @ Hp)
+        if not curvature > 0:
+            return None
+        alpha = rz / curvature
+        dx += alpha * p
+        r -= alpha * Hp
+        left = float(np.linalg.norm(r))
+        if left <= KRYLOV_TOL * norm:
+            return _kept_step(model, c, x, ev, dx, norm, options)
+        if i + 1 == KRYLOV_CHECK and left > KRYLOV_CHECK_CUT * norm:
+            return None
+        z = factor.solve(r)
+        rz, rz_old = float(r @ z), rz
+        p = z + (rz / rz_old) * p
+    return None
+
+
+def _kept_step(model: Model, c, x, ev: Evaluation, dx, norm: float,
+               options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
+    """The step ``dx`` from (``x``, ``ev``, residual norm ``norm``) taken
+    whole with no factorisation of its own: (pose, evaluation of order 1)
+    if it stays within ``Model.max_step``, is admissible, does not raise
+    the energy (Armijo, or at round-off level) and cuts the residual by
+    ``CHORD_CUT``; else None."""
     g = ev.gradient
-    dx = -factor.solve(g) if dx is None else dx
     if model.max_step(x, dx) < 1.0:
         return None
     xt = x + dx
@@ -311,6 +402,28 @@ def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
             and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
         return None
     return xt, et
+
+
+def _inexact_pays(g: np.ndarray, relative: float, options: EquilibriumOptions) -> bool:
+    """Whether an inexact Newton step is worth trying at a pose with
+    gradient ``g`` and relative residual ``relative``: not converged, within
+    ``KRYLOV_BELOW``, and a model of at least ``KRYLOV_MIN_DOFS`` unknowns."""
+    return g.size >= KRYLOV_MIN_DOFS and options.gtol < relative <= KRYLOV_BELOW
+
+
+def _inexact_first(model: Model, c, x, ev: Evaluation, factor: Factor, options: EquilibriumOptions):
+    """Before factoring at (``x``, ``ev``): an inexact Newton step with the
+    last Newton step's ``factor`` (:func:`_krylov_step`) where the relative
+    residual is at most ``KRYLOV_BELOW`` (and above the tolerance), then the
+    kept-factor steps after it: (pose, evaluation with its Hessian) or None."""
+    norm = float(np.linalg.norm(ev.gradient))
+    if KRYLOV_STEPS == 0 or not _inexact_pays(ev.gradient, norm / ev.force_scale, options):
+        return None
+    taken = _krylov_step(model, c, x, ev, factor, norm, options)
+    if taken is None:
+        return None
+    xs, es, _ = _chord_steps(model, c, taken[0], taken[1], factor, options)
+    return xs, (es if es.hessian_form is not None else model.evaluate(xs, c, order=2))
 
 
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
@@ -365,16 +478,24 @@ class _Watchdog:
 
     def __init__(self):
         self.start, self.failures = None, 0
+        self._back_to = None        # the factor of the start a judged step went back to
+
+    def factor_of_step(self, factor: Factor | None) -> Factor | None:
+        """The factor of the step just taken with ``factor``: the watched
+        start's where the judge went back there, else ``factor``."""
+        back, self._back_to = self._back_to, None
+        return back if back is not None else factor
 
     def allows(self, factor: Factor | None) -> bool:
         """Whether the next (unregularised) step may be tentative."""
         return self.start is None and factor is not None and self.failures < TENTATIVE_FAILURES
 
-    def watch(self, model: Model, x, ev: Evaluation, dx, options: EquilibriumOptions) -> None:
-        """Watch the tentative step ``dx`` from (``x``, ``ev``): the step
-        after it must end the whole step's Armijo decrease below ``ev``."""
+    def watch(self, model: Model, x, ev: Evaluation, dx, options: EquilibriumOptions, factor: Factor) -> None:
+        """Watch the tentative step ``dx`` (by ``factor``) from (``x``,
+        ``ev``): the step after it must end the whole step's Armijo
+        decrease below ``ev``."""
         slope = float(ev.gradient @ dx)
-        self.start = (x, ev, dx, ev.energy + options.armijo * slope + _energy_slack(model, ev.energy, x))
+        self.start = (x, ev, dx, ev.energy + options.armijo * slope + _energy_slack(model, ev.energy, x), factor)
 
     def judge(self, model: Model, c, accepted, alpha: float, options: EquilibriumOptions):
         """The step after a tentative one (``accepted``, None where it failed
@@ -382,10 +503,10 @@ class _Watchdog:
         start's mark; else back to that start and its line search without
         the whole step. (accepted, step length); as given with nothing under
         watch."""
-        start, self.start = self.start, None
+        start, self.start, self._back_to = self.start, None, None
         if start is None or (accepted is not None and accepted[1].energy <= start[3]):
             return accepted, alpha
-        self.failures += 1
+        self.failures, self._back_to = self.failures + 1, start[4]
         log.debug("newton: the tentative step did not pay off; backtracking from its start")
         accepted, alpha, _ = _line_search(model, c, start[0], start[1], start[2], options, first=1)
         return accepted, alpha
@@ -397,20 +518,24 @@ def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Facto
     H's own, or None where it was regularised): the line search, a
     tentative step or the judging of the one before (``dog``), then the
     kept-factor steps (``keep``: allowed). (pose, evaluation, the pose to
-    go back to if kept-factor steps were taken) or None (line search failed)."""
+    go back to if kept-factor steps were taken, whether they were tried:
+    their inexact step too) or None (line search failed)."""
     g = ev.gradient
     dx = -step_factor.solve(g)
     accepted, alpha, tentative = _line_search(model, c, x, ev, dx, options, dog.allows(factor))
     log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, np.linalg.norm(g) / ev.force_scale,
               step_factor.shift, alpha, " (tentative)" if tentative else "")
     if tentative:
-        dog.watch(model, x, ev, dx, options)
-        return accepted[0], accepted[1], None
+        dog.watch(model, x, ev, dx, options, step_factor)
+        return accepted[0], accepted[1], None, False
     accepted, alpha = dog.judge(model, c, accepted, alpha, options)
     if accepted is None:
         return None
+    # (as _keep_factor decides)
+    tried = keep and factor is not None and alpha == 1.0 and \
+        np.linalg.norm(accepted[1].gradient) <= CHORD_START * np.linalg.norm(g)
     x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
-    return x, ev, (accepted if kept else None)
+    return x, ev, (accepted if kept else None), tried
 
 
 #: the status of a solve whose line search found no admissible step that lowers the energy
@@ -441,16 +566,20 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         return Equilibrium(x, c, False, NOT_ADMISSIBLE, np.inf, np.inf, np.nan, False, None, 0,
                            time.perf_counter() - t0, "newton")
     x, ev, undo = _start_with(model, c, x, ev, chord, options)
-    keep, it = True, 0            # kept-factor steps allowed (until they led to an indefinite H)
-    escapes = 0
+    keep, it, escapes = True, 0, 0    # kept-factor steps allowed (until they led to an indefinite H)
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
     watch_symmetry = True         # look for a gradient blind to negative curvature
     last_shift = None             # regularisation of the previous indefinite step
-    converged = False
+    converged, last = False, None     # (last: the last Newton step's factor, for an inexact step)
     dog = _Watchdog()             # tentative full steps
     while True:
         g, H = ev.gradient, ev.hessian_form
+        if last is not None and keep and dog.start is None:
+            inexact, last = _inexact_first(model, c, x, ev, last, options), None
+            if inexact is not None:       # (undone as kept-factor steps are, to the same pose)
+                x, ev, undo = inexact[0], inexact[1], ((x, ev) if undo is None else undo)
+                continue
         factor = try_factor(model, H)
         if factor is None and undo is not None:    # kept-factor steps led there: undone
             (x, ev), undo, keep = undo, None, False
@@ -468,17 +597,12 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             status = "converged" if escapes == 0 else f"converged (escaped {escapes} saddle(s))"
             break
         if small:
-            # (not when staying on a branch: a converged point with an
-            # indefinite Hessian there is the fold at its end, past which
-            # the escape would snap through)
-            if options.escape_saddles and options.regularise and escapes < options.max_escapes:
-                escaped = escape_saddle(model, c, x, ev, options)
-                if escaped is not None:
-                    x, ev = escaped
-                    escapes += 1
-                    continue
-            status = "saddle: the gradient vanishes but the Hessian is not positive definite"
-            break
+            escaped = _escape_at_saddle(model, c, x, ev, options, escapes)
+            if escaped is None:
+                status = "saddle: the gradient vanishes but the Hessian is not positive definite"
+                break
+            (x, ev), escapes = escaped, escapes + 1
+            continue
         if it >= options.max_iterations:
             break
         best.append(np.linalg.norm(g) / ev.force_scale)
@@ -506,6 +630,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if stepped is None:
             status = LINE_SEARCH_FAILED
             break
-        x, ev, undo = stepped
+        x, ev, undo, tried = stepped
+        last = None if tried else dog.factor_of_step(factor)     # (tried: at this pose with factor)
     return certified(model, c, x, ev, factor, converged, _why_not(model, c, x, converged, status), it, t0,
                      options, "newton", escapes)

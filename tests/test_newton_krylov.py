@@ -1,0 +1,93 @@
+"""Newton's inexact steps: where steps with a kept factor stall in the local
+phase, conjugate gradients on the current Hessian preconditioned by that
+factor take the step a factorisation would have; the pose reached is still
+factored afresh and only that factor certifies it."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.sparse as sp
+
+from plush_opt.fem.model import Evaluation
+from plush_opt.solve import newton
+from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.sensitivity import state_sensitivity
+from shipped import body_size, built
+
+
+def _counting(model) -> dict:
+    count = {"n": 0}
+    plain = model.factorizer.factor
+
+    def factor(H, shift=0.0):
+        count["n"] += 1
+        return plain(H, shift)
+    model.factorizer.factor = factor
+    return count
+
+
+def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(monkeypatch, caplog):
+    """A control trial's re-solve after a 0.05 mm step, from the predictor
+    with the last equilibrium's factor: its kept-factor steps stall above
+    the tolerance; with the inexact Newton step the certificate's is the
+    only factorisation, at the same equilibrium."""
+    _, _, model, _ = built("gripper")
+    monkeypatch.setattr(newton, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
+    near = solve_equilibrium(model, [9.8, 0.0, 5.0])
+    c = np.array([9.85, 0.0, 5.05])
+    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
+    count = _counting(model)
+    try:
+        monkeypatch.setattr(newton, "KRYLOV_STEPS", 0)
+        without = solve_equilibrium(model, c, guess, chord=near.factor)
+        n_without, count["n"] = count["n"], 0
+        monkeypatch.setattr(newton, "KRYLOV_STEPS", 2)
+        with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
+            with_ = solve_equilibrium(model, c, guess, chord=near.factor)
+        n_with = count["n"]
+    finally:
+        del model.factorizer.factor
+    assert without.converged and with_.converged, (without.status, with_.status)
+    assert (n_without, n_with) == (2, 1)
+    assert any("1 inexact Newton" in r.getMessage() for r in caplog.records)
+    assert with_.relative_residual <= 1e-10 and with_.iterations == 0
+    assert np.abs(with_.x - without.x).max() <= 1e-9 * body_size(model)
+    # its factor is its own Hessian's
+    H = model.evaluate(with_.x, with_.contraction).hessian
+    b = np.ones(model.n_dofs)
+    assert np.linalg.norm(H @ with_.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)
+
+
+class _Identity:
+    """A stand-in factor: solve is the identity."""
+
+    shift = 0.0
+
+    @staticmethod
+    def solve(b):
+        return np.array(b, dtype=np.float64)
+
+
+def test_an_inexact_step_refuses_a_hessian_not_positive_definite_along_its_search():
+    """Conjugate gradients that meet a curvature that is not positive (here
+    H = -I) give no step: the solve factors instead (and regularises or
+    stops as it would)."""
+    n = 6
+    g = np.arange(1.0, n + 1.0)
+    ev = Evaluation(0.0, g, -sp.identity(n, format="csc"), 1.0, True)
+    assert newton._krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
+                               EquilibriumOptions()) is None
+
+
+def test_an_inexact_step_stops_after_its_iterations(monkeypatch):
+    """Without convergence within ``KRYLOV_ITERATIONS`` there is no step: a
+    preconditioner far from H (the identity for a spread spectrum) needs
+    more iterations than one."""
+    monkeypatch.setattr(newton, "KRYLOV_ITERATIONS", 1)
+    n = 6
+    g = np.ones(n)
+    ev = Evaluation(0.0, g, sp.diags(np.arange(1.0, n + 1.0)).tocsc(), 1.0, True)
+    assert newton._krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
+                               EquilibriumOptions()) is None
