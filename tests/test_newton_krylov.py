@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from plush_opt.fem.model import Evaluation
-from plush_opt.solve import newton
+from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
 from shipped import body_size, built
@@ -34,16 +34,16 @@ def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(mon
     the tolerance; with the inexact Newton step the certificate's is the
     only factorisation, at the same equilibrium."""
     _, _, model, _ = built("gripper")
-    monkeypatch.setattr(newton, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
+    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
     near = solve_equilibrium(model, [9.8, 0.0, 5.0])
     c = np.array([9.85, 0.0, 5.05])
     guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
     count = _counting(model)
     try:
-        monkeypatch.setattr(newton, "KRYLOV_STEPS", 0)
+        monkeypatch.setattr(kept_factor, "KRYLOV_STEPS", 0)
         without = solve_equilibrium(model, c, guess, chord=near.factor)
         n_without, count["n"] = count["n"], 0
-        monkeypatch.setattr(newton, "KRYLOV_STEPS", 2)
+        monkeypatch.setattr(kept_factor, "KRYLOV_STEPS", 2)
         with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
             with_ = solve_equilibrium(model, c, guess, chord=near.factor)
         n_with = count["n"]
@@ -77,7 +77,7 @@ def test_an_inexact_step_refuses_a_hessian_not_positive_definite_along_its_searc
     n = 6
     g = np.arange(1.0, n + 1.0)
     ev = Evaluation(0.0, g, -sp.identity(n, format="csc"), 1.0, True)
-    assert newton._krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
+    assert kept_factor.krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
                                EquilibriumOptions()) is None
 
 
@@ -85,9 +85,9 @@ def test_an_inexact_step_stops_after_its_iterations(monkeypatch):
     """Without convergence within ``KRYLOV_ITERATIONS`` there is no step: a
     preconditioner far from H (the identity for a spread spectrum) needs
     more iterations than one."""
-    monkeypatch.setattr(newton, "KRYLOV_ITERATIONS", 1)
+    monkeypatch.setattr(kept_factor, "KRYLOV_ITERATIONS", 1)
     n = 6
     g = np.ones(n)
     ev = Evaluation(0.0, g, sp.diags(np.arange(1.0, n + 1.0)).tocsc(), 1.0, True)
-    assert newton._krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
+    assert kept_factor.krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
                                EquilibriumOptions()) is None

@@ -9,7 +9,7 @@ Variants (module constants switched between runs, nothing else changes):
 
 - ``reference``: the Woodbury set-up with k full solves
   (``linalg.WOODBURY_HALVES = False``), no kept-factor steps
-  (``newton.CHORD_STEPS = 0``) and no tentative steps
+  (``kept_factor.CHORD_STEPS = 0``) and no tentative steps
   (``newton.TENTATIVE_FAILURES = 0``);
 - ``halves``: the set-up by forward substitution alone;
 - ``chord``: that, and Newton's kept-factor (chord) steps, in the forward
@@ -19,10 +19,10 @@ Variants (module constants switched between runs, nothing else changes):
   (``mapped.COMPILE_MAPPED_MIN``; the variants above call them once per
   element, on a second model of the same mesh);
 - ``refresh``: that, and the kept factor's low-rank term set up afresh
-  where its steps stall (``newton.FRESH_LOW_RANK``);
+  where its steps stall (``kept_factor.FRESH_LOW_RANK``);
 - ``now``: that, and an inexact Newton step (conjugate gradients
   preconditioned by the kept factor) where they stall even so
-  (``newton.KRYLOV_STEPS``): the shipped code.
+  (``kept_factor.KRYLOV_STEPS``): the shipped code.
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -58,15 +58,18 @@ from plush_opt.fem import mapped
 from plush_opt.fem.mesh import mesh_for_nodes
 from plush_opt.io import load_scene
 from plush_opt.problem import from_scene
-from plush_opt.solve import newton
+from plush_opt.solve import kept_factor, newton
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
-# (linalg.WOODBURY_HALVES, newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
-#  newton.KRYLOV_STEPS, elastic kernels compiled with their loop)
+# (linalg.WOODBURY_HALVES, kept_factor.CHORD_STEPS, newton.TENTATIVE_FAILURES, kept_factor.FRESH_LOW_RANK,
+#  kept_factor.KRYLOV_STEPS, elastic kernels compiled with their loop)
 SWITCHES = ("WOODBURY_HALVES", "CHORD_STEPS", "TENTATIVE_FAILURES", "FRESH_LOW_RANK", "KRYLOV_STEPS")
-_CHORD, _TENTATIVE, _FRESH, _KRYLOV = (newton.CHORD_STEPS, newton.TENTATIVE_FAILURES, newton.FRESH_LOW_RANK,
-                                       newton.KRYLOV_STEPS)
+#: the module each of the solver's switches lives in
+_HOME = {"CHORD_STEPS": kept_factor, "TENTATIVE_FAILURES": newton, "FRESH_LOW_RANK": kept_factor,
+         "KRYLOV_STEPS": kept_factor}
+_CHORD, _TENTATIVE, _FRESH, _KRYLOV = (kept_factor.CHORD_STEPS, newton.TENTATIVE_FAILURES, kept_factor.FRESH_LOW_RANK,
+                                       kept_factor.KRYLOV_STEPS)
 VARIANTS = {"reference": (False, 0, 0, 0, 0, False), "halves": (True, 0, 0, 0, 0, False),
             "chord": (True, _CHORD, 0, 0, 0, False),
             "tentative": (True, _CHORD, _TENTATIVE, 0, 0, False),
@@ -79,7 +82,7 @@ def _switch(values) -> None:
     """Set the variant's module constants (:data:`SWITCHES`)."""
     linalg.WOODBURY_HALVES = values[0]
     for name, value in zip(SWITCHES[1:], values[1:]):
-        setattr(newton, name, value)
+        setattr(_HOME[name], name, value)
 
 
 def _counting(model) -> dict:
@@ -145,7 +148,7 @@ def _part_functions() -> list[tuple[str, object, str]]:
             ("low-rank set-up (Woodbury)", linalg._WoodburySolve.__init__, "all"),
             ("model evaluations", Model.evaluate, "all"),
             ("solves with a factor", linalg.Factor.solve, "all"),
-            ("inexact Newton steps (their solves too)", newton._krylov_step, "all"),
+            ("inexact Newton steps (their solves too)", kept_factor.krylov_step, "all"),
             ("end-of-branch check (its solves too)", branch._at_the_end, "all"),
             ("sensitivities (their solves too)", sensitivity.state_sensitivity, "all")]
 
@@ -178,7 +181,7 @@ def _parts(problem: str, nodes_list, inverse_max_nodes: int, variant: str = "now
     *switches, loop = VARIANTS[variant]
     if not loop:
         raise SystemExit(f"--variant {variant}: --parts profiles the variants with the compiled kernel loop")
-    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(_HOME[name], name) for name in SWITCHES[1:])
     _switch(switches)
     try:
         _profile_parts(problem, nodes_list, inverse_max_nodes)
@@ -231,7 +234,7 @@ def main(argv=None):
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
           "median | factorisations per iterate | iterates | objective |")
     print("|---|---|---|---|---|---|---|---|---|")
-    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(newton, name) for name in SWITCHES[1:])
+    saved = (linalg.WOODBURY_HALVES,) + tuple(getattr(_HOME[name], name) for name in SWITCHES[1:])
     for nodes in args.nodes:
         scene = load_scene(ROOT / "problems" / f"{args.problem}.yaml").replace(element="P1")
         problems = {True: from_scene(scene, mesh_for_nodes(scene, nodes))}

@@ -28,7 +28,8 @@ gradients on the current Hessian preconditioned by the kept factor, to
 (``KRYLOV_STEPS``). They are not iterations: ``iterations`` (and
 ``max_iterations``) count Newton steps, each with its own factorisation.
 The certificate never rests on a kept factor: the pose they reach is
-factored afresh, and only that factor certifies it.
+factored afresh, and only that factor certifies it. Those steps and their
+tuning are :mod:`plush_opt.solve.kept_factor`.
 """
 
 from __future__ import annotations
@@ -39,48 +40,19 @@ import time
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite, smallest_eigenpair
+from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
 from .free_fall import free_fall
+from .kept_factor import ROUNDOFF_BAND, energy_slack, inexact_first, kept_factor_steps
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
 
-# Round-off of E relative to its size (|E|, the elastic scale, the work of
-# gravity): a few hundred machine epsilons, the error of summing O(mu)
-# element terms whose difference is E.
-ENERGY_ROUNDOFF = 1e-13
-# Energy changes within this many round-off allowances are noise: the full
-# Newton step is then judged by the residual it leaves instead.
-ROUNDOFF_BAND = 100.0
 # ... and is taken if it cuts the residual by at least this factor.
 ROUNDOFF_RESIDUAL_CUT = 0.5
-# A step with a kept factor (of a nearby Hessian: the last Newton step's,
-# or one the caller hands in) is taken only while each cuts the residual at
-# least this much: at a slower rate its evaluations cost more than the
-# factorisation it saves (near round-off a rate of 0.3 is still worth it).
-CHORD_CUT = 0.5
 # The factor of a full Newton step is kept only if that step cut the
 # residual this much (the local phase, where the Hessian changes little).
 CHORD_START = 0.25
-# ... and at most this many in a row (then a fresh factorisation).
-CHORD_STEPS = 12
-# Kept-factor steps stop where a fresh factorisation is predicted to reach
-# the tolerance more cheaply (_chord_pays): a factorisation costs about
-# sqrt(n_dofs / this) kept-factor steps (a 2D mesh's factorisation grows as
-# n^1.5, a step's evaluation and solve as n) ...
-FRESH_COST_DOFS = 150.0
-# ... times the Hessian's entries per row over this many (a P1 mesh's: a
-# node and its six neighbours, two dofs each; tendons and P2 fill more)
-P1_ROW_ENTRIES = 14.0
-# ... and the evaluation of a Hessian not yet in hand about this many more
-# (the evaluation itself and the Hessian's assembly).
-HESSIAN_COST = 2.0
-# They go on below the tolerance, to this fraction of it: a converging
-# Newton step lands decades below it, and callers that difference poses
-# (finite differences, sensitivities checked against re-solves) rely on
-# that; a step with a kept factor costs a fraction of one.
-CHORD_DEPTH = 1e-3
 # A mode whose net displacement is below this fraction of its 1-norm has
 # none (an antisymmetric mode): its sign is fixed by its largest component.
 NO_NET_DISPLACEMENT = 1e-8
@@ -93,53 +65,6 @@ NO_NET_DISPLACEMENT = 1e-8
 # backtracks as usual, and takes no more tentative steps. This many may
 # fail before they stop: one failure says the steps are not converging.
 TENTATIVE_FAILURES = 1
-# Where a step with a kept factor of a low-rank Hessian fails, the factor's
-# sparse part is kept and the low-rank term (the tendons' U'' l' l'^T,
-# which changes fastest: their stretch sits in the smoothing zone) is set
-# up afresh at the current pose, this many times per run of such steps (a
-# set-up costs about a fifth of a factorisation) ...
-FRESH_LOW_RANK = 1
-# ... and only in the local phase: relative residual at most this (and
-# above the tolerance: a converged pose needs its certificate, no more steps).
-FRESH_BELOW = 1e-3
-# An inexact Newton step instead of a factorisation: conjugate gradients on
-# the current Hessian preconditioned by the factor kept from a nearby pose
-# (one solve and one product with H per iteration), tried before each
-# Newton step's factorisation with the last one's factor, and where
-# kept-factor steps stall; at most this many per run of such steps ...
-KRYLOV_STEPS = 2
-# ... and where the relative residual is at most this: from farther away
-# the kept factor's Hessian is no preconditioner for this one (a first step
-# from rest starts at 1; 0.5 instead cost the gripper's control run at
-# 10,000 nodes 2.75 factorisations per iterate instead of 2.00).
-KRYLOV_BELOW = 1.0
-# ... and on models of at least this many unknowns: below, a factorisation
-# costs about what a dozen solves and products with H do (at 1,000 nodes
-# the steps saved two factorisations of eight and no time).
-KRYLOV_MIN_DOFS = 10_000
-# Each runs at most this many iterations (where it converges it took 4-8
-# on the gripper; past a dozen, the solves cost what a factorisation does) ...
-KRYLOV_ITERATIONS = 12
-# ... and stops after this many if |H dx + g| is still above this fraction
-# of |g| (it will not reach the tolerance below in time) ...
-KRYLOV_CHECK, KRYLOV_CHECK_CUT = 5, 0.1
-# ... or once |H dx + g| is this fraction of |g|: the step then cuts the
-# residual about as far, and the kept-factor steps after it go on.
-KRYLOV_TOL = 1e-3
-
-
-def _energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
-    """Round-off allowance for comparing energies near convergence.
-
-    The Neo-Hookean density is a small difference of O(mu) terms
-    (tr F^T F - 2 against 2 ln J), so E carries an absolute round-off of
-    about machine epsilon times mu, lambda and the body volume, however
-    small E itself is.
-    """
-    size = abs(ev_energy) + model.energy_roundoff_scale
-    if model.has_gravity:
-        size += abs(model.f_gravity @ x)
-    return ENERGY_ROUNDOFF * size
 
 
 def _regularised_factor(model: Model, H, options: EquilibriumOptions,
@@ -181,8 +106,8 @@ def escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOption
         for sign in (1.0, -1.0):
             xt = x + sign * s * v / np.abs(v).max()
             et = model.evaluate(xt, c, order=0)
-            if et.admissible and np.isfinite(et.energy) and et.energy < ev.energy - _energy_slack(model, ev.energy, x):
-                if best is None or et.energy < best[0] - _energy_slack(model, et.energy, xt):
+            if et.admissible and np.isfinite(et.energy) and et.energy < ev.energy - energy_slack(model, ev.energy, x):
+                if best is None or et.energy < best[0] - energy_slack(model, et.energy, xt):
                     best = (et.energy, xt)
         if best is not None:
             break
@@ -234,7 +159,7 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     backtracking cuts already made (after a tentative step went back)."""
     g = ev.gradient
     slope = float(g @ dx)
-    slack = _energy_slack(model, ev.energy, x)
+    slack = energy_slack(model, ev.energy, x)
     alpha = model.max_step(x, dx) * options.backtrack ** first
     for k in range(first, options.max_backtracks):
         xt = x + alpha * dx
@@ -255,177 +180,6 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
     return None, 0.0, False
 
 
-def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: bool) -> bool:
-    """Whether a step with a kept factor, whose steps cut the residual by
-    ``rate`` each, reaches ``target`` from ``norm`` (or takes the ``room``
-    steps left to the factor) more cheaply than a fresh factorisation here
-    (``FRESH_COST_DOFS`` and ``P1_ROW_ENTRIES`` on the size and entries of
-    ``H``, the kept factor's matrix; and ``HESSIAN_COST`` unless this
-    pose's Hessian is ``in_hand``). A fresh factor's steps are taken to
-    cut it by ``rate`` squared: the factors' difference from the Hessian
-    shrinks with the distance to the equilibrium, and this pose is nearer
-    by at least the kept factor's cut."""
-    if rate >= CHORD_CUT:
-        return False
-    if rate <= 0.0:
-        return True
-    need = np.log(target / norm)
-    keep, fresh = min(need / np.log(rate), room), need / np.log(rate * rate)
-    n = H.shape[0]
-    entries = H.body.nnz + H.Q.nnz if isinstance(H, LowRankHessian) else H.nnz
-    factorisation = np.sqrt(n / FRESH_COST_DOFS) * entries / (n * P1_ROW_ENTRIES)
-    return keep <= fresh + factorisation + (0.0 if in_hand else HESSIAN_COST)
-
-
-def _chord_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
-    """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
-    Hessian, no factorisation: each is taken whole (never beyond
-    ``Model.max_step``) only if it is admissible, does not raise the energy
-    (Armijo, or at round-off level) and cuts the residual by
-    ``CHORD_CUT``; they stop at the first that does not, when the residual
-    is ``CHORD_DEPTH`` times the tolerance, after ``CHORD_STEPS`` with one
-    factor, or where a fresh factorisation is predicted to get there more
-    cheaply (:func:`_chord_pays`, on the rate the last step cut the
-    residual by; before the first, on the cut predicted from the Hessian
-    in hand: g + H dx = (H - F) dx). Where they would stop short of the
-    tolerance in the local phase, a factor of a low-rank Hessian goes on
-    with its low-rank term set up afresh at the current pose
-    (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
-    step preconditioned by the kept factor is tried (:func:`_krylov_step`,
-    ``KRYLOV_STEPS``).
-    Returns the pose, its evaluation (with the Hessian if any step was taken, else
-    ``ev`` as given) and the number of steps. The certificate is untouched:
-    the pose they reach is factored afresh."""
-    steps, since, refreshed, krylov = 0, 0, 0, 0    # steps; with this factor; refreshes; inexact Newton
-    ev1 = ev
-    last = 0.0                             # the residual before the last step
-    while True:
-        g = ev1.gradient
-        norm = float(np.linalg.norm(g))
-        target = CHORD_DEPTH * options.gtol * ev1.force_scale
-        if norm <= target:
-            break
-        dx, pays = None, since < CHORD_STEPS
-        if pays and since == 0 and ev1.hessian_form is not None:
-            dx = -factor.solve(g)
-            rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
-            pays = _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
-        elif pays and since > 0:
-            pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
-        last = norm
-        taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
-        if taken is None:
-            rel = norm / ev1.force_scale
-            refresh = refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW
-            inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
-            if not (refresh or inexact):
-                break                   # (converged: its certificate next; or far from it)
-            ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
-            # the tendons' stiffness changes fastest: the kept factor's
-            # sparse part with the low-rank term of this pose
-            fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
-            if fresh is not None:
-                factor, refreshed, since = fresh, refreshed + 1, 0
-                continue
-            # the rest of the Hessian moved too: an inexact Newton step
-            taken = _krylov_step(model, c, x, ev1, factor, norm, options) if inexact else None
-            if taken is None:
-                break
-            krylov, since = krylov + 1, 0
-        (x, ev1), steps, since = taken, steps + 1, since + 1
-    if steps:
-        log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es), %d inexact Newton), "
-                  "residual %.3e", steps, refreshed, krylov, np.linalg.norm(ev1.gradient) / ev1.force_scale)
-        return x, (ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)), steps
-    return x, ev, 0
-
-
-def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float, options: EquilibriumOptions,
-                dx: np.ndarray | None = None) -> tuple[np.ndarray, Evaluation] | None:
-    """One step of :func:`_chord_steps` from (``x``, ``ev``, residual norm
-    ``norm``; ``dx``: the step -F^-1 g if already solved for): the pose and
-    its evaluation (order 1), or None where the step fails its tests."""
-    dx = -factor.solve(ev.gradient) if dx is None else dx
-    return _kept_step(model, c, x, ev, dx, norm, options)
-
-
-def _krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
-    """An inexact Newton step from (``x``, ``ev`` with its Hessian, residual
-    norm ``norm``): H dx = -g by conjugate gradients preconditioned with the
-    kept ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests
-    of a kept-factor step. None where CG meets a curvature that is not
-    positive (H is not positive definite along its search), does not
-    converge, or the step fails its tests."""
-    g, H = ev.gradient, ev.hessian_form
-    r = -g
-    z = factor.solve(r)
-    p, rz = z.copy(), float(r @ z)
-    dx = np.zeros_like(g)
-    for i in range(KRYLOV_ITERATIONS):
-        Hp = H @ p
-        curvature = float(p @ Hp)
-        if not curvature > 0:
-            return None
-        alpha = rz / curvature
-        dx += alpha * p
-        r -= alpha * Hp
-        left = float(np.linalg.norm(r))
-        if left <= KRYLOV_TOL * norm:
-            return _kept_step(model, c, x, ev, dx, norm, options)
-        if i + 1 == KRYLOV_CHECK and left > KRYLOV_CHECK_CUT * norm:
-            return None
-        z = factor.solve(r)
-        rz, rz_old = float(r @ z), rz
-        p = z + (rz / rz_old) * p
-    return None
-
-
-def _kept_step(model: Model, c, x, ev: Evaluation, dx, norm: float,
-               options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
-    """The step ``dx`` from (``x``, ``ev``, residual norm ``norm``) taken
-    whole with no factorisation of its own: (pose, evaluation of order 1)
-    if it stays within ``Model.max_step``, is admissible, does not raise
-    the energy (Armijo, or at round-off level) and cuts the residual by
-    ``CHORD_CUT``; else None."""
-    g = ev.gradient
-    if model.max_step(x, dx) < 1.0:
-        return None
-    xt = x + dx
-    et = model.evaluate(xt, c, order=1)
-    if not (et.admissible and np.isfinite(et.energy)):
-        return None
-    slack = _energy_slack(model, ev.energy, x)
-    lower = et.energy <= ev.energy + options.armijo * float(g @ dx) + slack
-    if not ((lower or et.energy <= ev.energy + ROUNDOFF_BAND * slack)
-            and np.linalg.norm(et.gradient) <= CHORD_CUT * norm):
-        return None
-    return xt, et
-
-
-def _inexact_pays(g: np.ndarray, relative: float, options: EquilibriumOptions) -> bool:
-    """Whether an inexact Newton step is worth trying at a pose with
-    gradient ``g`` and relative residual ``relative``: not converged, within
-    ``KRYLOV_BELOW``, and a model of at least ``KRYLOV_MIN_DOFS`` unknowns."""
-    return g.size >= KRYLOV_MIN_DOFS and options.gtol < relative <= KRYLOV_BELOW
-
-
-def _inexact_first(model: Model, c, x, ev: Evaluation, factor: Factor, options: EquilibriumOptions):
-    """Before factoring at (``x``, ``ev``): an inexact Newton step with the
-    last Newton step's ``factor`` (:func:`_krylov_step`) where the relative
-    residual is at most ``KRYLOV_BELOW`` (and above the tolerance), then the
-    kept-factor steps after it: (pose, evaluation with its Hessian) or None."""
-    norm = float(np.linalg.norm(ev.gradient))
-    if KRYLOV_STEPS == 0 or not _inexact_pays(ev.gradient, norm / ev.force_scale, options):
-        return None
-    taken = _krylov_step(model, c, x, ev, factor, norm, options)
-    if taken is None:
-        return None
-    xs, es, _ = _chord_steps(model, c, taken[0], taken[1], factor, options)
-    return xs, (es if es.hessian_form is not None else model.evaluate(xs, c, order=2))
-
-
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
     """Kept-factor steps from the start with the caller's ``chord`` factor
     (a positive definite one of this model): (pose, evaluation, where they
@@ -434,7 +188,7 @@ def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, option
     x, ev = free_fall(model, c, x, ev)
     if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
         return x, ev, None
-    xs, es, steps = _chord_steps(model, c, x, ev, chord, options)
+    xs, es, steps = kept_factor_steps(model, c, x, ev, chord, options)
     return xs, es, ((x, ev) if steps else None)
 
 
@@ -443,13 +197,13 @@ def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | No
     """After a Newton step to ``accepted`` (pose, evaluation) from a pose
     with gradient ``g``: in the local phase (a full step with a positive
     definite ``factor`` that cut the residual by ``CHORD_START``) that
-    factor serves a few more steps (:func:`_chord_steps`); (pose,
+    factor serves a few more steps (:func:`~plush_opt.solve.kept_factor.kept_factor_steps`); (pose,
     evaluation, steps taken)."""
     x, ev = accepted
     if not allowed or factor is None or alpha != 1.0 or \
             np.linalg.norm(ev.gradient) > CHORD_START * np.linalg.norm(g):
         return x, ev, 0
-    return _chord_steps(model, c, x, ev, factor, options)
+    return kept_factor_steps(model, c, x, ev, factor, options)
 
 
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
@@ -495,7 +249,7 @@ class _Watchdog:
         ``ev``): the step after it must end the whole step's Armijo
         decrease below ``ev``."""
         slope = float(ev.gradient @ dx)
-        self.start = (x, ev, dx, ev.energy + options.armijo * slope + _energy_slack(model, ev.energy, x), factor)
+        self.start = (x, ev, dx, ev.energy + options.armijo * slope + energy_slack(model, ev.energy, x), factor)
 
     def judge(self, model: Model, c, accepted, alpha: float, options: EquilibriumOptions):
         """The step after a tentative one (``accepted``, None where it failed
@@ -576,7 +330,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     while True:
         g, H = ev.gradient, ev.hessian_form
         if last is not None and keep and dog.start is None:
-            inexact, last = _inexact_first(model, c, x, ev, last, options), None
+            inexact, last = inexact_first(model, c, x, ev, last, options), None
             if inexact is not None:       # (undone as kept-factor steps are, to the same pose)
                 x, ev, undo = inexact[0], inexact[1], ((x, ev) if undo is None else undo)
                 continue
