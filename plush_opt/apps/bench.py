@@ -107,33 +107,33 @@ def _solve_with_parts(model, c, x0, options, repeats: int) -> tuple[dict, object
     call, pivot test and low-rank set-up included), and how many. The run
     of median total time among ``repeats``; (parts, its equilibrium)."""
     fz = model.factorizer
-    plain_eval, plain_factor = model.evaluate, fz.factor
+    plain = {"evaluate": model.evaluate, "evaluate_moved": getattr(model, "evaluate_moved", None),
+             "factor": fz.factor}
     runs = []
     for _ in range(repeats):
         parts = {"evaluate_s": 0.0, "factorise_s": 0.0, "evaluations": 0, "factorisations": 0}
 
-        def evaluate(*args, **kwargs):
-            t = time.process_time()
-            try:
-                return plain_eval(*args, **kwargs)
-            finally:
-                parts["evaluate_s"] += time.process_time() - t
-                parts["evaluations"] += 1
-
-        def factor(*args, **kwargs):
-            t = time.process_time()
-            try:
-                return plain_factor(*args, **kwargs)
-            finally:
-                parts["factorise_s"] += time.process_time() - t
-                parts["factorisations"] += 1
-        model.evaluate, fz.factor = evaluate, factor
+        def timed(fn, part: str, count: str):
+            def call(*args, **kwargs):
+                t = time.process_time()
+                try:
+                    return fn(*args, **kwargs)
+                finally:
+                    parts[part] += time.process_time() - t
+                    parts[count] += 1
+            return call
+        model.evaluate = timed(plain["evaluate"], "evaluate_s", "evaluations")
+        if plain["evaluate_moved"] is not None:     # (a falling body's end: an evaluation too)
+            model.evaluate_moved = timed(plain["evaluate_moved"], "evaluate_s", "evaluations")
+        fz.factor = timed(plain["factor"], "factorise_s", "factorisations")
         try:
             t = time.process_time()
             eq = solve_equilibrium(model, c, x0, options)
             parts["total_s"] = time.process_time() - t
         finally:
             del model.evaluate, fz.factor
+            if plain["evaluate_moved"] is not None:
+                del model.evaluate_moved
         runs.append((parts, eq))
     runs.sort(key=lambda run: run[0]["total_s"])
     return runs[len(runs) // 2]
