@@ -78,7 +78,7 @@ class AccurateSolve:
             self.progress(f"accuracy: estimating the error at the returned contractions on the "
                           f"{len(self.levels)} levels")
             at = bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction,
-                           self.report["point_coordinates"])
+                           self.report["point_coordinates"], start=(p.mesh, eq.x))
             used = at[self.index]
             rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
                            "element": used.element, "nodes": used.mesh.n_nodes,
