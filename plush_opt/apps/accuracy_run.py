@@ -41,9 +41,8 @@ class AccurateSolve:
         self.scene = load_scene(path)
         self.tol = float(tol)
         # the levels' estimate solves each mesh's pose at fixed contractions: a history-free plant only
-        load(path).plant.require_history_free(
-            "--accuracy (its error estimate solves every mesh level at the contractions alone)",
-            "solve without --accuracy (the file's max_area sets the mesh)")
+        load(path).plant.require_history_free("--accuracy", "solve without --accuracy (the file's max_area "
+                                              "sets the mesh)")
         if self.scene.outline is None:        # an explicit mesh: nothing to choose, nothing to check
             self.levels = None
             self.problem = load(path, accuracy=tol)
