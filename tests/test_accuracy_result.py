@@ -136,3 +136,19 @@ def test_the_guarantee_on_the_cantilever_at_tolerance_1():
     assert row["ref_nodes"] >= 4 * row["nodes"] and row["ref_error"] <= 0.1
     assert row["verdict"] in ("yes", "NO") and row["cpu_plain_s"] > 0 and row["n_levels"] >= 3
     assert "error" not in row["note"] and "not met" not in row["note"]
+
+
+def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
+    """A file's explicit mesh is not chosen by the sweep: ``--accuracy`` says
+    its error is not estimated and solves it as it is, without the levels'
+    round-off floor (the sliver's stall stays not converged, exit 3; it
+    once ended in an internal error)."""
+    out = tmp_path / "r.json"
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(ROOT / "problems" / "hard" / "sliver_explicit.yaml"),
+                        "--method", "forward", "--accuracy", "1", "--out", str(out)],
+                       capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert p.returncode == 3, p.stderr
+    assert "internal error" not in p.stderr and "Traceback" not in p.stderr
+    doc = json.loads(out.read_text())
+    assert doc["converged"] is False and "converged to the round-off floor" not in doc["status"]
+    assert doc["accuracy"]["status"] == "explicit_mesh" and doc["accuracy"]["estimated_error"] is None

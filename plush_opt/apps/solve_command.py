@@ -155,8 +155,9 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
     eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
     log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
-    # --accuracy: a mesh fine enough that its residual's round-off floor can exceed gtol
-    roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None else 0.0
+    # --accuracy: a mesh level fine enough that its residual's round-off floor can exceed gtol
+    # (not a file's explicit mesh: nothing was chosen, and its stall stays a stall)
+    roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None and p.mesh_report.get("levels") else 0.0
     if method == "forward":
         t_solve = time.perf_counter()
         eq = p.equilibrium(contraction, options=EquilibriumOptions(
