@@ -154,8 +154,11 @@ def count_floor_certified() -> list:
     return count
 
 
-def run_row(path: Path, contraction_args: list[str], tol: float) -> dict:
-    """One row (the module's docstring, steps 1-4), in this process."""
+def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -> dict:
+    """One row (the module's docstring, steps 1-4), in this process;
+    ``partial(row, phase)``, if given, hears the row so far before each
+    later phase (what a row stopped by its timeout still knows)."""
+    partial = partial or (lambda row, phase: None)
     import tempfile
     from plush_opt.apps.cli import main as cli
     from plush_opt.fem.objective import Targets
@@ -184,6 +187,7 @@ def run_row(path: Path, contraction_args: list[str], tol: float) -> dict:
     at = acc.get("at_result") or {}
     row.update(met=at.get("met"), estimate=at.get("estimated_error"), element=acc.get("element"),
                nodes=acc.get("nodes"), resolves=at.get("resolves"))
+    partial(row, "the plain solves")
     levels = doc["mesh_accuracy"].get("levels", [])
     row["n_levels"] = len(levels)
     scene = load_scene(path)
@@ -203,6 +207,7 @@ def run_row(path: Path, contraction_args: list[str], tol: float) -> dict:
     c = np.array([doc["contractions"][n] for n in names])
     row["ratio"] = row["cpu_accuracy_s"] / (row["cpu_plain_s"] + row["cpu_levels_s"])
     # the reference at the returned contractions
+    partial(row, "the reference")
     ref_mesh, x_ref, own = reference(scene, c, mesh, x, mesh.n_nodes, tol)
     points, _ = probe_points(scene)
     y = Targets.at_points(mesh, points, points).y(x)
@@ -242,9 +247,11 @@ def row_main(argv) -> int:
     ap.add_argument("--to", type=Path, required=True)
     args = ap.parse_args(argv)
     path, cargs = parse_scene(args.row)
-    row = run_row(path, cargs, args.tol)
     from plush_opt.base.files import write_json_atomic
+    partial_to = args.to.with_suffix(".partial")
+    row = run_row(path, cargs, args.tol, lambda row, phase: write_json_atomic(partial_to, {**row, "phase": phase}))
     write_json_atomic(args.to, row)
+    partial_to.unlink(missing_ok=True)
     return 0
 
 
@@ -267,8 +274,12 @@ def launch(job: tuple, timeout: float) -> dict:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.communicate()
-        row = {"scene": spec, "tol": tol, "verdict": "NO",
-               "note": f"not finished within {timeout:.0f} s (stopped)", "wall_s": time.perf_counter() - t0}
+        part = to.with_suffix(".partial")
+        row = json.loads(part.read_text()) if part.exists() else {"scene": spec, "tol": tol}
+        phase = row.pop("phase", "the --accuracy run")
+        row.update(verdict="NO", note=f"not finished within {timeout:.0f} s: stopped in {phase}")
+        if "wall_s" not in row:
+            row["wall_s"] = time.perf_counter() - t0
         from plush_opt.base.files import write_json_atomic
         write_json_atomic(to, row)
         return row
@@ -300,7 +311,7 @@ def table(rows: list[dict]) -> str:
         cost = "-" if r.get("cpu_plain_s") is None else (
             f"{r['cpu_accuracy_s']:.1f} / {r['cpu_plain_s']:.2f} + {r['cpu_levels_s']:.2f} ({r['n_levels']})")
         holds = r["verdict"] + ("" if not r.get("note") else f": {r['note']}")
-        out.append(f"| {r['scene']} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
+        out.append(f"| {Path(r['scene']).name} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
                    f"{fmt(r.get('estimate'))} | {mesh} | {fmt(r.get('error_points'))} | "
                    f"{fmt(r.get('error_nodes'))} | {ref} | {cost} | {fmt(r.get('ratio'), '.2f')} | "
                    f"{fmt(r.get('floor_certified'))} | {holds} |")
@@ -345,8 +356,15 @@ def main(argv=None) -> int:
         batch.raise_if_interrupted()
     rows = []
     for spec, tol, to in sorted(jobs, key=lambda j: (args.scenes.index(j[0]), -j[1])):
-        rows.append(json.loads(to.read_text()) if to.exists() else
-                    {"scene": spec, "tol": tol, "verdict": "NO", "note": "the row failed (no row file)"})
+        row = json.loads(to.read_text()) if to.exists() else \
+            {"scene": spec, "tol": tol, "verdict": "NO", "note": "the row failed (no row file)"}
+        part = to.with_suffix(".partial")
+        if row["note"].startswith("not finished") and part.exists():    # what the stopped row knew
+            known = json.loads(part.read_text())
+            row = {**known, **{k: row[k] for k in ("verdict", "wall_s") if k in row},
+                   "note": f"{row['note'].split(':')[0]}: stopped in {known.pop('phase')}"}
+            row.pop("phase", None)
+        rows.append(row)
     date = datetime.date.today().isoformat()
     scenes = "" if args.scenes == DEFAULT_SCENES else " " + " ".join(args.scenes)
     text = (f"Made by `python tools/accuracy_guarantee.py{scenes} --tols {' '.join(f'{t:g}' for t in args.tols)}"
