@@ -165,7 +165,7 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     from plush_opt.io import load_scene
     from plush_opt.solve.accuracy import probe_points, transfer_pose
     row = {"scene": path.name + ("" if not contraction_args else
-                                 " @" + ",".join(contraction_args[1::2])), "tol": tol}
+                                 "@" + ",".join(contraction_args[1::2])), "tol": tol}
     floor = count_floor_certified()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
@@ -311,7 +311,7 @@ def table(rows: list[dict]) -> str:
         cost = "-" if r.get("cpu_plain_s") is None else (
             f"{r['cpu_accuracy_s']:.1f} / {r['cpu_plain_s']:.2f} + {r['cpu_levels_s']:.2f} ({r['n_levels']})")
         holds = r["verdict"] + ("" if not r.get("note") else f": {r['note']}")
-        out.append(f"| {Path(r['scene']).name} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
+        out.append(f"| {Path(r['scene']).name.replace(' @', '@')} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
                    f"{fmt(r.get('estimate'))} | {mesh} | {fmt(r.get('error_points'))} | "
                    f"{fmt(r.get('error_nodes'))} | {ref} | {cost} | {fmt(r.get('ratio'), '.2f')} | "
                    f"{fmt(r.get('floor_certified'))} | {holds} |")
@@ -341,6 +341,8 @@ def main(argv=None) -> int:
     ap.add_argument("--timeout", type=float, default=TIMEOUT, help="seconds a row may take (then stopped)")
     ap.add_argument("--force", action="store_true", help="run every row again")
     ap.add_argument("--write-doc", action="store_true", help="rewrite the block of docs/accuracy.md")
+    ap.add_argument("--no-run", action="store_true",
+                    help="run nothing: the table of the rows in --work (a row not there: not run)")
     args = ap.parse_args(argv)
     from plush_opt.batch import run_batch
     from plush_opt.batch.progress import Progress
@@ -349,7 +351,7 @@ def main(argv=None) -> int:
     # the cheap rows first: the largest tolerance first, the scenes in the order given
     jobs = [(spec, tol, row_file(args.work, spec, tol)) for tol in sorted(args.tols, reverse=True)
             for spec in args.scenes]
-    todo = [j for j in jobs if args.force or not j[2].exists()]
+    todo = [] if args.no_run else [j for j in jobs if args.force or not j[2].exists()]
     if todo:
         batch = run_batch(functools.partial(launch, timeout=args.timeout), todo, jobs=args.jobs,
                           progress=Progress("accuracy_guarantee", lambda i: f"{todo[i][0]} TOL {todo[i][1]:g}"))
@@ -357,7 +359,8 @@ def main(argv=None) -> int:
     rows = []
     for spec, tol, to in sorted(jobs, key=lambda j: (args.scenes.index(j[0]), -j[1])):
         row = json.loads(to.read_text()) if to.exists() else \
-            {"scene": spec, "tol": tol, "verdict": "NO", "note": "the row failed (no row file)"}
+            {"scene": spec, "tol": tol, "verdict": "NO", "note": "not run" if args.no_run else
+             "the row failed (no row file)"}
         part = to.with_suffix(".partial")
         if row["note"].startswith("not finished") and part.exists():    # what the stopped row knew
             known = json.loads(part.read_text())
