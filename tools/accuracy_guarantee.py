@@ -321,10 +321,10 @@ def table(rows: list[dict]) -> str:
 def write_doc(text: str) -> None:
     from plush_opt.base.files import write_text_atomic
     doc = DOC.read_text()
-    pattern = re.compile(r"(<!-- accuracy-guarantee -->\n).*?(\n<!-- /accuracy-guarantee -->)", re.S)
+    pattern = re.compile(r"(<!-- accuracy-guarantee -->\n)(?:.*?\n)?(<!-- /accuracy-guarantee -->)", re.S)
     if not pattern.search(doc):
         raise SystemExit(f"{DOC}: no block <!-- accuracy-guarantee --> ... <!-- /accuracy-guarantee -->")
-    write_text_atomic(DOC, pattern.sub(lambda m: m.group(1) + text + m.group(2), doc))
+    write_text_atomic(DOC, pattern.sub(lambda m: m.group(1) + text + "\n" + m.group(2), doc))
 
 
 def main(argv=None) -> int:
