@@ -199,8 +199,8 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
         if accuracy is not None:
             from .solve.accuracy import choose_mesh
             mesh, report = choose_mesh(scene, accuracy)
-            if mesh.element != scene.element:
-                scene = dataclasses.replace(scene, element=mesh.element)
+            if mesh.element.name != scene.element:
+                scene = dataclasses.replace(scene, element=mesh.element.name)
         else:
             mesh = build_mesh(scene, max_area)
     model = build_model(scene, mesh)

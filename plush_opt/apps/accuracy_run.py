@@ -40,6 +40,9 @@ class AccurateSolve:
         self.progress = progress or (lambda line: log.info("%s", line))
         self.scene = load_scene(path)
         self.tol = float(tol)
+        # the levels' estimate solves each mesh's pose at fixed contractions: a history-free plant only
+        load(path).plant.require_history_free("--accuracy", "solve without --accuracy (the file's max_area "
+                                              "sets the mesh)")
         if self.scene.outline is None:        # an explicit mesh: nothing to choose, nothing to check
             self.levels = None
             self.problem = load(path, accuracy=tol)
@@ -74,7 +77,7 @@ class AccurateSolve:
             self.progress(f"accuracy: estimating the error at the returned contractions on the "
                           f"{len(self.levels)} levels")
             at = bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction,
-                           self.report["point_coordinates"])
+                           self.report["point_coordinates"], start=(p.mesh, eq.x))
             used = at[self.index]
             rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
                            "element": used.element, "nodes": used.mesh.n_nodes,
@@ -110,19 +113,19 @@ class AccurateSolve:
 
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``
-        (``at``: the levels solved there): the sweep continues with it as
-        one more probe contraction, each level solved so far kept (its poses
-        at the probes and at ``contraction``). Its levels and report replace
-        the sweep's; returns the index of the cheapest level meeting the
-        tolerance (at ``contraction`` among the others), or None."""
+        (``at``: the levels solved there): the sweep continues at that
+        contraction alone, each level solved so far kept with its pose
+        there, and finer levels solved until one meets the tolerance there.
+        (At the probe contractions and ``contraction`` together the largest
+        differences can shrink where those at ``contraction`` alone do not:
+        the estimate that matters is the one at the returned pose.) Its
+        levels and report replace the sweep's; returns the index of the
+        cheapest level meeting the tolerance there, or None."""
         c = np.asarray(contraction, dtype=np.float64).reshape(1, -1)
-        probes = np.vstack([np.asarray(self.report["contractions"], dtype=np.float64), c])
-        seeds = {(lv.element, lv.resolution): dataclasses.replace(
-                    lv, poses=list(lv.poses) + list(here.poses), y=np.concatenate([lv.y, here.y]))
-                 for lv, here in zip(self.levels, at)}
+        seeds = {(here.element, here.resolution): here for here in at}
         self.progress(f"accuracy: no level solved meets {self.tol:g} at the returned contractions: "
-                      "the sweep goes on with them as one more probe")
-        best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=probes, solved=seeds,
+                      "the sweep goes on there")
+        best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=c, solved=seeds,
                                                        progress=self.progress)
         return self.levels.index(best) if self.report["reached"] else None
 

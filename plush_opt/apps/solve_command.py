@@ -133,6 +133,19 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         return _solver_failed(p, contraction, method, equilibrium, exc, t0, extra)
 
 
+def solve_loaded(p, contraction_pairs=(), method=None):
+    """``p`` (a loaded :class:`~plush_opt.problem.Problem`, e.g. on a mesh
+    built apart) solved as ``solve`` solves a file without ``--accuracy``:
+    control from ``contraction_pairs`` (name, value) with the default method
+    if it has targets, else the forward pose there (``method`` overrides).
+    Returns (equilibrium, result document)."""
+    method = method or ("reparam" if p.targets.n_targets else "forward")
+    contraction = pairs(contraction_pairs)
+    _, eq, doc, _ = _solve_loaded(p, contraction, (), method, "newton", None, None, "gauss-newton", None,
+                                  time.perf_counter(), {})
+    return eq, doc
+
+
 def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
                   ipopt_print_level, t0, extra):
     """:func:`solve_problem` once the problem is loaded and its names checked."""
@@ -142,8 +155,9 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     # IPOPT's own output, when asked for: keys with the prefix for the equilibrium backend
     eq_ipopt = {} if ipopt_print_level is None else {"ipopt.print_level": ipopt_print_level}
     log.info("%s: %s", p.scene.name, "equilibrium" if method == "forward" else f"control ({method})")
-    # --accuracy: a mesh fine enough that its residual's round-off floor can exceed gtol
-    roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None else 0.0
+    # --accuracy: a mesh level fine enough that its residual's round-off floor can exceed gtol
+    # (not a file's explicit mesh: nothing was chosen, and its stall stays a stall)
+    roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None and p.mesh_report.get("levels") else 0.0
     if method == "forward":
         t_solve = time.perf_counter()
         eq = p.equilibrium(contraction, options=EquilibriumOptions(

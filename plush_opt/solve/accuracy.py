@@ -126,22 +126,13 @@ def equilibrium_at(model: Model, contraction, x0=None,
                    options: EquilibriumOptions | None = None, steps: int = 4) -> Equilibrium:
     """Certified equilibrium at ``contraction`` from ``x0`` (default the rest
     pose); if that fails, by continuation from the rest contraction (0
-    clipped to the bounds) in ``steps`` equal steps."""
+    clipped to the bounds) in ``steps`` steps, each halved where it fails
+    (:func:`~plush_opt.solve.equilibrium.continuation`)."""
     options = options or LEVEL_OPTIONS
     c = np.asarray(contraction, dtype=np.float64)
     if x0 is not None and not model.admissible(x0):
         x0 = None
-    eq = solve_equilibrium(model, c, x0, options)
-    if eq.converged:
-        return eq
-    c_rest = np.clip(np.zeros_like(c), model.lower, model.upper)
-    x = None
-    for s in np.linspace(0, 1, steps + 1)[1:]:
-        eq = solve_equilibrium(model, c_rest + s * (c - c_rest), x, options)
-        if not eq.converged:
-            return eq
-        x = eq.x
-    return eq
+    return solve_equilibrium(model, c, x0, dataclasses.replace(options, continuation=steps))
 
 
 def base_area(scene: Scene) -> float:
@@ -222,17 +213,20 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         return None
     model = build_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
+    # the cost: one solve from rest at the file's contractions (a plain solve on this mesh),
+    # not at a probe (a returned contraction can be far from rest, and its cold solve slow)
+    timed = scene.contraction
     try:                          # the factorisation's symbolic analysis: setup, not timed
-        model.factorizer.factor(model.evaluate(model.X, cs[-1], order=2).hessian_form)
+        model.factorizer.factor(model.evaluate(model.X, timed, order=2).hessian_form)
     except NotPositiveDefinite:   # (analysed all the same)
         pass
     t0 = time.process_time()          # CPU seconds: the cost, whatever else runs on the machine
-    cold = solve_equilibrium(model, cs[-1], None, options)
+    cold = solve_equilibrium(model, timed, None, options)
     t_solve = time.process_time() - t0
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
-        eq = cold if x0 is None and j == len(cs) - 1 and cold.converged else \
+        eq = cold if x0 is None and np.array_equal(c, timed) and cold.converged else \
             equilibrium_at(model, c, x0, options)
         if not eq.converged:
             raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction "

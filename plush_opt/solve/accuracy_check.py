@@ -22,16 +22,19 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import LEVEL_OPTIONS, Level, bound_errors, equilibrium_at, estimate_levels
-from .equilibrium import EquilibriumOptions
+from .accuracy import LEVEL_OPTIONS, Level, bound_errors, equilibrium_at, estimate_levels, transfer_pose
+from .equilibrium import EquilibriumOptions, solve_equilibrium
 
 
 def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
-              options: EquilibriumOptions | None = None) -> list[Level]:
+              options: EquilibriumOptions | None = None, start=None) -> list[Level]:
     """The sweep's ``levels`` (solved at the contractions ``probes``, (m,
-    n_winches)) solved at ``contraction`` ((n_winches,)), each from its pose
-    at the nearest probe contraction (at a probe contraction itself: the
-    sweep's poses, nothing solved), and estimated there: new
+    n_winches)) solved at ``contraction`` ((n_winches,)), each from
+    ``start`` (a (mesh, flat pose) at ``contraction``, e.g. the solve's
+    answer: carried to the level's mesh, so every level finds the same
+    branch) if given and that converges, else from its pose at the nearest
+    probe contraction, by continuation where that fails (at a probe
+    contraction itself: the sweep's poses, nothing solved), and estimated there: new
     :class:`Level` objects (same meshes, one pose
     each, ``y`` of shape (1, k, 2) at ``points``, (k, 2) rest coordinates),
     in the same order, with their ``estimate`` and ``bound`` at that
@@ -52,7 +55,11 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         s = dataclasses.replace(scene, element=lv.element)
         model = build_model(s, lv.mesh)
         probe = Targets.at_points(lv.mesh, points, points)
-        eq = equilibrium_at(model, c, lv.poses[near], options)
+        eq = None
+        if start is not None:
+            eq = solve_equilibrium(model, c, transfer_pose(start[0], start[1], lv.mesh), options)
+        if eq is None or not eq.converged:
+            eq = equilibrium_at(model, c, lv.poses[near], options)
         if not eq.converged:
             raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
                              f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")

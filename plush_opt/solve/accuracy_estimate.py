@@ -45,7 +45,7 @@ class Resolution(NamedTuple):
 class Level:
     """One mesh level of one element type: its mesh, cost and predictions
     (``t_mesh`` wall seconds; ``t_solve`` CPU seconds of one Newton solve
-    from rest, after the factorisation's symbolic analysis)."""
+    from rest at the scene's own contractions, after the factorisation's symbolic analysis)."""
 
     element: str
     resolution: Resolution

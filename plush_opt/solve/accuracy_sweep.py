@@ -15,7 +15,8 @@ is solved, and:
   cost to a level that meets the tolerance* is least (:meth:`Planner.cost_to_meet`):
   the chain's remaining levels up to the one that would confirm such a
   level, its error predicted from the chain's element's finest estimate
-  and ratio (optimistically, its first estimate, where there is none yet);
+  and ratio (optimistically, its first estimate, where there is none yet;
+  never, where the element's finest estimate says its levels do not converge);
 * **the sweep stops** as soon as a level meets the tolerance, except that
   levels predicted to solve faster than that level are still solved (a
   cheaper pick, bounded through the estimate that met it), for at most
@@ -143,12 +144,26 @@ class Planner:
                     best = (lv.mesh.n_nodes, lv.estimate, lv.ratio)
         return best
 
+    def _diverging(self, element: str) -> bool:
+        """Whether the finest level of ``element`` with an estimate has an
+        infinite one (its differences do not shrink there: P1 locking in
+        bending, a point load): its other chains are not predicted to meet
+        the tolerance either, and another element is tried first."""
+        finest = None
+        for ch in self.chains:
+            for lv in ch.solved if ch.element == element else ():
+                if lv.estimate is not None and (finest is None or lv.mesh.n_nodes > finest.mesh.n_nodes):
+                    finest = lv
+        return finest is not None and not math.isfinite(finest.estimate)
+
     def predicted_error(self, chain: Chain, i: int) -> float | None:
         """The estimate level ``i`` of ``chain`` is predicted to get: its own
         where it has one, else from its element's trend (the estimate
         shrinking by the ratio per 4x nodes); None without a trend."""
         if i < len(chain.solved) and chain.solved[i].estimate is not None:
             return chain.solved[i].estimate
+        if self._diverging(chain.element):
+            return math.inf
         trend = self._trend(chain.element)
         if trend is None:
             return None

@@ -1,0 +1,393 @@
+"""Check what ``solve --accuracy TOL`` guarantees, against fine P2 solves, and what it costs.
+
+Usage: python tools/accuracy_guarantee.py [SCENE ...] [--tols 1 0.25 0.05] [--jobs 1]
+       [--work DIR] [--out FILE.md] [--timeout 900] [--force] [--write-doc]
+
+SCENE is a problem file, optionally with the contractions the solve starts
+from (a forward solve: where it solves): ``path.yaml@name=value,name=value``.
+Default: every file of problems/ and the two scenes of tests/data.
+
+For each scene and tolerance (one row, run in its own process, at most
+``--timeout`` seconds; the rows run as a batch, plush_opt.batch, ``--jobs``):
+
+1. ``plush-opt solve SCENE --accuracy TOL`` in that process, after its
+   imports: its exit code, what it claims at the returned contractions
+   (``accuracy.at_result``: met, estimated error) and its CPU seconds.
+2. An independent reference at the returned contractions: the P2 levels
+   of the sweep's family A (a graded mesh refined uniformly) solved afresh
+   there (the first from the returned pose carried over, each finer one from
+   the one before: the same branch of equilibria), refined until it has at
+   least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
+   error (the tail after it, at its observed rate) is at most REF_FRACTION x
+   TOL, or until REF_MAX_NODES.
+3. The returned pose's error against it: the largest distance of the
+   compared points (the targets, else the tendon stoppers and the scene's
+   points, as docs/accuracy.md defines them; what the guarantee covers), and
+   the largest distance over the returned mesh's nodes (the reference's
+   displacement interpolated there; reported, not guaranteed).
+4. The cost: the CPU seconds of the ``--accuracy`` run against a plain
+   solve (the same command without ``--accuracy``) on the mesh it returned,
+   plus one solve on each level its sweep solved (the CPU seconds it
+   recorded for them): the ratio.
+
+Each row is kept as JSON in ``--work`` (default out/accuracy_guarantee): a
+second run reuses the rows there unless ``--force``. The table (markdown,
+and CSV beside it) goes to ``--out``; ``--write-doc`` also rewrites the
+block of docs/accuracy.md between ``<!-- accuracy-guarantee -->`` and
+``<!-- /accuracy-guarantee -->`` with it, the command and the date.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import dataclasses
+import datetime
+import functools
+import io
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "accuracy.md"
+DEFAULT_SCENES = [str(p.relative_to(ROOT)) for p in sorted((ROOT / "problems").glob("*.yaml"))] + \
+    ["tests/data/crescent.yaml", "tests/data/thin_strip.yaml@pull=30"]
+#: the reference has at least this many times the returned mesh's nodes (one uniform refinement
+#: has about 4x; a little less on a curved outline)
+REF_NODES_FACTOR = 3.5
+#: ... and its own estimated error at most this fraction of TOL (errors against it are that uncertain)
+REF_FRACTION = 0.1
+#: ... or it stops at this many nodes (memory and time: a P2 solve of that size takes a minute)
+REF_MAX_NODES = 400_000
+#: the time a row may take at most by default (seconds): longer rows are recorded as such
+TIMEOUT = 900.0
+#: the cost the guarantee allows: --accuracy within about this many times a plain solve plus its levels
+COST_FACTOR = 5.0
+FIELDS = ("scene", "tol", "exit", "met", "estimate", "element", "nodes", "resolves", "error_points",
+          "error_nodes", "ref_nodes", "ref_error", "cpu_accuracy_s", "cpu_plain_s", "cpu_levels_s",
+          "n_levels", "ratio", "wall_s", "floor_certified", "verdict", "note")
+
+
+def parse_scene(spec: str) -> tuple[Path, list[str]]:
+    """``path.yaml@a=1,b=2`` -> (path, ["--contraction", "a=1", ...])."""
+    path, _, given = spec.partition("@")
+    args = []
+    for pair in filter(None, given.split(",")):
+        args += ["--contraction", pair]
+    return Path(path), args
+
+
+# -- one row, in its own process -------------------------------------------------------------------
+
+def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float):
+    """The P2 reference at ``contraction``: (mesh, pose, own estimated error
+    or None, finest nodes). See the module's docstring, step 2."""
+    from plush_opt.fem.mesh import build_mesh
+    from plush_opt.fem.model import build_model
+    from plush_opt.fem.objective import Targets
+    from plush_opt.solve.accuracy import (EXPECTED_ORDER, GRADED, LEVEL_OPTIONS, MAX_RATIO, SAFETY, base_area,
+                                          equilibrium_at, probe_points, transfer_pose)
+    from plush_opt.base.errors import SceneError
+    s = dataclasses.replace(scene, element="P2")
+    points, _ = probe_points(scene)
+    area = base_area(scene) * 16.0          # the sweep's family A (plush_opt.solve.accuracy.COARSEST)
+    floor_ratio = 0.25 ** (EXPECTED_ORDER["P2"] / 2.0)
+    prev_mesh, prev_x, ys, diffs = mesh_returned, x_returned, [], []
+    mesh = x = None
+    own = None
+    for r in range(8):
+        m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
+        if m.n_nodes > REF_MAX_NODES:
+            break
+        model = build_model(s, m)
+        eq = equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
+        if not eq.converged:
+            raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
+        mesh, x = m, eq.x
+        print(f"reference: P2 {m.n_nodes:,} nodes solved", file=sys.stderr, flush=True)
+        ys.append(Targets.at_points(m, points, points).y(x))
+        prev_mesh, prev_x = m, x
+        if len(ys) >= 2:
+            diffs.append(float(np.linalg.norm(ys[-1] - ys[-2], axis=-1).max()))
+        if len(diffs) >= 2 and diffs[-2] > 0:
+            q = max(diffs[-1] / diffs[-2], floor_ratio)
+            own = SAFETY * q * diffs[-1] / (1.0 - q) if q < MAX_RATIO else None
+        if m.n_nodes >= REF_NODES_FACTOR * nodes_returned and own is not None and own <= REF_FRACTION * tol:
+            break
+    return mesh, x, own
+
+
+def plain_cost(scene, element: str, max_area: float, graded: bool, refinements: int, given, method: str):
+    """CPU seconds of a plain solve on one mesh (meshing, the model, the
+    solve: ``method`` from the contractions ``given``), and the mesh."""
+    from plush_opt.apps.solve_command import solve_loaded
+    from plush_opt.fem.mesh import build_mesh
+    from plush_opt.problem import from_scene
+    s = dataclasses.replace(scene, element=element)
+    t0 = time.process_time()
+    mesh = build_mesh(s, max_area=max_area, graded=graded, refinements=refinements, announce=False)
+    solve_loaded(from_scene(s, mesh), given, method)
+    return time.process_time() - t0, mesh
+
+
+def count_floor_certified() -> list:
+    """From now on, count the solves in this process that the round-off
+    floor certified (stalled above gtol, converged by
+    plush_opt.solve.certificate.at_roundoff_floor): returns a one-element
+    list holding the count so far."""
+    import plush_opt.solve.equilibrium as equilibrium
+    real, count = equilibrium.at_roundoff_floor, [0]
+
+    def counted(model, eq, options):
+        out = real(model, eq, options)
+        count[0] += out.converged and not eq.converged
+        return out
+    equilibrium.at_roundoff_floor = counted
+    return count
+
+
+def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -> dict:
+    """One row (the module's docstring, steps 1-4), in this process;
+    ``partial(row, phase)``, if given, hears the row so far before each
+    later phase (what a row stopped by its timeout still knows)."""
+    partial = partial or (lambda row, phase: None)
+    import tempfile
+    from plush_opt.apps.cli import main as cli
+    from plush_opt.fem.objective import Targets
+    from plush_opt.io import load_scene
+    from plush_opt.solve.accuracy import probe_points, transfer_pose
+    row = {"scene": path.name + ("" if not contraction_args else
+                                 "@" + ",".join(contraction_args[1::2])), "tol": tol}
+    floor = count_floor_certified()
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "result.json"
+        t0, w0 = time.process_time(), time.perf_counter()
+        said = io.StringIO()
+        with contextlib.redirect_stderr(said):
+            code = cli(["-q", "solve", str(path), "--accuracy", f"{tol:g}", "--out", str(out), *contraction_args])
+        row["cpu_accuracy_s"], row["wall_s"] = time.process_time() - t0, time.perf_counter() - w0
+        row["exit"] = code
+        print(f"--accuracy {tol:g}: exit {code}, {row['cpu_accuracy_s']:.1f} CPU s", file=sys.stderr, flush=True)
+        row["floor_certified"] = floor[0]       # the --accuracy run's solves only
+        if not out.exists():
+            line = (said.getvalue().strip().splitlines() or ["no result written"])[-1]
+            refused = code == 2 and "--accuracy" in line
+            row["verdict"], row["note"] = ("refused" if refused else "NO"), line.removeprefix("plush-opt: ")
+            return row
+        doc = json.loads(out.read_text())
+    acc = doc.get("accuracy", {})
+    at = acc.get("at_result") or {}
+    row.update(met=at.get("met"), estimate=at.get("estimated_error"), element=acc.get("element"),
+               nodes=acc.get("nodes"), resolves=at.get("resolves"))
+    partial(row, "the plain solves")
+    levels = doc["mesh_accuracy"].get("levels", [])
+    row["n_levels"] = len(levels)
+    scene = load_scene(path)
+    given = [(a.split("=")[0], float(a.split("=")[1])) for a in contraction_args[1::2]]
+    # the plain solves: the same command without --accuracy on the returned mesh, and a forward
+    # solve at the file's contractions on each level the sweep solved (mesh, model and solve each)
+    row["cpu_levels_s"] = sum(plain_cost(scene, lv["element"], lv["max_area"], acc["graded"], lv["refinements"],
+                                         (), "forward")[0] for lv in levels)
+    row["cpu_plain_s"], mesh = plain_cost(scene, acc["element"], acc["max_area"], acc["graded"],
+                                          acc["refinements"] or 0, given, doc["method"])
+    s = dataclasses.replace(scene, element=acc["element"])
+    x = np.asarray(doc["nodes"], dtype=np.float64).reshape(-1)
+    if mesh.n_nodes != len(doc["nodes"]):
+        row["verdict"], row["note"] = "NO", f"the accuracy block rebuilds {mesh.n_nodes} nodes, not {len(doc['nodes'])}"
+        return row
+    names = [w.name for w in scene.winches]
+    c = np.array([doc["contractions"][n] for n in names])
+    row["ratio"] = row["cpu_accuracy_s"] / (row["cpu_plain_s"] + row["cpu_levels_s"])
+    # the reference at the returned contractions
+    partial(row, "the reference")
+    ref_mesh, x_ref, own = reference(scene, c, mesh, x, mesh.n_nodes, tol)
+    points, _ = probe_points(scene)
+    y = Targets.at_points(mesh, points, points).y(x)
+    y_ref = Targets.at_points(ref_mesh, points, points).y(x_ref)
+    row["error_points"] = float(np.linalg.norm(y - y_ref, axis=-1).max())
+    carried = transfer_pose(ref_mesh, x_ref, mesh)
+    row["error_nodes"] = float(np.linalg.norm((x - carried).reshape(-1, 2), axis=-1).max())
+    row["ref_nodes"], row["ref_error"] = ref_mesh.n_nodes, own
+    row["verdict"], row["note"] = verdict(row)
+    return row
+
+
+def verdict(row: dict) -> tuple[str, str]:
+    """"yes" when every part of the guarantee holds (exit 0, met, within TOL
+    of the reference, cost within COST_FACTOR), else "NO" and why."""
+    why = []
+    if row["exit"] != 0:
+        why.append(f"exit {row['exit']}")
+    if not row.get("met"):
+        why.append("not met at the returned contractions")
+    if row.get("error_points") is not None and row["error_points"] > row["tol"]:
+        why.append("error above TOL")
+    if row.get("ref_error") is None:
+        why.append("reference's own error unknown")
+    elif row.get("error_points") is not None and row["error_points"] + row["ref_error"] > row["tol"] >= \
+            row["error_points"]:
+        why.append("within TOL only up to the reference's own error")
+    if row.get("ratio") is not None and row["ratio"] > COST_FACTOR:
+        why.append(f"cost above {COST_FACTOR:g}x")
+    return ("yes" if not why else "NO"), "; ".join(why)
+
+
+def row_main(argv) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--row", required=True)
+    ap.add_argument("--tol", type=float, required=True)
+    ap.add_argument("--to", type=Path, required=True)
+    args = ap.parse_args(argv)
+    path, cargs = parse_scene(args.row)
+    from plush_opt.base.files import write_json_atomic
+    partial_to = args.to.with_suffix(".partial")
+    row = run_row(path, cargs, args.tol, lambda row, phase: write_json_atomic(partial_to, {**row, "phase": phase}))
+    write_json_atomic(args.to, row)
+    partial_to.unlink(missing_ok=True)
+    return 0
+
+
+# -- the batch -------------------------------------------------------------------------------------
+
+def row_file(work: Path, spec: str, tol: float) -> Path:
+    name = re.sub(r"[^A-Za-z0-9_.=-]+", "_", Path(spec.partition("@")[0]).stem + "_" + spec.partition("@")[2])
+    return work / f"{name.strip('_')}_tol{tol:g}.json"
+
+
+def launch(job: tuple, timeout: float) -> dict:
+    """One row in a process of its own (``job``: scene spec, TOL, row file),
+    ended after ``timeout`` seconds; returns the row."""
+    spec, tol, to = job
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, __file__, "--row", spec, "--tol", f"{tol:g}", "--to", str(to)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        part = to.with_suffix(".partial")
+        row = json.loads(part.read_text()) if part.exists() else {"scene": spec, "tol": tol}
+        phase = row.pop("phase", "the --accuracy run")
+        row.update(verdict="NO", note=f"not finished within {timeout:.0f} s: stopped in {phase}")
+        if "wall_s" not in row:
+            row["wall_s"] = time.perf_counter() - t0
+        from plush_opt.base.files import write_json_atomic
+        write_json_atomic(to, row)
+        return row
+    if proc.returncode != 0 or not to.exists():
+        last = (err.strip().splitlines() or ["no output"])[-1]
+        return {"scene": spec, "tol": tol, "verdict": "NO", "note": f"the row failed: {last}"}
+    return json.loads(to.read_text())
+
+
+def fmt(v, spec=".3g") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return "inf" if math.isinf(v) else format(v, spec)
+    return str(v)
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| scene | TOL | exit | met (claimed) | estimate | returned mesh | error at the points | "
+            "max error over nodes | reference (P2 nodes, own error) | CPU s: --accuracy / plain + levels (n) "
+            "| ratio | solves certified at the round-off floor | guarantee holds |")
+    out = [head, "|" + "---|" * 13]
+    for r in rows:
+        mesh = "-" if r.get("element") is None else f"{r['element']} {r['nodes']:,}" + (
+            f" (solved again {r['resolves']}x)" if r.get("resolves") else "")
+        ref = "-" if r.get("ref_nodes") is None else f"{r['ref_nodes']:,}, {fmt(r.get('ref_error'), '.2g')}"
+        cost = "-" if r.get("cpu_plain_s") is None else (
+            f"{r['cpu_accuracy_s']:.1f} / {r['cpu_plain_s']:.2f} + {r['cpu_levels_s']:.2f} ({r['n_levels']})")
+        holds = r["verdict"] + ("" if not r.get("note") else f": {r['note']}")
+        out.append(f"| {Path(r['scene']).name.replace(' @', '@')} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
+                   f"{fmt(r.get('estimate'))} | {mesh} | {fmt(r.get('error_points'))} | "
+                   f"{fmt(r.get('error_nodes'))} | {ref} | {cost} | {fmt(r.get('ratio'), '.2f')} | "
+                   f"{fmt(r.get('floor_certified'))} | {holds} |")
+    return "\n".join(out)
+
+
+def write_doc(text: str) -> None:
+    from plush_opt.base.files import write_text_atomic
+    doc = DOC.read_text()
+    pattern = re.compile(r"(<!-- accuracy-guarantee -->\n)(?:.*?\n)?(<!-- /accuracy-guarantee -->)", re.S)
+    if not pattern.search(doc):
+        raise SystemExit(f"{DOC}: no block <!-- accuracy-guarantee --> ... <!-- /accuracy-guarantee -->")
+    write_text_atomic(DOC, pattern.sub(lambda m: m.group(1) + text + "\n" + m.group(2), doc))
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if "--row" in argv:
+        return row_main(argv)
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("scenes", nargs="*", default=DEFAULT_SCENES)
+    ap.add_argument("--tols", nargs="+", type=float, default=[1.0, 0.25, 0.05])
+    ap.add_argument("--jobs", "-j", type=int, default=1, help="rows at once (default 1)")
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "accuracy_guarantee",
+                    help="folder of the rows' JSON (kept: a second run reuses them)")
+    ap.add_argument("--out", type=Path, default=None, help="markdown table (a .csv beside it)")
+    ap.add_argument("--timeout", type=float, default=TIMEOUT, help="seconds a row may take (then stopped)")
+    ap.add_argument("--force", action="store_true", help="run every row again")
+    ap.add_argument("--write-doc", action="store_true", help="rewrite the block of docs/accuracy.md")
+    ap.add_argument("--no-run", action="store_true",
+                    help="run nothing: the table of the rows in --work (a row not there: not run)")
+    args = ap.parse_args(argv)
+    from plush_opt.batch import run_batch
+    from plush_opt.batch.progress import Progress
+    from plush_opt.base.files import write_text_atomic
+    args.work.mkdir(parents=True, exist_ok=True)
+    # the cheap rows first: the largest tolerance first, the scenes in the order given
+    jobs = [(spec, tol, row_file(args.work, spec, tol)) for tol in sorted(args.tols, reverse=True)
+            for spec in args.scenes]
+    todo = [] if args.no_run else [j for j in jobs if args.force or not j[2].exists()]
+    if todo:
+        batch = run_batch(functools.partial(launch, timeout=args.timeout), todo, jobs=args.jobs,
+                          progress=Progress("accuracy_guarantee", lambda i: f"{todo[i][0]} TOL {todo[i][1]:g}"))
+        batch.raise_if_interrupted()
+    rows = []
+    for spec, tol, to in sorted(jobs, key=lambda j: (args.scenes.index(j[0]), -j[1])):
+        row = json.loads(to.read_text()) if to.exists() else \
+            {"scene": spec, "tol": tol, "verdict": "NO", "note": "not run" if args.no_run else
+             "the row failed (no row file)"}
+        part = to.with_suffix(".partial")
+        if row["note"].startswith("not finished") and part.exists():    # what the stopped row knew
+            known = json.loads(part.read_text())
+            row = {**known, **{k: row[k] for k in ("verdict", "wall_s") if k in row},
+                   "note": f"{row['note'].split(':')[0]}: stopped in {known.pop('phase')}"}
+            row.pop("phase", None)
+        rows.append(row)
+    date = datetime.date.today().isoformat()
+    scenes = "" if args.scenes == DEFAULT_SCENES else " " + " ".join(args.scenes)
+    text = (f"Made by `python tools/accuracy_guarantee.py{scenes} --tols {' '.join(f'{t:g}' for t in args.tols)}"
+            f"` on {date}: the guarantee holds in {sum(r['verdict'] == 'yes' for r in rows)} of "
+            f"{sum(r['verdict'] != 'refused' for r in rows)} rows"
+            + (f" ({sum(r['verdict'] == 'refused' for r in rows)} more refused, one line each)"
+               if any(r["verdict"] == "refused" for r in rows) else "") + ".\n\n"
+            + table(rows))
+    print(text)
+    if args.out:
+        write_text_atomic(args.out, text + "\n")
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=FIELDS, extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)
+        write_text_atomic(args.out.with_suffix(".csv"), buf.getvalue())
+    if args.write_doc:
+        write_doc(text)
+    return 0 if all(r["verdict"] in ("yes", "refused") for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
