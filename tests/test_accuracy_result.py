@@ -152,3 +152,13 @@ def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
     doc = json.loads(out.read_text())
     assert doc["converged"] is False and "converged to the round-off floor" not in doc["status"]
     assert doc["accuracy"]["status"] == "explicit_mesh" and doc["accuracy"]["estimated_error"] is None
+
+
+def test_load_with_accuracy_refuses_friction_too():
+    """The Python API says what the command says (it estimated the
+    frictionless model and claimed "met" before)."""
+    import plush_opt
+    from plush_opt.base.errors import SceneError
+    with pytest.raises(SceneError, match=r"^gripper_friction.yaml: tendons.friction: accuracy solves for the pose "
+                                         r"at the final contractions alone"):
+        plush_opt.load(ROOT / "problems" / "gripper_friction.yaml", accuracy=1.0)
