@@ -32,7 +32,8 @@ def implicit_derivative(factor, mixed, columns=None) -> np.ndarray:
     Parameters
     ----------
     factor : the factorisation of the Hessian H at the equilibrium (its
-        ``solve(b)`` returns H^-1 b), as the equilibrium solve kept it.
+        ``solve(B)`` returns H^-1 B for B (n_dofs,) or (n_dofs, m)), as
+        the equilibrium solve kept it.
     mixed : (n_dofs, n_params) dense d2E/dx dp, in the units of the
         gradient (force) per unit of each parameter.
     columns : the parameters to differentiate by (indices), default all;
