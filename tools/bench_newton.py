@@ -42,6 +42,13 @@ instead profiles the shipped code, or a variant's switches (cProfile on
 CPU time), and prints where the time goes: of a forward solve from rest,
 and of a reparam control run's iterates after the starting solve (the
 control run only up to ``--inverse-max-nodes`` nodes).
+
+    python tools/bench_newton.py --counts --nodes 1000 10000
+
+instead counts, per iterate of a reparam control run of the shipped code
+(its starting solve left out), the model evaluations by order, the solves
+with a factor (right-hand sides) and the factorisations, by the function
+that asked for them; a Markdown table.
 """
 
 from __future__ import annotations
@@ -211,6 +218,95 @@ def _profile_parts(problem: str, nodes_list, inverse_max_nodes: int) -> None:
                 print(f"| {model.n_nodes} | {name} | {label} | {t:.3f} | {t / parts[0][1]:.0%} |", flush=True)
 
 
+def _unit_costs(model, c) -> str:
+    """The median CPU time of one evaluation of each order, one solve and one
+    factorisation (with its low-rank set-up) at the equilibrium from rest
+    at contractions ``c``, in words."""
+    eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
+    b = np.random.default_rng(0).standard_normal(model.n_dofs)
+    ev = model.evaluate(eq.x, c, order=2)
+    runs = {f"evaluation order {o}": (lambda o=o: model.evaluate(eq.x, c, order=o)) for o in (0, 1, 2)}
+    runs["solve"] = lambda: eq.factor.solve(b)
+    runs["factorisation"] = lambda: model.factorizer.factor(ev.hessian_form)
+    out = []
+    for name, run in runs.items():
+        times = []
+        for _ in range(UNIT_REPEATS):
+            t = time.process_time()
+            run()
+            times.append(time.process_time() - t)
+        out.append(f"{name} {1e3 * float(np.median(times)):.2f}")
+    return ", ".join(out)
+
+
+# each unit cost of --counts: the median of this many
+UNIT_REPEATS = 9
+
+
+def _counts(problem: str, nodes_list) -> None:
+    """:func:`main`'s ``--counts``: per iterate of a control run, what each
+    caller asked for (evaluations of order 0/1/2, right-hand sides solved,
+    factorisations)."""
+    import collections
+    import sys
+    from plush_opt.fem.model import Model
+    print("| nodes | caller | evaluations order 0 / 1 / 2 | right-hand sides solved | factorisations |")
+    print("|---|---|---|---|---|")
+    plain_evaluate, plain_solve = Model.evaluate, linalg.Factor.solve
+    for nodes in nodes_list:
+        scene = load_scene(ROOT / "problems" / f"{problem}.yaml").replace(element="P1")
+        prob = from_scene(scene, mesh_for_nodes(scene, nodes))
+        model = prob.model
+        steps = Controller(model, prob.targets).iterates()
+        next(steps)                                          # the starting solve, not counted
+        count = collections.defaultdict(lambda: [0, 0, 0, 0, 0])     # caller: orders 0-2, rhs, factorisations
+
+        def caller() -> str:
+            code = sys._getframe(2).f_code
+            return f"{Path(code.co_filename).stem}.{code.co_name}"
+
+        def evaluate(self, x, c, order=2):
+            count[caller()][order] += 1
+            return plain_evaluate(self, x, c, order)
+
+        def solve(self, b, *args, **kwargs):
+            count[caller()][3] += 1 if np.ndim(b) == 1 else np.shape(b)[1]
+            return plain_solve(self, b, *args, **kwargs)
+        factor = model.factorizer.factor
+
+        def counted_factor(H, shift=0.0):
+            count[caller()][4] += 1
+            return factor(H, shift)
+        woodbury = linalg._WoodburySolve
+        plain_call, plain_once = woodbury.__call__, woodbury._once
+        low_rank = [0, 0]        # low-rank solves, substitutions (a refined solve takes two)
+
+        def call(self, b):
+            low_rank[0] += 1
+            return plain_call(self, b)
+
+        def once(self, b):
+            low_rank[1] += 1
+            return plain_once(self, b)
+        Model.evaluate, linalg.Factor.solve, model.factorizer.factor = evaluate, solve, counted_factor
+        woodbury.__call__, woodbury._once = call, once
+        try:
+            iterates = sum(1 for _ in steps)
+        finally:
+            Model.evaluate, linalg.Factor.solve = plain_evaluate, plain_solve
+            woodbury.__call__, woodbury._once = plain_call, plain_once
+            del model.factorizer.factor
+        total = np.sum(list(count.values()), axis=0)
+        for name, row in sorted(count.items(), key=lambda item: -sum(item[1])) + [("all", total)]:
+            per = [v / max(iterates, 1) for v in row]
+            print(f"| {model.n_nodes} | {name} | {per[0]:.2f} / {per[1]:.2f} / {per[2]:.2f} | {per[3]:.2f} "
+                  f"| {per[4]:.2f} |", flush=True)
+        print(f"| {model.n_nodes} | low-rank solves refined by their residual: {low_rank[1] - low_rank[0]} "
+              f"of {low_rank[0]} in {iterates} iterates | | | |")
+        c = model.scene.contraction if problem != "gripper" else np.full(model.n_winches, 10.0)
+        print(f"| {model.n_nodes} | unit CPU [ms]: {_unit_costs(model, c)} | | | |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problem", default="gripper")
@@ -224,11 +320,15 @@ def main(argv=None):
     ap.add_argument("--no-control", action="store_true", help="the forward solves alone (no control runs)")
     ap.add_argument("--variant", choices=[name for name, v in VARIANTS.items() if v[-1]], default="now",
                     help="--parts: the solver switches of this variant (default: the shipped code)")
+    ap.add_argument("--counts", action="store_true",
+                    help="count evaluations, solves and factorisations per control iterate, by caller")
     ap.add_argument("--inverse-max-nodes", type=int, default=12000,
                     help="--parts: the control run only up to this many nodes")
     args = ap.parse_args(argv)
     if args.peak_memory:
         return _peak_memory(args.problem, args.peak_memory)
+    if args.counts:
+        return _counts(args.problem, args.nodes)
     if args.parts:
         return _parts(args.problem, args.nodes, args.inverse_max_nodes, args.variant)
     print("| nodes | variant | forward CPU [ms] | Newton its | factorisations | control iterate CPU [ms] "
