@@ -58,6 +58,17 @@ def test_barrier_is_c2_at_dhat_and_zero_beyond():
     assert all(np.all(v == 0) for v in out)
 
 
+def test_barrier_slope_is_the_barriers_first_derivative_value_for_value():
+    h = 0.25
+    inside = np.concatenate([np.geomspace(1e-12, 0.49, 20), np.linspace(0.5, 0.999, 20)]) * h
+    near = np.linspace(0.5, 0.999, 20) * h                  # log1p alone
+    for s in (inside, near):
+        assert np.array_equal(cg.barrier_slope(s, h), cg.barrier(s, h)[1])
+    mixed = np.array([0.3 * h, h, 2 * h, 0.0, -1.0])       # active, at and beyond d_hat, touching, crossed
+    np.testing.assert_array_equal(cg.barrier_slope(mixed, h), cg.barrier(mixed, h)[1])
+    assert cg.barrier_slope(mixed, h)[1] == 0.0 and np.isnan(cg.barrier_slope(mixed, h)[3])
+
+
 def test_barrier_refuses_touching_and_crossed_pairs():
     b, db, d2b = cg.barrier(np.array([0.0, -1e-3]), 1.0)
     assert np.all(np.isposinf(b)) and np.all(np.isnan(db)) and np.all(np.isnan(d2b))

@@ -414,7 +414,7 @@ def _floor_slope(d0: np.ndarray, rate: float, kw: np.ndarray, distance: float, d
     t ``rate`` (``kw`` (b,) the nodes' stiffness x weight)."""
     d = d0 + t * rate
     act = np.flatnonzero(d < distance)
-    _, db, _ = geo.barrier(d[act] ** 2, dhat2)
+    db = geo.barrier_slope(d[act] ** 2, dhat2)
     return float(np.sum(kw[act] * db * 2 * d[act])) * rate
 
 

@@ -80,6 +80,23 @@ def barrier(s, dhat2):
     return b, db, d2b
 
 
+def barrier_slope(s: np.ndarray, dhat2: float) -> np.ndarray:
+    """db/ds of :func:`barrier` alone (the same values), for 1-d ``s`` and a
+    scalar ``dhat2``: what a force along a path needs, without b and b''."""
+    if not np.all((s > 0) & (s < dhat2)):
+        return barrier(s, dhat2)[1]
+    u = s - dhat2
+    near = s >= LOG1P_FROM * dhat2
+    if np.all(near):
+        ln = np.log1p(u / dhat2)
+    else:
+        ln = np.empty_like(s)
+        ln[near] = np.log1p(u[near] / dhat2)
+        ln[~near] = np.log(s[~near] / dhat2)
+    with np.errstate(over="ignore"):
+        return -2.0 * u * ln - u * u / s
+
+
 def _barrier_inside(s, h):
     """:func:`barrier` at 0 < s < h (1-d ``s``; ``h`` a scalar or alike)."""
     u = s - h                                           # < 0, exact near dhat2

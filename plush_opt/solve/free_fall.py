@@ -112,7 +112,7 @@ def _fall_length(model, c, x: np.ndarray, d: np.ndarray) -> float | None:
         if not np.isfinite(s_end):
             return None if t == 0.0 else t
         if s_end >= 0.0:
-            return _root(slope, t, s, end, FALL_XTOL * reach)
+            return _root(slope, t, s, end, s_end, FALL_XTOL * reach)
         t, s = end, s_end
     return t
 
@@ -128,11 +128,18 @@ def _slope_along(term, c, x: np.ndarray, d: np.ndarray):
     return lambda t: float(term.evaluate(x + t * d, c, 1).gradient @ d)
 
 
-def _root(slope, start: float, s_start: float, end: float, xtol: float) -> float:
-    """The root of ``slope`` in [start, end] (``s_start`` < 0 at start, not
-    negative at end), found on the square root of the force taken up since
-    ``start``: a barrier's force grows with the square of the penetration
-    where it engages, so that root is near linear in the fall and a few
-    secant steps find it (on the slope itself, a dozen or more)."""
+def _root(slope, start: float, s_start: float, end: float, s_end: float, xtol: float) -> float:
+    """The root of ``slope`` in [start, end] (``s_start`` < 0 at start,
+    ``s_end`` not negative at end), found on the square root of the force
+    taken up since ``start``: a barrier's force grows with the square of the
+    penetration where it engages, so that root is near linear in the fall
+    and a few secant steps find it (on the slope itself, a dozen or more).
+    The slope is not evaluated again at the ends."""
     need = np.sqrt(-s_start)
-    return brentq(lambda t: np.sqrt(max(slope(t) - s_start, 0.0)) - need, start, end, xtol=xtol)
+    known = {start: s_start, end: s_end}
+
+    def f(t: float) -> float:
+        s = known[t] if t in known else slope(t)
+        return np.sqrt(max(s - s_start, 0.0)) - need
+
+    return brentq(f, start, end, xtol=xtol)
