@@ -28,7 +28,7 @@ from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from ..base.linalg import Factorizer
 from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
-from .timing import median_time
+from .timing import median_time, timed_into
 from ..base.files import write_json_atomic, write_text_atomic
 from ..io import load_scene
 from ..solve.sensitivity import state_sensitivity
@@ -112,20 +112,10 @@ def _solve_with_parts(model, c, x0, options, repeats: int) -> tuple[dict, object
     runs = []
     for _ in range(repeats):
         parts = {"evaluate_s": 0.0, "factorise_s": 0.0, "evaluations": 0, "factorisations": 0}
-
-        def timed(fn, part: str, count: str):
-            def call(*args, **kwargs):
-                t = time.process_time()
-                try:
-                    return fn(*args, **kwargs)
-                finally:
-                    parts[part] += time.process_time() - t
-                    parts[count] += 1
-            return call
-        model.evaluate = timed(plain["evaluate"], "evaluate_s", "evaluations")
+        model.evaluate = timed_into(parts, plain["evaluate"], "evaluate_s", "evaluations")
         if plain["evaluate_moved"] is not None:     # (a falling body's end: an evaluation too)
-            model.evaluate_moved = timed(plain["evaluate_moved"], "evaluate_s", "evaluations")
-        fz.factor = timed(plain["factor"], "factorise_s", "factorisations")
+            model.evaluate_moved = timed_into(parts, plain["evaluate_moved"], "evaluate_s", "evaluations")
+        fz.factor = timed_into(parts, plain["factor"], "factorise_s", "factorisations")
         try:
             t = time.process_time()
             eq = solve_equilibrium(model, c, x0, options)

@@ -37,6 +37,7 @@ from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..io import load_scene
 from ..problem import from_scene
 from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from .timing import timed_into
 
 #: body density of the peer problem [t/mm^3]: 100 kg/m^3, a fibre-filled felt body
 PEER_DENSITY = 1e-10
@@ -190,17 +191,8 @@ def _ours(model) -> dict:
     fz = model.factorizer
     plain_eval, plain_factor = model.evaluate, fz.factor
     parts = {"assembly_s": 0.0, "factor_s": 0.0, "factorisations": 0}
-
-    def timed(fn, key, count=False):
-        def call(*args, **kwargs):
-            t = time.process_time()
-            try:
-                return fn(*args, **kwargs)
-            finally:
-                parts[key] += time.process_time() - t
-                parts["factorisations"] += count
-        return call
-    model.evaluate, fz.factor = timed(plain_eval, "assembly_s"), timed(plain_factor, "factor_s", True)
+    model.evaluate = timed_into(parts, plain_eval, "assembly_s")
+    fz.factor = timed_into(parts, plain_factor, "factor_s", "factorisations")
     try:
         eq = solve_equilibrium(model, np.zeros(model.n_winches), options=EquilibriumOptions(eigenvalue=False))
     finally:

@@ -1,4 +1,5 @@
-"""Timings for the benchmarks: the median of repeated calls."""
+"""Timings for the benchmarks: the median of repeated calls, and the CPU
+time of a function's calls inside a larger one."""
 
 from __future__ import annotations
 
@@ -15,3 +16,17 @@ def median_time(fn, repeats: int) -> tuple[float, object]:
         out = fn()
         times.append(time.perf_counter() - t)
     return float(np.median(times)), out
+
+
+def timed_into(parts: dict, fn, seconds: str, count: str | None = None):
+    """``fn`` wrapped to add the CPU seconds of each call to
+    ``parts[seconds]`` (and 1 to ``parts[count]``, if named), raised or not."""
+    def call(*args, **kwargs):
+        t = time.process_time()
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            parts[seconds] += time.process_time() - t
+            if count is not None:
+                parts[count] += 1
+    return call
