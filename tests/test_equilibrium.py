@@ -5,6 +5,7 @@ import pytest
 
 from plush_opt.solve.equilibrium import EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from plush_opt.base.errors import SolverError
+from factor_counts import counting_factorisations
 from shipped import PROBLEMS, body_size, built
 
 LEVELS = (0.1, 0.4, 0.8)   # fractions of each winch's range
@@ -101,18 +102,6 @@ def test_tuning_options_are_validated(bad):
         EquilibriumOptions(**bad)
 
 
-def _counting_factorisations(model):
-    """Count the model's factorisations (a wrapper on its factoriser)."""
-    count = {"n": 0}
-    plain = model.factorizer.factor
-
-    def factor(H, shift=0.0):
-        count["n"] += 1
-        return plain(H, shift)
-    model.factorizer.factor = factor
-    return count
-
-
 def test_a_kept_factor_saves_factorisations_never_the_certificate():
     """Newton started with the factor of a nearby equilibrium (a chord)
     reaches the same equilibrium with fewer factorisations, and certifies
@@ -122,7 +111,7 @@ def test_a_kept_factor_saves_factorisations_never_the_certificate():
     near = solve_equilibrium(model, [9.8, 0.0, 5.0])
     c = np.array([9.802, 0.0, 5.0])       # a control loop's last, short steps
     guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
-    count = _counting_factorisations(model)
+    count = counting_factorisations(model)
     try:
         plain = solve_equilibrium(model, c, guess)
         n_plain, count["n"] = count["n"], 0

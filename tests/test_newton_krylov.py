@@ -14,18 +14,8 @@ from plush_opt.fem.model import Evaluation
 from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
+from factor_counts import counting_factorisations
 from shipped import body_size, built
-
-
-def _counting(model) -> dict:
-    count = {"n": 0}
-    plain = model.factorizer.factor
-
-    def factor(H, shift=0.0):
-        count["n"] += 1
-        return plain(H, shift)
-    model.factorizer.factor = factor
-    return count
 
 
 def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(monkeypatch, caplog):
@@ -38,7 +28,7 @@ def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(mon
     near = solve_equilibrium(model, [9.8, 0.0, 5.0])
     c = np.array([9.85, 0.0, 5.05])
     guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
-    count = _counting(model)
+    count = counting_factorisations(model)
     try:
         monkeypatch.setattr(kept_factor, "KRYLOV_STEPS", 0)
         without = solve_equilibrium(model, c, guess, chord=near.factor)
