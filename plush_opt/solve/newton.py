@@ -200,10 +200,17 @@ def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | No
     factor serves a few more steps (:func:`~plush_opt.solve.kept_factor.kept_factor_steps`); (pose,
     evaluation, steps taken)."""
     x, ev = accepted
-    if not allowed or factor is None or alpha != 1.0 or \
-            np.linalg.norm(ev.gradient) > CHORD_START * np.linalg.norm(g):
+    if not _in_local_phase(ev, alpha, g, factor, allowed):
         return x, ev, 0
     return kept_factor_steps(model, c, x, ev, factor, options)
+
+
+def _in_local_phase(ev: Evaluation, alpha: float, g, factor: Factor | None, allowed: bool) -> bool:
+    """Whether a Newton step to the pose of ``ev`` from a pose with gradient
+    ``g`` keeps its ``factor`` (:func:`_keep_factor`): allowed, positive
+    definite, a full step, and the residual cut by ``CHORD_START``."""
+    return allowed and factor is not None and alpha == 1.0 and \
+        np.linalg.norm(ev.gradient) <= CHORD_START * np.linalg.norm(g)
 
 
 def _off_symmetric_branch(model: Model, c, x, ev: Evaluation, step_factor: Factor,
@@ -285,9 +292,7 @@ def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Facto
     accepted, alpha = dog.judge(model, c, accepted, alpha, options)
     if accepted is None:
         return None
-    # (as _keep_factor decides)
-    tried = keep and factor is not None and alpha == 1.0 and \
-        np.linalg.norm(accepted[1].gradient) <= CHORD_START * np.linalg.norm(g)
+    tried = _in_local_phase(accepted[1], alpha, g, factor, keep)
     x, ev, kept = _keep_factor(model, c, accepted, alpha, g, factor, options, keep)
     return x, ev, (accepted if kept else None), tried
 
