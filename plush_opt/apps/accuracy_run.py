@@ -110,7 +110,6 @@ class AccurateSolve:
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
 
-
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``
         (``at``: the levels solved there): the sweep continues at that

@@ -31,10 +31,12 @@ from .mapped import Mapped
 from .mesh import Mesh
 from ..io.scene import Scene
 
+
 def node_dofs(nodes: np.ndarray) -> np.ndarray:
     """Interleaved dof indices of node indices: (..., k) -> (..., 2k)."""
     nodes = np.asarray(nodes, dtype=np.int64)
     return np.stack([2 * nodes, 2 * nodes + 1], axis=-1).reshape(*nodes.shape[:-1], 2 * nodes.shape[-1])
+
 
 @dataclass(frozen=True)
 class TermEvaluation:
@@ -54,6 +56,7 @@ class TermEvaluation:
     gradient: np.ndarray | None = None
     hessian: dict = field(default_factory=dict)
     force_scale: float = 0.0
+
 
 class Term:
     """One energy term of a model (the interface; see the module docstring).
@@ -101,6 +104,7 @@ class Term:
         """Take (x, c) as the accepted state: a term with history (stick and
         slip, contact) updates it here, once a step has converged. These
         terms carry none."""
+
 
 class ElasticTerm(Term):
     """The hyperelastic (compressible Neo-Hookean) energy of every element,
@@ -193,6 +197,7 @@ class ElasticTerm(Term):
         """J = det F as a CasADi expression of x (see ``Element.jacobian_expression``)."""
         return self.element.jacobian_expression(x, self.elem_dofs, self.jacobian_data)
 
+
 class PinTerm(Term):
     """Stiff springs holding the pinned nodes at their rest positions:
     k/2 |x_p - X_p|^2 (``scene.pin_stiffness`` k)."""
@@ -225,6 +230,7 @@ class PinTerm(Term):
     def expression(self, x, c):
         dp = x[self.dofs.tolist()] - ca.DM(self._rest)
         return self.stiffness / 2 * ca.sumsqr(dp)
+
 
 class GravityTerm(Term):
     """E = -f . x, with ``force`` f the nodal weights (n_dofs,): each
