@@ -15,8 +15,10 @@ demo: $(STAMP) emulator
 
 # One BLAS thread: the solvers' dense pieces are small, and on 2 cores
 # OpenBLAS threads fighting each other (and pytest) slow them tenfold.
+# One pytest worker per core (pytest-xdist); a test file stays on one worker,
+# so its module fixtures are built once.
 test: $(STAMP) emulator
-	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q tests
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q -n auto --dist loadfile tests
 
 # CHOLMOD headers for the [cholmod] extra (scikit-sparse builds from source),
 # OpenBLAS as the system BLAS (CHOLMOD's supernodal factorisation of large

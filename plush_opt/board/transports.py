@@ -69,7 +69,7 @@ class SerialLink:
         except BaseException:
             self.driver.close()
             raise
-        self._commanded: dict[str, float] = {}   # since the last stop: {winch: mm}
+        self._commanded: dict[str, float] = {}   # since the last stop: {winch: contraction}
 
     @property
     def port(self) -> str:
@@ -100,7 +100,7 @@ class SerialLink:
             if not state.enabled[self.calibration.winch(name).axis]:
                 self._commanded.clear()
                 raise HardwareError(f"{self.port}: the board stopped winch {name!r} before it reached "
-                                    f"{target:.2f} mm")
+                                    f"its commanded contraction {target:.2f}")
         return state
 
     def positions(self) -> dict[str, float]:
