@@ -55,6 +55,48 @@ def test_the_symbolic_obstacle_barrier_is_the_numeric_one():
     assert kinds == {(True, False), (False, True)}
 
 
+def test_a_node_carried_through_an_obstacle_makes_the_symbolic_barrier_nan():
+    """The squared distances are unsigned: a node moved right through an
+    obstacle edge, out of the barrier's reach on the inside, would sit at a
+    finite energy without the winding-number guard, and IPOPT (no collision
+    detection) would accept the step. Inside, energy and forces are NaN, and
+    the model names the crossing."""
+    doc = json.loads(json.dumps(STRIP))
+    doc["contact"] = {"distance": 0.5, "obstacles": [{"name": "slab", "outline": [[30, -20], [50, -20],
+                                                                                  [50, -10], [30, -10]]}]}
+    model = _model(doc, "strip.yaml")
+    f = _symbolic(model.contact, model.n_dofs)
+    boundary = model.contact.boundary.nodes
+    X = model.X.reshape(-1, 2)
+    i = int(boundary[np.argmin(np.abs(X[boundary, 0] - 40) + np.abs(X[boundary, 1]))])
+    x = model.X.copy().reshape(-1, 2)
+    x[i] = [40.0, -15.0]                   # 5 from every edge: beyond d_hat, inside the slab
+    x = x.ravel()
+    assert not model.admissible(x) and "inside obstacle 'slab'" in model.violation(x)
+    e, g = f(x)
+    assert np.isnan(float(e)) and np.isnan(np.asarray(g)).any()
+    x[2 * i + 1] = -25.0                    # the same node below the slab: outside, finite
+    e, g = f(x)
+    assert np.isfinite(float(e)) and np.isfinite(np.asarray(g)).all()
+
+
+def test_an_obstacle_corner_carried_into_the_body_makes_the_symbolic_barrier_nan():
+    """The other way through: a thin peg's tip inside the body between two
+    boundary nodes, no node inside the peg."""
+    doc = json.loads(json.dumps(STRIP))
+    doc["contact"] = {"distance": 0.1, "obstacles": [{"name": "peg", "outline": [[40.3, -3], [40.7, -3],
+                                                                                 [40.5, -0.5]]}]}
+    model = _model(doc, "strip.yaml")
+    f = _symbolic(model.contact, model.n_dofs)
+    x = (model.X.reshape(-1, 2) - [0.0, 1.0]).ravel()        # the whole strip 1 lower: the tip 0.5 inside
+    why = model.violation(x)
+    assert why is not None and "crosses obstacle 'peg'" in why, why
+    e, g = f(x)
+    assert np.isnan(float(e)) and np.isnan(np.asarray(g)).any()
+    e, g = f(model.X)
+    assert np.isfinite(float(e)) and np.isfinite(np.asarray(g)).all()
+
+
 @pytest.mark.parametrize("c", [0.0, 2.0])
 def test_ipopt_and_newton_agree_on_a_body_held_by_an_obstacle(c):
     model = _model(VEE, "vee.yaml")

@@ -181,8 +181,10 @@ def parameters(entry: NlpEntry, c: np.ndarray, targets) -> np.ndarray:
 
 
 def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) -> dict:
-    """Is ``x`` a stable equilibrium at ``c``? Residual, Cholesky, eigenvalue."""
-    out = {"admissible": bool(model.admissible(x)), "relative_residual": None,
+    """Is ``x`` a stable equilibrium at ``c``? Admissible (else why not, in
+    words), residual, Cholesky, eigenvalue."""
+    why = model.violation(x)
+    out = {"admissible": why is None, "violation": why, "relative_residual": None,
            "positive_definite": False, "min_eigenvalue": None, "stable_equilibrium": False}
     if not out["admissible"]:
         return out
@@ -201,7 +203,7 @@ def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) 
 
 def describe_pose(check: dict) -> str:
     if not check["admissible"]:
-        return "ipopt pose is not admissible (some element has J <= 0)"
+        return f"ipopt pose is not admissible ({check['violation']})"
     rel = check["relative_residual"]
     if not check["positive_definite"]:
         if rel is not None and rel <= SADDLE_RESIDUAL:

@@ -6,7 +6,11 @@ Newton evaluates the barrier over the pairs a broad phase finds at each
 pose (:mod:`plush_opt.fem.contact`); an expression is built once, so it
 holds every pair that can ever touch: each obstacle edge against every
 boundary node and each obstacle vertex against every boundary segment (a
-few thousand pairs for a gripper around an object). Self-contact pairs are every pair of
+few thousand pairs for a gripper around an object). A body node inside an
+obstacle, or an obstacle vertex inside the body (found by winding
+numbers), makes the expression NaN, so
+IPOPT's line search backs off from a step through an obstacle as Newton's
+collision detection stops it. Self-contact pairs are every pair of
 boundary nodes and segments, quadratic in the boundary: it stays with
 Newton. The expression is the same energy as the numeric one, pair type
 by pair type (:func:`~plush_opt.fem.contact_geometry.pair_type`'s rule,
@@ -48,12 +52,42 @@ def point_segment_sq(px, py, ax, ay, bx, by):
 
 
 def _pair_kernel(dhat2: float) -> ca.Function:
-    """The barrier of one point-segment pair, (p, a, b) -> b(s), compiled
-    from scalar operations (mapped over every pair: one small graph whose
-    derivatives CasADi takes once)."""
+    """The barrier of one point-segment pair, (p, a, b, inside) -> b(s),
+    compiled from scalar operations (mapped over every pair: one small
+    graph whose derivatives CasADi takes once). ``inside`` (0 or 1) flips
+    the squared distance's sign: a point inside the other outline (a body
+    node in an obstacle, an obstacle vertex in the body) evaluates to NaN,
+    value and derivatives, as Newton's admissibility check refuses it."""
     p, a, b = ca.SX.sym("p", 2), ca.SX.sym("a", 2), ca.SX.sym("b", 2)
+    inside = ca.SX.sym("inside")
     s = point_segment_sq(p[0], p[1], a[0], a[1], b[0], b[1])
-    return ca.Function("contact_pair", [p, a, b], [barrier(s, dhat2)])
+    return ca.Function("contact_pair", [p, a, b, inside], [barrier(ca.if_else(inside, -s, s), dhat2)])
+
+
+def _angle_kernel() -> ca.Function:
+    """The angle segment [a, b] subtends at p, signed, (p, a, b) -> angle:
+    summed over a closed outline it is 2 pi times the outline's winding
+    number about p (0 outside, +-2 pi inside), constant between crossings."""
+    p, a, b = ca.SX.sym("p", 2), ca.SX.sym("a", 2), ca.SX.sym("b", 2)
+    u, v = a - p, b - p
+    return ca.Function("contact_angle", [p, a, b], [ca.atan2(u[0] * v[1] - u[1] * v[0], ca.dot(u, v))])
+
+
+def _inside(point, start, end, groups: np.ndarray, n_points: int):
+    """1 per point-segment pair where the point is inside the closed
+    outline, of those in ``groups``, that the pair's segment belongs to.
+
+    Pairs are point-major (pair ``p * m + j``: point p, segment j of m);
+    ``groups`` (g, m) 0/1 says which segments make up each outline; the
+    winding number of each point about each outline decides. The barrier's
+    squared distances are unsigned, so without this a step that carries a
+    body node into an obstacle, or an obstacle corner into the body, lands
+    on a finite energy (IPOPT has no collision detection to stop it)."""
+    m = groups.shape[1]
+    S = ca.DM(groups.astype(float))
+    angles = _angle_kernel().map(n_points * m)(point, start, end)
+    winding = S @ ca.reshape(angles, m, n_points)                       # (g, points)
+    return ca.reshape(S.T @ (ca.fabs(winding) > np.pi), 1, n_points * m)
 
 
 def obstacle_energy(P, local: np.ndarray, node_weight: np.ndarray, edges, vertex_weights,
@@ -80,5 +114,14 @@ def obstacle_energy(P, local: np.ndarray, node_weight: np.ndarray, edges, vertex
     start = ca.horzcat(ca.DM(oa[edge].T), P[:, local[segment, 0].tolist()])
     end = ca.horzcat(ca.DM(ob[edge].T), P[:, local[segment, 1].tolist()])
     weight = np.concatenate([node_weight[node], ow[vertex]])
+    # a body node inside an obstacle, an obstacle vertex inside the body (its
+    # segments are oriented with the body on their left: winding 1 inside)
+    n_node_pairs = n_nodes * k
+    owner = np.repeat(np.arange(len(edges)), [len(a) for a, _ in edges])
+    inside = ca.horzcat(
+        _inside(point[:, :n_node_pairs], start[:, :n_node_pairs], end[:, :n_node_pairs],
+                np.equal.outer(np.arange(len(edges)), owner), n_nodes),
+        _inside(point[:, n_node_pairs:], start[:, n_node_pairs:], end[:, n_node_pairs:],
+                np.ones((1, n_segments)), k))
     pairs = _pair_kernel(dhat2).map(len(weight))
-    return stiffness * ca.dot(ca.DM(weight), pairs(point, start, end).T)
+    return stiffness * ca.dot(ca.DM(weight), pairs(point, start, end, inside).T)

@@ -363,6 +363,14 @@ class Model:
         x = np.asarray(x, dtype=np.float64).reshape(-1)
         return bool(np.all(np.isfinite(x)) and all(term.admissible(x) for term in self.terms))
 
+    def violation(self, x) -> str | None:
+        """Why ``x`` is not admissible, in words (the first term that
+        refuses it: an inverted element, a gap <= 0, a crossing), or None."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(x)):
+            return "the pose is not finite"
+        return next((why for why in (term.violation(x) for term in self.terms) if why), None)
+
     def max_step(self, x, dx) -> float:
         """The largest fraction in (0, 1] of the step ``dx`` from the
         admissible pose ``x`` that no term forbids (the smallest over the

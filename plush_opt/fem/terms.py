@@ -77,6 +77,10 @@ class Term:
         """Whether the term is defined at the finite flat pose ``x``."""
         return True
 
+    def violation(self, x: np.ndarray) -> str | None:
+        """Why ``x`` is not admissible for this term, in words, or None."""
+        return None if self.admissible(x) else f"the {self.name} term is not defined there"
+
     def evaluate(self, x: np.ndarray, c: np.ndarray, order: int) -> TermEvaluation:
         """Energy (order 0), plus gradient (1), plus Hessian parts (2)."""
         raise NotImplementedError
@@ -158,6 +162,11 @@ class ElasticTerm(Term):
 
     def admissible(self, x):
         return bool(np.all(self.jacobians(x) > 0))
+
+    def violation(self, x):
+        J = self.jacobians(x)
+        k = int(np.argmin(J))
+        return None if J[k] > 0 else f"element {k} is inverted or degenerate (J = {J[k]:.3g} <= 0)"
 
     def evaluate(self, x, c, order):
         outs = self._by_order[order](x[self.elem_dofs], order + 1)

@@ -212,7 +212,7 @@ def residual(model: Model, x, contraction) -> np.ndarray:
     certificate, the implicit sensitivities and the tests."""
     ev = model.evaluate(x, contraction, order=1)
     if not ev.admissible:
-        raise SolverError("residual: the pose is not admissible (some element has J <= 0)")
+        raise SolverError(f"residual: the pose is not admissible ({model.violation(x)})")
     return ev.gradient
 
 

@@ -174,7 +174,7 @@ class IpoptEquilibrium:
         model = self.model
         t0 = time.perf_counter()
         if not model.admissible(x):
-            return Equilibrium(x, c, False, "initial pose not admissible (some element has J <= 0)",
+            return Equilibrium(x, c, False, f"initial pose not admissible ({model.violation(x)})",
                                np.inf, np.inf, np.nan, False, None, 0, 0.0, "ipopt")
         iterations, escapes, polished = 0, 0, False
         extra = {}
@@ -186,7 +186,8 @@ class IpoptEquilibrium:
             xs = np.array(sol["x"], dtype=np.float64).reshape(-1)
             ev = model.evaluate(xs, c, order=2)
             if not ev.admissible:
-                return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible",
+                return Equilibrium(xs, c, False, f"ipopt: {stats['return_status']}; pose not admissible "
+                                   f"({model.violation(xs)})",
                                    np.inf, np.inf, np.nan, False, None, iterations,
                                    time.perf_counter() - t0, "ipopt")
             factor = try_factor(model, ev.hessian_form)
