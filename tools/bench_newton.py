@@ -43,6 +43,15 @@ CPU time), and prints where the time goes: of a forward solve from rest,
 and of a reparam control run's iterates after the starting solve (the
 control run only up to ``--inverse-max-nodes`` nodes).
 
+    python tools/bench_newton.py --breakdown --nodes 10000
+
+instead times, per iterate of a reparam control run of the shipped code
+(its starting solve left out), where its CPU time goes: the CHOLMOD
+numeric factorisations, the low-rank set-ups, the solves, the model's
+evaluations by order, the products with a low-rank Hessian, d2E/dx dc and
+the rest (each part's own time, the parts it calls left out; plain timers,
+no profiler); a Markdown table.
+
     python tools/bench_newton.py --counts --nodes 1000 10000
 
 instead counts, per iterate of a reparam control run of the shipped code
@@ -307,6 +316,75 @@ def _counts(problem: str, nodes_list) -> None:
         print(f"| {model.n_nodes} | unit CPU [ms]: {_unit_costs(model, c)} | | | |", flush=True)
 
 
+def _timed_parts() -> list[tuple[object, str, str]]:
+    """(owner, attribute, part) of the functions :func:`_breakdown` times."""
+    from plush_opt.fem.model import Model
+    return [(Model, "evaluate", "evaluation"), (Model, "mixed", "d2E/dx dc"),
+            (linalg.Factorizer, "_factor_cholmod", "numeric factorisation"),
+            (linalg._WoodburySolve, "__init__", "low-rank set-up"), (linalg.Factor, "solve", "solve"),
+            (linalg.LowRankHessian, "__matmul__", "product with H")]
+
+
+def _own_timers(parts: dict) -> list[tuple[object, str, object]]:
+    """Wrap :func:`_timed_parts` so that each adds its own CPU time (what it
+    calls among them left out) and calls to ``parts`` {part: [s, calls]};
+    returns what to restore."""
+    stack, saved = [], []
+    for owner, name, part in _timed_parts():
+        plain = owner.__dict__[name]
+
+        def timed(*args, _plain=plain, _part=part, **kwargs):
+            if _part == "evaluation":
+                order = kwargs.get("order", args[3] if len(args) > 3 else 2)
+                _part = f"evaluation order {order}"
+            stack.append(0.0)
+            t = time.process_time()
+            try:
+                return _plain(*args, **kwargs)
+            finally:
+                dt = time.process_time() - t
+                inner = stack.pop()
+                entry = parts.setdefault(_part, [0.0, 0])
+                entry[0] += dt - inner
+                entry[1] += 1
+                if stack:
+                    stack[-1] += dt
+        setattr(owner, name, timed)
+        saved.append((owner, name, plain))
+    return saved
+
+
+def _breakdown(problem: str, nodes_list) -> None:
+    """:func:`main`'s ``--breakdown``: per iterate of a reparam control run
+    (its starting solve left out), each part's own CPU milliseconds and calls."""
+    for nodes in nodes_list:
+        scene = load_scene(ROOT / "problems" / f"{problem}.yaml").replace(element="P1")
+        prob = from_scene(scene, mesh_for_nodes(scene, nodes))
+        steps = Controller(prob.model, prob.targets).iterates()
+        next(steps)                                          # the starting solve, not timed
+        rows, parts = [], {}
+        saved = _own_timers(parts)
+        try:
+            t = time.process_time()
+            for _ in steps:
+                rows.append((time.process_time() - t, dict(parts)))
+                parts.clear()
+                t = time.process_time()
+        finally:
+            for owner, name, plain in saved:
+                setattr(owner, name, plain)
+        names = sorted({name for _, p in rows for name in p})
+        print(f"| {prob.model.n_nodes} nodes: iterate | CPU [ms] | " + " | ".join(names) + " | the rest |")
+        print("|---" * (len(names) + 3) + "|")
+        mean = {name: [sum(p.get(name, [0.0, 0])[k] for _, p in rows) / len(rows) for k in (0, 1)] for name in names}
+        for label, total, p in [(str(i + 1), s, p) for i, (s, p) in enumerate(rows)] + \
+                [("mean", float(np.mean([s for s, _ in rows])), mean)]:
+            cells = [f"{1e3 * p[name][0]:.1f} ({p[name][1]:.3g})" if name in p else "—" for name in names]
+            rest = total - sum(p[name][0] for name in names if name in p)
+            print(f"| {label} | {1e3 * total:.1f} | " + " | ".join(cells) + f" | {1e3 * rest:.1f} |", flush=True)
+        print(f"| median | {1e3 * float(np.median([s for s, _ in rows])):.1f} |" + " |" * (len(names) + 1))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--problem", default="gripper")
@@ -320,6 +398,8 @@ def main(argv=None):
     ap.add_argument("--no-control", action="store_true", help="the forward solves alone (no control runs)")
     ap.add_argument("--variant", choices=[name for name, v in VARIANTS.items() if v[-1]], default="now",
                     help="--parts: the solver switches of this variant (default: the shipped code)")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="where each control iterate's CPU time goes, part by part (plain timers)")
     ap.add_argument("--counts", action="store_true",
                     help="count evaluations, solves and factorisations per control iterate, by caller")
     ap.add_argument("--inverse-max-nodes", type=int, default=12000,
@@ -327,6 +407,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     if args.peak_memory:
         return _peak_memory(args.problem, args.peak_memory)
+    if args.breakdown:
+        return _breakdown(args.problem, args.nodes)
     if args.counts:
         return _counts(args.problem, args.nodes)
     if args.parts:

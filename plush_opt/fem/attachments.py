@@ -252,6 +252,7 @@ class TendonPoints:
         extra = sp.vstack(rows).tocsr() if rows else sp.csr_matrix((0, n))
         # flat (interleaved) version: row 2k+d of point k reads dof 2i+d
         self.extra_dofs = sp.kron(extra, sp.identity(2), format="csr")
+        self._extra_T = self.extra_dofs.T      # (a CSC view, built once: to_nodes runs per evaluation)
         # z-dofs -> node dofs: A = [I; extra_dofs], row by row
         self.A = sp.vstack([sp.identity(2 * n, format="csr"), self.extra_dofs]).tocsr()
         self.n_z = 2 * (n + self.n_extra)
@@ -269,7 +270,7 @@ class TendonPoints:
         if self.n_extra == 0:
             return gz
         n2 = 2 * self.n_nodes
-        return gz[:n2] + self.extra_dofs.T @ gz[n2:]
+        return gz[:n2] + self._extra_T @ gz[n2:]
 
     def expand(self, a: np.ndarray, b: np.ndarray, A: sp.csr_matrix | None = None):
         """The node-dof entries of z-space Hessian entries (a_k, b_k):

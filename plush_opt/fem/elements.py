@@ -235,9 +235,8 @@ class ElementP1(Element):
         return rest_area
 
     def jacobians(self, xe, data):
-        d1 = xe[:, 2:4] - xe[:, 0:2]
-        d2 = xe[:, 4:6] - xe[:, 0:2]
-        return (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / (2 * data)
+        x = xe.T              # (one coordinate per row: no (n, 2) temporaries)
+        return ((x[2] - x[0]) * (x[5] - x[1]) - (x[3] - x[1]) * (x[4] - x[0])) / (2 * data)
 
     def jacobian_expression(self, x, elem_dofs, data):
         xe = [x[elem_dofs[:, i].tolist()] for i in range(6)]

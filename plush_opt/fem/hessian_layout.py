@@ -57,6 +57,32 @@ def segment_pairs(seg_dofs: np.ndarray, A: sp.csr_matrix) -> sp.csr_matrix:
     return (pair @ A).tocsr()
 
 
+class _Scatter:
+    """Adds values into a few slots of a long data array: ``add(data, w)``
+    is ``data += np.bincount(slots, w, minlength=len(data))`` bit for bit
+    (each slot's values summed in the same order, from zero), without
+    allocating and adding a whole array for a handful of slots."""
+
+    def __init__(self, slots: np.ndarray):
+        self._where, self._inverse = np.unique(slots, return_inverse=True)
+        self.size = len(slots)
+
+    def add(self, data: np.ndarray, weights: np.ndarray) -> None:
+        data[self._where] += np.bincount(self._inverse, weights=weights, minlength=len(self._where))
+
+
+class _RowScatter:
+    """``data += S @ v`` bit for bit for a sparse S (nnz, m) with few nonzero
+    rows: only those rows are multiplied and added."""
+
+    def __init__(self, S: sp.csr_matrix):
+        self._rows = np.flatnonzero(np.diff(S.indptr))
+        self._S = S[self._rows]
+
+    def add(self, data: np.ndarray, v: np.ndarray) -> None:
+        data[self._rows] += self._S @ v
+
+
 def pair_blocks(K: np.ndarray) -> np.ndarray:
     """M's block of split segments: minus each segment's K (m, 2, 2) on the
     diagonal, (2m, 2m) (and of stand-ins, with either sign)."""
@@ -149,22 +175,23 @@ class HessianLayout:
         self.nnz = len(unique_keys)
         self._keys = unique_keys               # col * n + row of each slot, ascending
         parts = np.split(slot, np.cumsum(sizes)[:-1])
-        self._slot_elem, self._slot_pin = parts[0], parts[1]
-        self._slot = {name: parts[2 + i] for i, (name, _, _) in enumerate(kinds)}
+        self._slot_elem, self._pins = parts[0], _Scatter(parts[1])
+        self._slot = {name: _Scatter(parts[2 + i]) for i, (name, _, _) in enumerate(kinds)}
         self._spread = None
         if spread:
             # the spread entries index the concatenation, kind by kind, of
             # the entries that are not direct
             offsets = np.cumsum([0] + [x[0] for x in spread])
-            self._spread = sp.csr_matrix(
+            self._spread = _RowScatter(sp.csr_matrix(
                 (np.concatenate([x[4] for x in spread]),
                  (np.concatenate(parts[2 + len(kinds):2 + len(kinds) + len(spread)]),
                   np.concatenate([x[1] + o for x, o in zip(spread, offsets)]))),
-                shape=(self.nnz, offsets[-1]))
+                shape=(self.nnz, offsets[-1])))
         if self.low_rank:
             self._build_low_rank()
         if via is not None:
-            self._via_expand = sp.csr_matrix((via_weight, (parts[-1], via_entry)), shape=(self.nnz, 16 * via.count))
+            self._via_expand = _RowScatter(sp.csr_matrix((via_weight, (parts[-1], via_entry)),
+                                                         shape=(self.nnz, 16 * via.count)))
             self._via_pairs = segment_pairs(via.seg_p, via.W) if via.split else None
 
     def with_via(self, via: ViaSegments) -> "HessianLayout":
@@ -243,8 +270,7 @@ class HessianLayout:
         contact), added last.
         A CSC matrix, or a LowRankHessian."""
         data = np.bincount(self._slot_elem, weights=elem_hess, minlength=self.nnz)
-        data += np.bincount(self._slot_pin, weights=np.full(len(self._slot_pin), pin_stiffness),
-                            minlength=self.nnz)
+        self._pins.add(data, np.full(self._pins.size, pin_stiffness))
         if seg_hess is not None:
             K = seg_hess.reshape(-1, 4, 4)[:, :2, :2]
             terms = {"ends": np.concatenate([2 * K, 2 * K]).ravel()} if self.split else {"seg": seg_hess.ravel()}
@@ -254,14 +280,13 @@ class HessianLayout:
             rest = []
             for name, values in terms.items():
                 d = self._direct[name]
-                data += np.bincount(self._slot[name], weights=values if d is None else values[d],
-                                    minlength=self.nnz)
+                self._slot[name].add(data, values if d is None else values[d])
                 if d is not None:
                     rest.append(values[~d])
             if rest:
-                data += self._spread @ np.concatenate(rest)
+                self._spread.add(data, np.concatenate(rest))
         if via_hess is not None:
-            data += self._via_expand @ (2 * via_hess if self.via.split else via_hess).ravel()
+            self._via_expand.add(data, (2 * via_hess if self.via.split else via_hess).ravel())
         outside = []
         for extra in (contact_hess, friction_hess):
             if extra is not None and extra.nnz:
