@@ -35,11 +35,12 @@ def corrected_step(model, c, x: np.ndarray, g: np.ndarray, dx: np.ndarray, facto
     """``dx`` (n_dofs,), the Newton step -F^-1 ``g`` at ``x`` with ``factor``
     F, plus its correction for the curvature of the model's contact terms
     (:func:`remainder`) where one applies; ``dx`` itself where the model has
-    no contact term, nothing is in contact, the whole step is not within
-    the model's step bound, or the corrected step is not a descent
-    direction or its correction exceeds ``CORRECTION_MAX`` of the step."""
+    no contact term, nothing is in contact, the step's end is not
+    admissible for contact, or the corrected step is not a descent
+    direction or its correction exceeds ``CORRECTION_MAX`` of the step.
+    (The line search bounds the corrected step as any other.)"""
     terms = [term for term in getattr(model, "terms", ()) if isinstance(term, ContactTerm)]
-    if not terms or model.max_step(x, dx) < 1.0:
+    if not terms:
         return dx
     r = None
     for term in terms:
