@@ -123,3 +123,13 @@ def test_the_barrier_by_order_gives_the_same_values_and_none_above_it(s):
                 assert np.array_equal(part[k], full[k], equal_nan=True)
             else:
                 assert part[k] is None
+
+
+def test_the_contact_bench_times_the_floor_and_the_pinned_solves_in_turn():
+    from plush_opt.apps.bench_contact import median_times
+    calls = []
+    timed = median_times({"floor": lambda: calls.append("floor") or 1, "pinned": lambda: calls.append("pinned") or 2},
+                         3)
+    assert calls == ["floor", "pinned"] * 3
+    assert [timed[k][2] for k in ("floor", "pinned")] == [1, 2]
+    assert all(wall >= 0 and cpu >= 0 for wall, cpu, _ in timed.values())
