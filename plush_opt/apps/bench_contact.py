@@ -4,8 +4,9 @@ Three measurements, medians of ``repeats`` runs, written to
 ``contact.json`` and ``contact.md``:
 
 * a slab lying on the floor (no pins) against the same slab pinned along
-  its underside without contact, forward solve from rest, at each size:
-  the ratio is what resting on a floor costs;
+  its underside without contact, forward solve from rest, at each size
+  (the two solves in turn, one of each per round): the ratio is what
+  resting on a floor costs;
 * at each size, the contact term alone: boundary nodes, one evaluation
   with its Hessian, and one step bound (CCD), so that how the cost grows
   with the boundary can be read off;
@@ -55,40 +56,50 @@ def slab(on_floor: bool):
     return scene_from_dict(doc, "slab.yaml")
 
 
-def median_times(fn, repeats: int) -> tuple[float, float, object]:
-    """(median wall seconds, median CPU seconds of this process, last
-    result) of ``repeats`` calls of ``fn``: on a shared machine the CPU
-    time says what the work costs, the wall time what a user waits."""
-    wall, cpu, out = [], [], None
+def median_times(fns: dict, repeats: int) -> dict:
+    """Per key of ``fns`` (name -> function of no arguments): (median wall
+    seconds, median CPU seconds of this process, last result) of
+    ``repeats`` calls, the functions called in turn (one call of each per
+    round), so that on a shared machine a burst of other jobs' load falls
+    on both sides of a ratio alike; the CPU time says what the work costs,
+    the wall time what a user waits."""
+    wall = {key: [] for key in fns}
+    cpu = {key: [] for key in fns}
+    out = dict.fromkeys(fns)
     for _ in range(repeats):
-        t, c = time.perf_counter(), time.process_time()
-        out = fn()
-        cpu.append(time.process_time() - c)
-        wall.append(time.perf_counter() - t)
-    return float(np.median(wall)), float(np.median(cpu)), out
+        for key, fn in fns.items():
+            t, c = time.perf_counter(), time.process_time()
+            out[key] = fn()
+            cpu[key].append(time.process_time() - c)
+            wall[key].append(time.perf_counter() - t)
+    return {key: (float(np.median(wall[key])), float(np.median(cpu[key])), out[key]) for key in fns}
 
 
 def floor_row(nodes: int, repeats: int) -> dict:
     """The slab at about ``nodes`` nodes: forward solve on the floor and
-    pinned, and the contact term's own costs."""
+    pinned (in turn), and the contact term's own costs."""
     row = {"target_nodes": nodes}
+    solves, meshes = {}, {}
     for key, on_floor in (("floor", True), ("pinned", False)):
         scene = slab(on_floor)
-        _, mesh = area_for_nodes(scene, nodes)
-        model = Model(scene, mesh)
+        _, meshes[key] = area_for_nodes(scene, nodes)
+        model = Model(scene, meshes[key])
         c = scene.contraction
         solve_equilibrium(model, c, options=NO_EIG)                # warm the kernels
-        seconds, cpu, eq = median_times(lambda: solve_equilibrium(model, c, options=NO_EIG), repeats)
-        row[key] = {"nodes": mesh.n_nodes, "solve_s": seconds, "solve_cpu_s": cpu,
+        solves[key] = (model, c)
+    timed = median_times({key: (lambda m=m, c=c: solve_equilibrium(m, c, options=NO_EIG))
+                          for key, (m, c) in solves.items()}, repeats)
+    for key, (seconds, cpu, eq) in timed.items():
+        row[key] = {"nodes": meshes[key].n_nodes, "solve_s": seconds, "solve_cpu_s": cpu,
                     "newton_iterations": eq.iterations, "converged": bool(eq.converged)}
-        if on_floor:
-            term = model.contact
-            x = eq.x
-            row["boundary_nodes"] = int(len(term.boundary.nodes))
-            row["contact_eval_s"], _ = median_time(lambda: term.evaluate(x, c, 2), repeats)
-            dx = np.random.default_rng(0).standard_normal(x.size) * 0.1
-            row["contact_step_bound_s"], _ = median_time(lambda: model.max_step(x, dx), repeats)
-            row["full_eval_s"], _ = median_time(lambda: model.evaluate(x, c, 2), repeats)
+    model, c = solves["floor"]
+    term = model.contact
+    x = timed["floor"][2].x
+    row["boundary_nodes"] = int(len(term.boundary.nodes))
+    row["contact_eval_s"], _ = median_time(lambda: term.evaluate(x, c, 2), repeats)
+    dx = np.random.default_rng(0).standard_normal(x.size) * 0.1
+    row["contact_step_bound_s"], _ = median_time(lambda: model.max_step(x, dx), repeats)
+    row["full_eval_s"], _ = median_time(lambda: model.evaluate(x, c, 2), repeats)
     row["ratio"] = row["floor"]["solve_s"] / row["pinned"]["solve_s"]
     row["cpu_ratio"] = row["floor"]["solve_cpu_s"] / row["pinned"]["solve_cpu_s"]
     return row
@@ -107,8 +118,8 @@ def hexapod_row(repeats: int) -> dict:
 def render(report: dict) -> str:
     lines = ["# What contact costs", "", f"Reproduce with `{report['command']}`.", "",
              "A 200 x 20 mm slab under its weight lying on a frictionless floor (no pins), against "
-             "the same slab pinned along its underside without contact; forward solve from rest, medians of "
-             f"{report['repeats']} runs (wall time, and this process's CPU time); the contact term's own "
+             "the same slab pinned along its underside without contact; forward solve from rest, the two in turn, "
+             f"medians of {report['repeats']} runs (wall time, and this process's CPU time); the contact term's own "
              "evaluation (with its Hessian) and step bound (CCD) at the floor's equilibrium.", "",
              "| nodes | boundary nodes | floor solve | pinned solve | ratio | CPU floor / pinned | CPU ratio "
              "| Newton its floor / pinned | contact eval | whole eval | step bound |",

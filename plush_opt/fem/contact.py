@@ -268,9 +268,8 @@ class ContactTerm(Term):
             return TermEvaluation(float(energy))
         hessian = {}
         if order == 2:
-            rows = np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64)
-            cols = np.concatenate(cols) if cols else np.zeros(0, dtype=np.int64)
-            vals = np.concatenate(vals) if vals else np.zeros(0)
+            rows, cols, vals = (_joined(a, dtype) for a, dtype in ((rows, np.int64), (cols, np.int64),
+                                                                   (vals, np.float64)))
             hessian = {"contact_hess": Entries(rows, cols, vals, (self.n_dofs, self.n_dofs))}
         # the contact forces in balance (0 where nothing touches: the other terms set the scale)
         return TermEvaluation(float(energy), g, hessian, float(np.linalg.norm(g)))
@@ -281,14 +280,15 @@ class ContactTerm(Term):
         cols, data)."""
         d = self.ground_gaps(x)
         act = np.flatnonzero(d < self.distance)
-        s = d[act] ** 2
-        b, db, d2b = geo.barrier(s, self.dhat2)
+        da = d[act]
+        s = da * da
+        b, db, d2b = geo.barrier(s, self.dhat2, order)
         kw = self.stiffness * self.boundary.weight[act]
         energy = float(np.sum(kw * b))
         if order == 0:
             return energy, None
         n = self._normal
-        grad = (kw * db * 2 * d[act])[:, None] * n[None, :]
+        grad = (kw * db * 2 * da)[:, None] * n[None, :]
         hess = None
         if order == 2:
             curv = kw * (d2b * 4 * s + db * 2)
@@ -416,6 +416,13 @@ def _floor_slope(d0: np.ndarray, rate: float, kw: np.ndarray, distance: float, d
     act = np.flatnonzero(d < distance)
     db = geo.barrier_slope(d[act] ** 2, dhat2)
     return float(np.sum(kw[act] * db * 2 * d[act])) * rate
+
+
+def _joined(parts: list, dtype) -> np.ndarray:
+    """The arrays of ``parts`` end to end (the one itself where there is one)."""
+    if len(parts) == 1:
+        return parts[0]
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
 
 
 def _collect(rows, cols, vals, dofs: np.ndarray, hess: np.ndarray) -> None:

@@ -59,17 +59,18 @@ TO_A, TO_B, INTERIOR = 0, 1, 2
 
 # --- the barrier -------------------------------------------------------------
 
-def barrier(s, dhat2):
+def barrier(s, dhat2, order: int = 2):
     """The IPC barrier on a squared distance ``s`` and its derivatives in s.
 
     b(s) = -(s - dhat2)^2 ln(s / dhat2) for 0 < s < dhat2, 0 for s >= dhat2
     (C2 there: b, b', b'' all vanish), +inf for s <= 0 (derivatives nan).
     ``s`` any shape, ``dhat2`` a scalar or broadcastable; returns
-    ``(b, db/ds, d2b/ds2)`` of the broadcast shape.
+    ``(b, db/ds, d2b/ds2)`` of the broadcast shape, the derivatives above
+    ``order`` (0, 1 or 2) None.
     """
     s = np.asarray(s, float)
-    if np.ndim(dhat2) == 0 and s.ndim == 1 and np.all((s > 0) & (s < dhat2)):
-        return _barrier_inside(s, float(dhat2))        # (every pair active: the common case)
+    if s.ndim == 1 and np.ndim(dhat2) == 0 and (s.size == 0 or (s.min() > 0 and s.max() < dhat2)):
+        return _barrier_inside(s, float(dhat2), order)   # (every pair active: the common case)
     s, h = np.broadcast_arrays(s, np.asarray(dhat2, float))
     b, db, d2b = np.zeros(s.shape), np.zeros(s.shape), np.zeros(s.shape)
     inside = (s > 0) & (s < h)
@@ -77,41 +78,41 @@ def barrier(s, dhat2):
     bad = (s <= 0) | np.isnan(s)
     b[bad] = np.where(np.isnan(s[bad]), np.nan, np.inf)
     db[bad] = d2b[bad] = np.nan
-    return b, db, d2b
+    return b, (db if order >= 1 else None), (d2b if order >= 2 else None)
 
 
 def barrier_slope(s: np.ndarray, dhat2: float) -> np.ndarray:
     """db/ds of :func:`barrier` alone (the same values), for 1-d ``s`` and a
     scalar ``dhat2``: what a force along a path needs, without b and b''."""
-    if not np.all((s > 0) & (s < dhat2)):
+    if not (s.size == 0 or (s.min() > 0 and s.max() < dhat2)):
         return barrier(s, dhat2)[1]
     u = s - dhat2
-    near = s >= LOG1P_FROM * dhat2
-    if np.all(near):
-        ln = np.log1p(u / dhat2)
-    else:
-        ln = np.empty_like(s)
-        ln[near] = np.log1p(u[near] / dhat2)
-        ln[~near] = np.log(s[~near] / dhat2)
     with np.errstate(over="ignore"):
-        return -2.0 * u * ln - u * u / s
+        return -2.0 * u * _log_ratio(s, u, dhat2) - u * u / s
 
 
-def _barrier_inside(s, h):
-    """:func:`barrier` at 0 < s < h (1-d ``s``; ``h`` a scalar or alike)."""
-    u = s - h                                           # < 0, exact near dhat2
+def _log_ratio(s, u, h):
+    """ln(s / h) at 0 < s < h (1-d ``s``; ``u`` = s - h; ``h`` a scalar or
+    alike): from log1p of u / h near h (exact where s -> h), else directly."""
     near = s >= LOG1P_FROM * h
-    if np.all(near):
-        ln = np.log1p(u / h)
-    else:
-        ln = np.empty_like(s)
-        hb = np.broadcast_to(h, s.shape)
-        ln[near] = np.log1p(u[near] / hb[near])
-        ln[~near] = np.log(s[~near] / hb[~near])
+    if near.all():
+        return np.log1p(u / h)
+    ln = np.empty_like(s)
+    hb = np.broadcast_to(h, s.shape)
+    ln[near] = np.log1p(u[near] / hb[near])
+    ln[~near] = np.log(s[~near] / hb[~near])
+    return ln
+
+
+def _barrier_inside(s, h, order: int = 2):
+    """:func:`barrier` at 0 < s < h (1-d ``s``; ``h`` a scalar or alike),
+    the derivatives above ``order`` None."""
+    u = s - h                                           # < 0, exact near dhat2
+    ln = _log_ratio(s, u, h)
     with np.errstate(over="ignore"):                   # s below about 1e-154 dhat2: b'' is inf
         b = -u * u * ln
-        db = -2.0 * u * ln - u * u / s
-        d2b = -2.0 * ln - 4.0 * u / s + (u / s) ** 2
+        db = -2.0 * u * ln - u * u / s if order >= 1 else None
+        d2b = -2.0 * ln - 4.0 * u / s + (u / s) ** 2 if order >= 2 else None
     return b, db, d2b
 
 

@@ -31,6 +31,7 @@ Three forms (Model's ``hessian`` argument):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -307,6 +308,12 @@ class HessianLayout:
             Qv, Mv = self._via_pairs, pair_blocks(via_hess[:, :2, :2])
             Q, M = (Qv, Mv) if Q is None else (sp.vstack([Q, Qv], format="csr"), sla.block_diag(M, Mv))
         return H if Q is None else LowRankHessian(H, Q, M)
+
+    @functools.cached_property
+    def diagonal_slots(self) -> np.ndarray:
+        """(n,) where each diagonal entry (i, i) sits in the pattern's data,
+        -1 where the pattern has none (a gauge reads the diagonal there)."""
+        return self.slots(np.arange(self.n), np.arange(self.n))
 
     def slots(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Where the entries (rows, cols) sit in the pattern's data, -1

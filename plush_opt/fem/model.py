@@ -122,23 +122,32 @@ def sum_terms(terms, layout: HessianLayout, x: np.ndarray, c: np.ndarray, order:
     ev = Evaluation(energy, g, layout.assemble(**hessian), force_scale, True)
     if not gauge:
         return ev
-    ev = gauged(ev, x)
+    ev = gauged(ev, x, layout)
     # a body that falls is moved rigidly next (plush_opt/solve/free_fall.py): keep what it reuses
     return ev if ev.unbalanced is None else replace(ev, parts=tuple(parts))
 
 
-def gauged(ev: Evaluation, x: np.ndarray) -> Evaluation:
-    """``ev`` (order 2, of a body without pins) with the gauge of
-    :mod:`~plush_opt.fem.free_motion` on the rigid motions it leaves free,
-    and the flat ones with a net force along them (``unbalanced``)."""
+def gauged(ev: Evaluation, x: np.ndarray, layout: HessianLayout | None = None) -> Evaluation:
+    """``ev`` (order 2, of a body without pins; its Hessian a fresh
+    assembly, by ``layout`` if given, that nothing else holds: it takes the
+    gauge in place) with the gauge of :mod:`~plush_opt.fem.free_motion` on
+    the rigid motions it leaves free, and the flat ones with a net force
+    along them (``unbalanced``)."""
     if ev.hessian_form is None:
         return ev
-    diagonal = ev.hessian.diagonal()
-    R, U = free_motion.split_motions(ev.hessian, x, ev.gradient, ev.force_scale, diagonal)
+    H = ev.hessian
+    # the layout's own assembly (not one widened by entries outside its
+    # pattern, nor a low-rank form's sum): its diagonal is read off its slots
+    slots = layout.diagonal_slots if layout is not None and H.indptr is layout.indptr else None
+    if slots is not None and np.all(slots >= 0):
+        diagonal = H.data[slots]
+    else:
+        diagonal, slots = H.diagonal(), None
+    R, U = free_motion.split_motions(H, x, ev.gradient, ev.force_scale, diagonal)
     if R.shape[1] == 0 and U.shape[1] == 0:
         return ev
-    H = free_motion.gauge(ev.hessian, R, diagonal) if R.shape[1] else ev.hessian_form
-    return Evaluation(ev.energy, ev.gradient, H, ev.force_scale, True, U if U.shape[1] else None)
+    G = free_motion.gauge(H, R, diagonal, owned=True, diagonal_slots=slots) if R.shape[1] else ev.hessian_form
+    return Evaluation(ev.energy, ev.gradient, G, ev.force_scale, True, U if U.shape[1] else None)
 
 
 def free_motions_at(ev: Evaluation, x: np.ndarray) -> list[str]:

@@ -43,6 +43,7 @@ from ..base.errors import SolverError
 from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
+from .contact_step import corrected_step
 from .free_fall import free_fall
 from .kept_factor import ROUNDOFF_BAND, energy_slack, inexact_first, kept_factor_steps
 
@@ -183,13 +184,14 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
     """Kept-factor steps from the start with the caller's ``chord`` factor
     (a positive definite one of this model): (pose, evaluation, where they
-    began or None). A body nothing holds yet is first moved onto what will
-    (:func:`~plush_opt.solve.free_fall.free_fall`)."""
+    began or None, whether the body fell). A body nothing holds yet is first
+    moved onto what will (:func:`~plush_opt.solve.free_fall.free_fall`)."""
+    start = x
     x, ev = free_fall(model, c, x, ev)
     if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
-        return x, ev, None
+        return x, ev, None, x is not start
     xs, es, steps = kept_factor_steps(model, c, x, ev, chord, options)
-    return xs, es, ((x, ev) if steps else None)
+    return xs, es, ((x, ev) if steps else None), x is not start
 
 
 def _keep_factor(model: Model, c, accepted, alpha: float, g, factor: Factor | None, options: EquilibriumOptions,
@@ -274,15 +276,18 @@ class _Watchdog:
 
 
 def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Factor | None, dog: _Watchdog,
-          keep: bool, options: EquilibriumOptions, it: int):
+          keep: bool, options: EquilibriumOptions, it: int, fell: bool = False):
     """One Newton step from (``x``, ``ev``) with ``step_factor`` (``factor``:
     H's own, or None where it was regularised): the line search, a
     tentative step or the judging of the one before (``dog``), then the
     kept-factor steps (``keep``: allowed). (pose, evaluation, the pose to
     go back to if kept-factor steps were taken, whether they were tried:
-    their inexact step too) or None (line search failed)."""
+    their inexact step too) or None (line search failed). ``fell``: the
+    body fell onto what holds it (the step is corrected for the contact
+    barrier's curvature, :func:`~plush_opt.solve.contact_step.corrected_step`)."""
     g = ev.gradient
     dx = -step_factor.solve(g)
+    dx = corrected_step(model, c, x, g, dx, step_factor) if fell else dx
     accepted, alpha, tentative = _line_search(model, c, x, ev, dx, options, dog.allows(factor))
     log.debug("newton %d: residual %.3e, shift %.3e, step %.3e%s", it, np.linalg.norm(g) / ev.force_scale,
               step_factor.shift, alpha, " (tentative)" if tentative else "")
@@ -324,7 +329,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     if not ev.admissible:
         return Equilibrium(x, c, False, NOT_ADMISSIBLE, np.inf, np.inf, np.nan, False, None, 0,
                            time.perf_counter() - t0, "newton")
-    x, ev, undo = _start_with(model, c, x, ev, chord, options)
+    x, ev, undo, fell = _start_with(model, c, x, ev, chord, options)
     keep, it, escapes = True, 0, 0    # kept-factor steps allowed (until they led to an indefinite H)
     status = f"iteration limit ({options.max_iterations}) reached"
     best: list[float] = []        # relative residual per iteration (stall detection)
@@ -385,7 +390,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
             status = _left_branch(it)
             break
         it += 1
-        stepped = _step(model, c, x, ev, step_factor, factor, dog, keep, options, it)
+        stepped = _step(model, c, x, ev, step_factor, factor, dog, keep, options, it, fell)
         if stepped is None:
             status = LINE_SEARCH_FAILED
             break
