@@ -73,21 +73,18 @@ def _angle_kernel() -> ca.Function:
     return ca.Function("contact_angle", [p, a, b], [ca.atan2(u[0] * v[1] - u[1] * v[0], ca.dot(u, v))])
 
 
-def _inside(point, start, end, groups: np.ndarray, n_points: int):
-    """1 per point-segment pair where the point is inside the closed
-    outline, of those in ``groups``, that the pair's segment belongs to.
+def _winding(point, start, end, groups: np.ndarray, n_points: int):
+    """(g, n_points): 1 where a point is inside a closed outline, by its
+    winding number about it.
 
     Pairs are point-major (pair ``p * m + j``: point p, segment j of m);
-    ``groups`` (g, m) 0/1 says which segments make up each outline; the
-    winding number of each point about each outline decides. The barrier's
-    squared distances are unsigned, so without this a step that carries a
-    body node into an obstacle, or an obstacle corner into the body, lands
-    on a finite energy (IPOPT has no collision detection to stop it)."""
+    ``groups`` (g, m) 0/1 says which segments make up each outline. The
+    barrier's squared distances are unsigned, so without this a step that
+    carries a body node into an obstacle, or an obstacle corner into the
+    body, lands on a finite energy (IPOPT has no collision detection)."""
     m = groups.shape[1]
-    S = ca.DM(groups.astype(float))
     angles = _angle_kernel().map(n_points * m)(point, start, end)
-    winding = S @ ca.reshape(angles, m, n_points)                       # (g, points)
-    return ca.reshape(S.T @ (ca.fabs(winding) > np.pi), 1, n_points * m)
+    return ca.fabs(ca.DM(groups.astype(float)) @ ca.reshape(angles, m, n_points)) > np.pi
 
 
 def obstacle_energy(P, local: np.ndarray, node_weight: np.ndarray, edges, vertex_weights,
@@ -114,14 +111,20 @@ def obstacle_energy(P, local: np.ndarray, node_weight: np.ndarray, edges, vertex
     start = ca.horzcat(ca.DM(oa[edge].T), P[:, local[segment, 0].tolist()])
     end = ca.horzcat(ca.DM(ob[edge].T), P[:, local[segment, 1].tolist()])
     weight = np.concatenate([node_weight[node], ow[vertex]])
-    # a body node inside an obstacle, an obstacle vertex inside the body (its
-    # segments are oriented with the body on their left: winding 1 inside)
+    # a body node inside an obstacle flips its pairs with that obstacle's edges
     n_node_pairs = n_nodes * k
-    owner = np.repeat(np.arange(len(edges)), [len(a) for a, _ in edges])
-    inside = ca.horzcat(
-        _inside(point[:, :n_node_pairs], start[:, :n_node_pairs], end[:, :n_node_pairs],
-                np.equal.outer(np.arange(len(edges)), owner), n_nodes),
-        _inside(point[:, n_node_pairs:], start[:, n_node_pairs:], end[:, n_node_pairs:],
-                np.ones((1, n_segments)), k))
+    owner = np.equal.outer(np.arange(len(edges)), np.repeat(np.arange(len(edges)), [len(a) for a, _ in edges]))
+    node_inside = _winding(point[:, :n_node_pairs], start[:, :n_node_pairs], end[:, :n_node_pairs],
+                           owner, n_nodes)
+    inside = ca.horzcat(ca.reshape(ca.DM(owner.T.astype(float)) @ node_inside, 1, n_node_pairs),
+                        ca.DM.zeros(1, len(weight) - n_node_pairs))
     pairs = _pair_kernel(dhat2).map(len(weight))
-    return stiffness * ca.dot(ca.DM(weight), pairs(point, start, end, inside).T)
+    energy = stiffness * ca.dot(ca.DM(weight), pairs(point, start, end, inside).T)
+    # an obstacle vertex inside the body (whose segments have the body on their
+    # left: winding 1) depends on every boundary node: flagging its pairs would
+    # couple them all in the Hessian, so one term per vertex on one coordinate
+    # says it instead: 0 outside, NaN inside, value and that coordinate's force
+    # (no NaN constant: a zero adjoint times NaN would poison every gradient)
+    vertex_inside = _winding(point[:, n_node_pairs:], start[:, n_node_pairs:], end[:, n_node_pairs:],
+                             np.ones((1, n_segments)), k)
+    return energy + P[0, 0] * ca.sum2(ca.log(1 - 2 * vertex_inside))
