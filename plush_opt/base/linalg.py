@@ -65,13 +65,14 @@ SUPERNODAL_MIN_DOFS = 25_000
 # ... or above this many Hessian entries per unknown at any size: finite
 # tendon attachments on a mesh much finer than their discs make each
 # tendon's Hessian block dense over all its discs' nodes, and there
-# supernodal wins by far (docs/benchmarks.md, "Finite attachments and the
-# factor"). A plain P2 mesh has about 30 entries per unknown.
+# supernodal wins by far (docs/benchmarks.md, "Large meshes"). A plain P2
+# mesh has about 30 entries per unknown.
 SUPERNODAL_MIN_DENSITY = 150
 # The supernodal factor's fill-reducing ordering: METIS's nested dissection
 # leaves less fill than AMD on these 2D meshes and factors about a sixth
-# faster at 30,000 nodes (docs/benchmarks.md); AMD where CHOLMOD was built
-# without METIS, and for the simplicial factor (no faster there).
+# faster at 30,000 nodes (docs/notes/benchmarks-history.md, "At the
+# factorisation floor"); AMD where CHOLMOD was built without METIS, and
+# for the simplicial factor (no faster there).
 SUPERNODAL_ORDERING = "metis"
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
