@@ -306,10 +306,6 @@ def _step(model: Model, c, x, ev: Evaluation, step_factor: Factor, factor: Facto
 LINE_SEARCH_FAILED = "line search failed: no admissible step decreases the energy"
 
 
-#: the status of a solve asked to start at a pose no term admits
-NOT_ADMISSIBLE = "initial pose not admissible (some element has J <= 0)"
-
-
 def _why_not(model: Model, c, x, converged: bool, status: str) -> str:
     """``status``, or for a body without pins that found no equilibrium,
     the net force along a free rigid motion that explains it (it slides)."""
@@ -327,7 +323,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
-        return Equilibrium(x, c, False, NOT_ADMISSIBLE, np.inf, np.inf, np.nan, False, None, 0,
+        return Equilibrium(x, c, False, f"initial pose not admissible ({model.violation(x)})", np.inf, np.inf,
+                           np.nan, False, None, 0,
                            time.perf_counter() - t0, "newton")
     x, ev, undo, fell = _start_with(model, c, x, ev, chord, options)
     keep, it, escapes = True, 0, 0    # kept-factor steps allowed (until they led to an indefinite H)
