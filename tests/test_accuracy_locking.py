@@ -41,11 +41,14 @@ def _fine_p2_distance(scene, mesh, x, contraction, refinements=2):
 def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     """The coarse crescent curled hard (a forward solve at upper 8, lower
     12 mm, from rest by continuation), TOL 0.5. Without the check the run
-    claimed 0.41 there on a P2 level of 1,084 nodes bounded through a P1
-    level's estimate, for a pose 0.60 from a fine P2 solve. Now the
-    P1-based claim is checked against the P2 levels swept at the answer,
-    found wrong, and the run goes on with P2 levels alone: what it claims
-    holds against a fine P2 solve."""
+    claimed the tolerance there on estimates resting on P1 levels (0.41 on
+    a P2 level of 1,084 nodes bounded through a P1 level, for a pose 0.60
+    from a fine P2 solve; or 0.37 on the P1 level of 1,084 nodes, which
+    order the sweep takes depends on the levels' measured solve times).
+    Now every claim that rests on a P1 estimate is checked against the P2
+    levels swept at the answer (there it is refuted: the P1 levels are
+    closer to each other than to P2), and what the run claims holds against
+    a fine P2 solve."""
     from plush_opt.apps.accuracy_run import AccurateSolve
     from plush_opt.solve.accuracy import LEVEL_OPTIONS
     said = []
@@ -59,13 +62,20 @@ def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     p = acc.problem
     p, eq, doc, _ = acc.check(forward(p, {"upper": 8.0, "lower": 12.0}), forward)
     at, rounds = doc["accuracy"]["at_result"], doc["mesh_accuracy"]["at_result"]
-    # an estimate at the answer that rested on P1 levels: checked against P2 there, and refuted
-    refuted = [r["cross_check"] for r in rounds if "cross_check" in r]
-    assert refuted and refuted[0]["element"] == "P2" and refuted[0]["agrees"] is False
-    assert refuted[0]["bound"] is None or refuted[0]["bound"] > 0.5
-    assert any("is not trusted here, the P2 levels go on" in line for line in said)
+    # no claim at an answer rests on a P1 estimate without P2 levels agreeing there
+    for r in rounds:
+        assert r["levels"], r             # every pose here is certified: estimated on the levels
+        used = next(lv for lv in r["levels"] if (lv["element"], lv["n_nodes"]) == (r["element"], r["nodes"]))
+        via = None if used["bound_via"] is None else r["levels"][used["bound_via"]]["element"]
+        if "P1" in (r["element"], via):
+            assert "cross_check" in r and r["cross_check"]["element"] == "P2"
+            assert r["met"] is r["cross_check"]["agrees"]
+            if r["met"]:
+                assert r["cross_check"]["bound"] <= 0.5 and r["estimated_error"] >= r["cross_check"]["bound"]
+    checked = [r["cross_check"] for r in rounds if "cross_check" in r]
+    assert all(c["agrees"] for c in checked) or any("the P2 levels go on" in line for line in said)
     # the answer the run returns, and what it claims there
-    assert eq.converged and at["met"] is True and at["element"] == "P2" and at["estimated_error"] <= 0.5
+    assert eq.converged and at["met"] is True and at["estimated_error"] <= 0.5
     true, n = _fine_p2_distance(load_scene(CRESCENT), p.mesh, eq.x, eq.contraction)
     assert n > 10_000
     assert true <= 0.5, (true, at["estimated_error"])
