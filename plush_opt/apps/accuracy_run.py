@@ -20,8 +20,9 @@ import numpy as np
 
 from ..io import load_scene
 from ..problem import Problem, from_scene, load
-from ..solve.accuracy import choose_levels, summary
-from ..solve.accuracy_check import bounds_at, cheapest_meeting
+from ..base.errors import SceneError
+from ..solve.accuracy import ELEMENT_ORDER, Resolution, choose_levels, default_levels, summary
+from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, cheapest_meeting, seed_level
 
 log = logging.getLogger("plush_opt")
 
@@ -40,6 +41,7 @@ class AccurateSolve:
         self.progress = progress or (lambda line: log.info("%s", line))
         self.scene = load_scene(path)
         self.tol = float(tol)
+        self.refuted = False      # a P1 claim disagreed with P2 at a returned pose: P2 levels alone from then on
         # the levels' estimate solves each mesh's pose at fixed contractions: a history-free plant only
         load(path).plant.require_history_free("--accuracy", "solve without --accuracy (the file's max_area "
                                               "sets the mesh)")
@@ -77,17 +79,29 @@ class AccurateSolve:
             self.progress(f"accuracy: estimating the error at the returned contractions on the "
                           f"{len(self.levels)} levels")
             at = bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction,
-                           self.report["point_coordinates"], start=(p.mesh, eq.x))
+                           self.report["point_coordinates"], start=(p.mesh, eq.x), progress=self.progress)
             used = at[self.index]
+            met, estimate = used.meets(self.tol), _number(used.bound)
+            cross = p2 = None
+            if met and CHECK_ELEMENT not in (used.element, at[used.bound_via].element):
+                # a claim resting on P1 levels' estimates: never without P2 levels agreeing
+                cross, p2 = self._cross_check(at, eq.contraction)
+                met = cross["agrees"]
+                estimate = max(estimate, cross["bound"]) if met else None
             rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
                            "element": used.element, "nodes": used.mesh.n_nodes,
-                           "estimated_error": _number(used.bound), "met": used.meets(self.tol),
-                           "levels": [lv.row() for lv in at]})
-            if used.meets(self.tol) or attempt == MAX_RESOLVES:
+                           "estimated_error": estimate, "met": met, "levels": [lv.row() for lv in at]})
+            if cross is not None:
+                rounds[-1]["cross_check"] = cross
+            if met or attempt == MAX_RESOLVES:
                 break
-            k, extended = cheapest_meeting(at, self.tol), False
-            if k is None:             # no level solved so far meets it there: the sweep goes on, there too
-                k, extended = self._extend(at, eq.contraction), True
+            if p2 is not None:        # the P1 claim refuted: the P2 levels solved there go on
+                best, self.levels, self.report = p2
+                k, extended = (self.levels.index(best) if self.report["reached"] else None), True
+            else:
+                k, extended = cheapest_meeting(at, self.tol), False
+                if k is None:         # no level solved so far meets it there: the sweep goes on, there too
+                    k, extended = self._extend(at, eq.contraction), True
             if k is None:
                 break
             if (self.levels[k].element, self.levels[k].resolution) == (used.element, used.resolution):
@@ -95,7 +109,7 @@ class AccurateSolve:
                     continue
                 break
             resolves += 1
-            est = "no estimate" if used.bound is None else f"estimated {used.bound:.3g}"
+            est = "no estimate" if estimate is None else f"estimated {estimate:.3g}"
             self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes is {est} > "
                           f"{self.tol:g} at the returned contractions: solving again on the {self.levels[k].element} "
                           f"level of {self.levels[k].mesh.n_nodes:,} nodes")
@@ -105,29 +119,88 @@ class AccurateSolve:
             last = rounds[-1]
             at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
             at_result["resolves"] = resolves
+            if "cross_check" in last:
+                at_result["cross_check"] = {k: last["cross_check"][k]
+                                            for k in ("element", "nodes", "distance", "bound", "agrees")}
             at_result["summary"] = at_result_summary(at_result, self.tol)
             doc["accuracy"]["at_result"] = at_result
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
 
+    def _cross_check(self, at, contraction) -> tuple[dict, tuple | None]:
+        """The level in use meets the tolerance at ``contraction`` (``at``:
+        the levels solved there), and its bound rests on a P1 level's
+        estimate (it is P1, or a P2 level bounded through a P1 level). P1
+        levels can agree with each other long before they are right
+        (locking in the bending of thin parts, near a fold), so the claim
+        needs P2 estimates alone: the P2 levels are swept at
+        ``contraction`` (the first from the answer carried over, those
+        already solved there reused) until one meets the tolerance, and the
+        answer's bound through them (its distance to a P2 level plus that
+        level's estimate, :func:`~plush_opt.solve.accuracy_check.bound_through`;
+        a P2 level's own bound among them) must meet it too. Returns (what the check found, for the result:
+        ``element``, ``nodes`` and ``estimated_error`` of the P2 level the
+        bound goes through, ``distance`` to it, ``bound``, ``agrees``,
+        ``levels`` (the rows of the P2 levels solved)); the P2 sweep
+        (best, levels, report), the levels to go on with when the claim is
+        refuted (``self.refuted``), or None if it could not be made)."""
+        used = at[self.index]
+        seeds = {(lv.element, lv.resolution): lv for lv in at if lv.element == CHECK_ELEMENT}
+        first = [Resolution(r["family"], 0, r["family"]) for r in self.report.get("not_solved", ())
+                 if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
+        first = max(first, key=lambda res: res.max_area, default=None) or \
+            default_levels(self.scene, CHECK_ELEMENT)[0]
+        self.progress(f"accuracy: checking the {used.element} level of {used.mesh.n_nodes:,} nodes against "
+                      f"{CHECK_ELEMENT} levels at the returned contractions")
+        c = np.asarray(contraction, dtype=np.float64)
+        found = {"element": CHECK_ELEMENT, "nodes": None, "estimated_error": None, "distance": None,
+                 "bound": None, "agrees": False, "levels": []}
+        try:
+            if not seeds:                # the first P2 level from the answer: the same branch of equilibria
+                lv = seed_level(self.scene, used, c, first, self.report["point_coordinates"])
+                seeds[(CHECK_ELEMENT, first)] = lv
+                self.progress(f"accuracy: {CHECK_ELEMENT} level of {lv.mesh.n_nodes:,} nodes solved from the answer "
+                              f"(one solve {lv.t_solve:.2f} CPU s)")
+            sweep = choose_levels(self.scene, self.tol, contractions=c[None], solved=seeds,
+                                  elements=(CHECK_ELEMENT,), progress=self.progress)
+        except SceneError as exc:      # no certified P2 pose there: no agreement shown, nothing claimed
+            self.refuted = True
+            return {**found, "note": str(exc)}, None
+        same = [lv for lv in sweep[1] if (lv.element, lv.resolution) == (used.element, used.resolution)]
+        bound, via = (same[0].bound, sweep[1][same[0].bound_via]) if same and same[0].bound is not None \
+            else bound_through(used, sweep[1])
+        agrees = bound is not None and bound <= self.tol
+        self.refuted = self.refuted or not agrees
+        found.update(agrees=agrees, bound=bound, levels=[lv.row() for lv in sweep[1]])
+        if via is not None:
+            found.update(nodes=via.mesh.n_nodes, estimated_error=via.estimate,
+                         distance=float(np.max(np.linalg.norm(used.y[-1] - via.y[-1], axis=-1))))
+        said = "not checked: no P2 level has an estimate there" if via is None else (
+            f"{found['distance']:.3g} from the {CHECK_ELEMENT} level of {via.mesh.n_nodes:,} nodes (its estimate "
+            f"{via.estimate:.3g}): bound {bound:.3g}")
+        self.progress(f"accuracy: the {used.element} answer is {said}" + (
+            "" if agrees else f"; {used.element} is not trusted here, the {CHECK_ELEMENT} levels go on"))
+        return found, sweep
+
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``
         (``at``: the levels solved there): the sweep continues at that
         contraction alone, each level solved so far kept with its pose
-        there, and finer levels solved until one meets the tolerance there.
+        there, and finer levels solved until one meets the tolerance there
+        (of P2 alone after a refuted P1 claim).
         (At the probe contractions and ``contraction`` together the largest
         differences can shrink where those at ``contraction`` alone do not:
         the estimate that matters is the one at the returned pose.) Its
         levels and report replace the sweep's; returns the index of the
         cheapest level meeting the tolerance there, or None."""
         c = np.asarray(contraction, dtype=np.float64).reshape(1, -1)
-        seeds = {(here.element, here.resolution): here for here in at}
+        kept = {(here.element, here.resolution): here for here in at}
+        elements = (CHECK_ELEMENT,) if self.refuted else ELEMENT_ORDER
         self.progress(f"accuracy: no level solved meets {self.tol:g} at the returned contractions: "
-                      "the sweep goes on there")
-        best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=c, solved=seeds,
-                                                       progress=self.progress)
+                      "the sweep goes on there" + (f" ({CHECK_ELEMENT} levels)" if self.refuted else ""))
+        best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=c, solved=kept,
+                                                       elements=elements, progress=self.progress)
         return self.levels.index(best) if self.report["reached"] else None
-
 
 def repick(report: dict, levels, k: int) -> dict:
     """The sweep's ``report`` with level ``k`` of ``levels`` in use (its
@@ -150,6 +223,11 @@ def at_result_summary(at_result: dict, tol: float) -> str:
     est = at_result["estimated_error"]
     where = f"{at_result['element']} elements, {at_result['nodes']} nodes"
     again = f" (solved again on it {at_result['resolves']}x)" if at_result["resolves"] else ""
+    cross = at_result.get("cross_check")
+    if cross is not None:
+        again += (f"; no {cross['element']} level with an estimate to check it against" if cross["bound"] is None
+                  else f"; {cross['distance']:.3g} from a {cross['element']} level of {cross['nodes']:,} nodes, "
+                  f"bound through it {cross['bound']:.3g}")
     if at_result["met"]:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
                 f"on {where}{again}")
