@@ -324,8 +324,7 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
         return Equilibrium(x, c, False, f"initial pose not admissible ({model.violation(x)})", np.inf, np.inf,
-                           np.nan, False, None, 0,
-                           time.perf_counter() - t0, "newton")
+                           np.nan, False, None, 0, time.perf_counter() - t0, "newton")
     x, ev, undo, fell = _start_with(model, c, x, ev, chord, options)
     keep, it, escapes = True, 0, 0    # kept-factor steps allowed (until they led to an indefinite H)
     status = f"iteration limit ({options.max_iterations}) reached"
