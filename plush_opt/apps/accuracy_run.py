@@ -83,8 +83,10 @@ class AccurateSolve:
             used = at[self.index]
             met, estimate = used.meets(self.tol), _number(used.bound)
             cross = p2 = None
-            if met and CHECK_ELEMENT not in (used.element, at[used.bound_via].element):
-                # a claim resting on P1 levels' estimates: never without P2 levels agreeing
+            via = used if used.bound_via is None else at[used.bound_via]
+            if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
+                # a claim resting on a P1 level's estimate (a P1 answer, or a P2 one
+                # bounded through P1): never without P2 levels agreeing
                 cross, p2 = self._cross_check(at, eq.contraction)
                 met = cross["agrees"]
                 estimate = max(estimate, cross["bound"]) if met else None
