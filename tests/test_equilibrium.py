@@ -5,7 +5,7 @@ import pytest
 
 from plush_opt.solve.equilibrium import EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from plush_opt.base.errors import SolverError
-from factor_counts import counting_factorisations
+from plush_opt.apps.timing import counting_factorisations
 from shipped import PROBLEMS, body_size, built
 
 LEVELS = (0.1, 0.4, 0.8)   # fractions of each winch's range

@@ -10,11 +10,11 @@ import logging
 import numpy as np
 import scipy.sparse as sp
 
+from plush_opt.apps.timing import counting_factorisations
 from plush_opt.fem.model import Evaluation
 from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
-from factor_counts import counting_factorisations
 from shipped import body_size, built
 
 

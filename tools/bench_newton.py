@@ -68,6 +68,7 @@ from pathlib import Path
 
 import numpy as np
 
+from plush_opt.apps.timing import counting_factorisations
 from plush_opt.base import linalg
 from plush_opt.control.gradient import Controller
 from plush_opt.fem import mapped
@@ -101,19 +102,8 @@ def _switch(values) -> None:
         setattr(_HOME[name], name, value)
 
 
-def _counting(model) -> dict:
-    count = {"n": 0}
-    plain = model.factorizer.factor
-
-    def factor(H, shift=0.0):
-        count["n"] += 1
-        return plain(H, shift)
-    model.factorizer.factor = factor
-    return count
-
-
 def _forward(model, c) -> dict:
-    count = _counting(model)
+    count = counting_factorisations(model)
     try:
         t = time.process_time()
         eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
@@ -128,7 +118,7 @@ def _control(model, targets) -> dict:
     ctl = Controller(model, targets)
     steps = ctl.iterates()
     next(steps)                                   # the starting solve
-    count = _counting(model)
+    count = counting_factorisations(model)
     times = []
     try:
         t = time.process_time()

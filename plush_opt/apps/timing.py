@@ -1,5 +1,6 @@
-"""Timings for the benchmarks: the median of repeated calls, and the CPU
-time of a function's calls inside a larger one."""
+"""Timings for the benchmarks: the median of repeated calls, the CPU time
+of a function's calls inside a larger one, and a model's factorisations
+counted."""
 
 from __future__ import annotations
 
@@ -30,3 +31,12 @@ def timed_into(parts: dict, fn, seconds: str, count: str | None = None):
             if count is not None:
                 parts[count] += 1
     return call
+
+
+def counting_factorisations(model) -> dict:
+    """Wrap ``model``'s factoriser so that each factorisation adds 1 to the
+    returned ``{"n": ..., "s": ...}`` and its CPU seconds to ``"s"``;
+    ``del model.factorizer.factor`` restores it."""
+    count = {"n": 0, "s": 0.0}
+    model.factorizer.factor = timed_into(count, model.factorizer.factor, "s", "n")
+    return count
