@@ -165,6 +165,16 @@ def unbalanced_at(ev: Evaluation, x: np.ndarray) -> str | None:
     return free_motion.unbalanced(ev.hessian, x, ev.gradient, ev.force_scale)
 
 
+def violation_of(terms, x) -> str | None:
+    """Why ``x`` (flat) is not admissible for ``terms``, in words (the first
+    term that refuses it: an inverted element, a gap <= 0, a crossing), or
+    None."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        return "the pose is not finite"
+    return next((why for why in (term.violation(x) for term in terms) if why), None)
+
+
 class HeldTerms:
     """What :func:`~plush_opt.solve.equilibrium.solve_equilibrium` needs of
     a model, for ``terms`` (a model's terms with some held at a state: the
@@ -188,6 +198,10 @@ class HeldTerms:
         return sum_terms(self.terms, self.layout, np.asarray(x, dtype=np.float64).reshape(-1),
                          np.asarray(c, dtype=np.float64).reshape(-1), 2, gauge=self.unpinned,
                          moved_from=moved_from)
+
+    def violation(self, x) -> str | None:
+        """Why ``x`` is not admissible (see :meth:`Model.violation`), or None."""
+        return violation_of(self.terms, x)
 
     def max_step(self, x, dx) -> float:
         """The smallest of the terms' (see :meth:`Model.max_step`)."""
@@ -375,10 +389,7 @@ class Model:
     def violation(self, x) -> str | None:
         """Why ``x`` is not admissible, in words (the first term that
         refuses it: an inverted element, a gap <= 0, a crossing), or None."""
-        x = np.asarray(x, dtype=np.float64).reshape(-1)
-        if not np.all(np.isfinite(x)):
-            return "the pose is not finite"
-        return next((why for why in (term.violation(x) for term in self.terms) if why), None)
+        return violation_of(self.terms, x)
 
     def max_step(self, x, dx) -> float:
         """The largest fraction in (0, 1] of the step ``dx`` from the

@@ -510,6 +510,11 @@ def test_a_pose_that_inverts_an_element_is_not_admissible():
         assert not eq.converged
         # both backends name the element
         assert eq.status == "initial pose not admissible (element 5 is inverted or degenerate (J = -1 <= 0))"
+    # so does Newton on held terms (what the friction plants solve), not only on a Model
+    held = model_module.HeldTerms(model, model.terms, model.hessian_layout, model.factorizer)
+    eq = solve_equilibrium(held, [3.0], x, options=eq_options("newton"))
+    assert not eq.converged
+    assert eq.status == "initial pose not admissible (element 5 is inverted or degenerate (J = -1 <= 0))"
 
 
 @pytest.mark.parametrize("backend", BACKEND_PARAMS)
