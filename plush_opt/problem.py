@@ -198,9 +198,7 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
     if mesh is None:
         if accuracy is not None:
             from .solve.accuracy import choose_mesh
-            # the levels solve each mesh's pose at fixed contractions: a history-free plant only
-            from_scene(scene).plant.require_history_free("accuracy", "load without accuracy (the file's "
-                                                         "max_area sets the mesh)")
+            # (where the pose depends on the path, each probe's pose is the plant's fresh path there)
             mesh, report = choose_mesh(scene, accuracy)
             if mesh.element.name != scene.element:
                 scene = dataclasses.replace(scene, element=mesh.element.name)

@@ -109,20 +109,6 @@ def test_a_pose_that_is_not_certified_is_never_claimed_within_the_tolerance(monk
     assert "NOT met: no estimate" in at["summary"]
 
 
-def test_accuracy_with_friction_is_refused_in_one_line(tmp_path):
-    """The levels' estimate solves each mesh at the contractions alone; with
-    friction at via points the pose depends on the path: refused (exit 2),
-    one line naming the key, no result claimed."""
-    out = tmp_path / "r.json"
-    p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(ROOT / "problems" / "gripper_friction.yaml"),
-                        "--accuracy", "1", "--out", str(out)], capture_output=True, text=True, cwd=ROOT, timeout=300)
-    assert p.returncode == 2
-    lines = p.stderr.strip().splitlines()
-    assert len(lines) == 1 and "tendons.friction: --accuracy" in lines[0] and "Traceback" not in p.stderr
-    assert "solve without --accuracy" in lines[0]
-    assert not out.exists()
-
-
 def test_the_guarantee_on_the_cantilever_at_tolerance_1():
     """tools/accuracy_guarantee.py's row: ``solve --accuracy 1`` exits 0
     claiming the tolerance at its answer, the returned pose is within 1 of
@@ -153,12 +139,3 @@ def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
     assert doc["converged"] is False and "converged to the round-off floor" not in doc["status"]
     assert doc["accuracy"]["status"] == "explicit_mesh" and doc["accuracy"]["estimated_error"] is None
 
-
-def test_load_with_accuracy_refuses_friction_too():
-    """The Python API says what the command says (it estimated the
-    frictionless model and claimed "met" before)."""
-    import plush_opt
-    from plush_opt.base.errors import SceneError
-    with pytest.raises(SceneError, match=r"^gripper_friction.yaml: tendons.friction: accuracy solves for the pose "
-                                         r"at the final contractions alone"):
-        plush_opt.load(ROOT / "problems" / "gripper_friction.yaml", accuracy=1.0)

@@ -23,6 +23,8 @@ from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
 from ..solve.accuracy import ELEMENT_ORDER, Resolution, choose_levels, default_levels, summary
 from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, cheapest_meeting, seed_level
+from ..solve.accuracy_path import extend_along, levels_along
+from ..solve.plant import path_dependent
 
 log = logging.getLogger("plush_opt")
 
@@ -42,15 +44,17 @@ class AccurateSolve:
         self.scene = load_scene(path)
         self.tol = float(tol)
         self.refuted = False      # a P1 claim disagreed with P2 at a returned pose: P2 levels alone from then on
-        # the levels' estimate solves each mesh's pose at fixed contractions: a history-free plant only
-        load(path).plant.require_history_free("--accuracy", "solve without --accuracy (the file's max_area "
-                                              "sets the mesh)")
+        # friction: each level's pose is the end of a path (the sweep's: fresh paths from the start
+        # state; at the returned pose: the returned path replayed), and P2 levels alone (the check of
+        # P1 claims against P2 solves at fixed contractions)
+        self.path_dependent = path_dependent(self.scene)
         if self.scene.outline is None:        # an explicit mesh: nothing to choose, nothing to check
             self.levels = None
             self.problem = load(path, accuracy=tol)
             return
         self.progress(f"accuracy: choosing the element and mesh for tolerance {tol:g} (a sweep of mesh levels)")
-        best, self.levels, self.report = choose_levels(self.scene, tol, progress=self.progress)
+        elements = (CHECK_ELEMENT,) if self.path_dependent else ELEMENT_ORDER
+        best, self.levels, self.report = choose_levels(self.scene, tol, elements=elements, progress=self.progress)
         self.problem = self._problem(self.levels.index(best))
 
     def _problem(self, k: int) -> Problem:
@@ -78,8 +82,7 @@ class AccurateSolve:
                 break
             self.progress(f"accuracy: estimating the error at the returned contractions on the "
                           f"{len(self.levels)} levels")
-            at = bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction,
-                           self.report["point_coordinates"], start=(p.mesh, eq.x), progress=self.progress)
+            at, waypoints = self._levels_at(p, eq, doc["method"], history)
             used = at[self.index]
             met, estimate = used.meets(self.tol), _number(used.bound)
             cross = p2 = None
@@ -93,6 +96,9 @@ class AccurateSolve:
             rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
                            "element": used.element, "nodes": used.mesh.n_nodes,
                            "estimated_error": estimate, "met": met, "levels": [lv.row() for lv in at]})
+            if self.path_dependent:
+                rounds[-1]["path"] = "the plant's fresh path from the start state" if waypoints is None else \
+                    f"the returned path replayed ({len(waypoints)} waypoints)"
             if cross is not None:
                 rounds[-1]["cross_check"] = cross
             if met or attempt == MAX_RESOLVES:
@@ -102,7 +108,9 @@ class AccurateSolve:
                 k, extended = (self.levels.index(best) if self.report["reached"] else None), True
             else:
                 k, extended = cheapest_meeting(at, self.tol), False
-                if k is None:         # no level solved so far meets it there: the sweep goes on, there too
+                if k is None and self.path_dependent:     # finer levels, the path replayed on each
+                    k, extended = self._extend_along(at, waypoints, eq.contraction), True
+                elif k is None:       # no level solved so far meets it there: the sweep goes on, there too
                     k, extended = self._extend(at, eq.contraction), True
             if k is None:
                 break
@@ -121,6 +129,8 @@ class AccurateSolve:
             last = rounds[-1]
             at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
             at_result["resolves"] = resolves
+            if "path" in last:
+                at_result["path"] = last["path"]
             if "cross_check" in last:
                 at_result["cross_check"] = {k: last["cross_check"][k]
                                             for k in ("element", "nodes", "distance", "bound", "agrees")}
@@ -183,6 +193,33 @@ class AccurateSolve:
         self.progress(f"accuracy: the {used.element} answer is {said}" + (
             "" if agrees else f"; {used.element} is not trusted here, the {CHECK_ELEMENT} levels go on"))
         return found, sweep
+
+    def _levels_at(self, p, eq, method: str, history):
+        """The sweep's levels solved at the returned pose (``eq`` on ``p``)
+        and estimated there, and the path replayed on them (None: none, or
+        a forward solve's fresh path): where the pose depends on the path,
+        each level replays the one ``eq`` was reached by (the control run's
+        iterates ``history``), else each is solved at its contractions."""
+        points = self.report["point_coordinates"]
+        if not self.path_dependent:
+            return bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction, points,
+                             start=(p.mesh, eq.x), progress=self.progress), None
+        waypoints = None if method == "forward" else np.array([it.contraction for it in history])
+        return levels_along(self.scene, self.levels, waypoints, eq.contraction, points, answer=(p.mesh, eq.x),
+                            progress=self.progress), waypoints
+
+    def _extend_along(self, at, waypoints, contraction) -> int | None:
+        """:meth:`_extend` where the pose depends on the path: the default
+        levels not solved yet, the returned path replayed on each
+        (:func:`~plush_opt.solve.accuracy_path.extend_along`); they replace
+        the sweep's levels. Returns the index of the cheapest level meeting
+        the tolerance along the path, or None."""
+        self.progress(f"accuracy: no level solved meets {self.tol:g} at the end of the returned path: "
+                      "finer levels, the path replayed on each")
+        self.levels, k = extend_along(self.scene, at, waypoints, contraction, self.report["point_coordinates"],
+                                      self.tol, CHECK_ELEMENT, progress=self.progress)
+        self.report = {**self.report, "picked": None}      # indices of the sweep's levels no longer hold
+        return k
 
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``

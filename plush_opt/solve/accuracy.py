@@ -58,6 +58,7 @@ from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
+from .plant import make_plant, path_dependent
 
 log = logging.getLogger(__name__)
 
@@ -213,6 +214,9 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         return None
     model = build_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
+    # where the pose depends on the path (friction), the pose at c is the plant's: the end of a
+    # fresh path from the scene's start state (a pose alone is no start: x0 is not used)
+    plant = make_plant(model) if path_dependent(scene) else None
     # the cost: one solve from rest at the file's contractions (a plain solve on this mesh),
     # not at a probe (a returned contraction can be far from rest, and its cold solve slow)
     timed = scene.contraction
@@ -221,13 +225,14 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     except NotPositiveDefinite:   # (analysed all the same)
         pass
     t0 = time.process_time()          # CPU seconds: the cost, whatever else runs on the machine
-    cold = solve_equilibrium(model, timed, None, options)
+    cold = solve_equilibrium(model, timed, None, options) if plant is None else \
+        plant.equilibrium(timed, options=options)
     t_solve = time.process_time() - t0
     poses, ys = [], []
     for j, c in enumerate(cs):
-        x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
+        x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None and plant is None else None
         eq = cold if x0 is None and np.array_equal(c, timed) and cold.converged else \
-            equilibrium_at(model, c, x0, options)
+            equilibrium_at(model, c, x0, options) if plant is None else plant.equilibrium(c, options=options)
         if not eq.converged:
             raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction "
                              f"{c.tolist()} on the {scene.element} mesh with max_area "

@@ -33,7 +33,15 @@ from .friction_plant import FrictionPlant
 from .friction_solve import path_record, segment_table
 from .plant_base import Plant
 
-__all__ = ["ContactFrictionPlant", "ElasticPlant", "FrictionPlant", "Plant", "make_plant", "path_record", "segment_table"]
+__all__ = ["ContactFrictionPlant", "ElasticPlant", "FrictionPlant", "Plant", "make_plant", "path_dependent",
+           "path_record", "segment_table"]
+
+
+def path_dependent(scene) -> bool:
+    """Whether ``scene``'s plant is path-dependent (friction at via points
+    or at contacts), read off the scene alone: what :func:`make_plant`
+    decides, without building the model."""
+    return bool(friction_tendons(scene)) or (scene.contact is not None and scene.contact.friction > 0)
 
 
 def make_plant(model: Model, *, segmented: bool = False) -> "Plant":

@@ -1,0 +1,142 @@
+"""The error estimate of ``--accuracy`` where the pose depends on the path
+(friction at via points or at contacts: a path-dependent plant, docs/plant.md).
+
+There the returned pose is the end of a path: for a control run, its
+starting state (reached from the scene's start state) and its accepted
+iterates, each driven from the one before; for a forward solve, the plant's
+fresh path from the scene's start state to the contractions. The error of
+the returned pose is the error of that path's end, so every mesh level
+replays the same path (:func:`replay`), and the levels' ends are estimated
+as :func:`~plush_opt.solve.accuracy_check.bounds_at` estimates the levels'
+poses at the returned contractions (:func:`levels_along`). Where no level
+meets the tolerance there, the sweep's default levels not solved yet are
+replayed, coarse to fine, until one does (:func:`extend_along`). The sweep
+that picks the mesh in the first place solves each probe contraction by the
+plant's fresh path (:func:`~plush_opt.solve.accuracy._solve_level`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from ..base.errors import SceneError
+from ..fem.mesh import build_mesh
+from ..fem.model import build_model
+from ..fem.objective import Targets
+from ..io.scene import Scene
+from .accuracy import GRADED, LEVEL_OPTIONS, Level, bound_errors, default_levels, estimate_levels
+from .equilibrium import Equilibrium, EquilibriumOptions
+from .plant import make_plant
+from .plant_base import Plant
+
+#: where a replayed pose says it came from (the result's ``friction_path.from``)
+REPLAY_ORIGIN = "the returned path replayed on another mesh level (--accuracy)"
+
+
+def replay(plant: Plant, waypoints, contraction, options: EquilibriumOptions | None = None) -> Equilibrium:
+    """The end of a path on ``plant``'s mesh, with its own history (a fork).
+
+    ``waypoints`` ((m, n_winches) contractions): the first reached from the
+    scene's start state, each next driven from the state before and
+    committed, as the control loop drives its iterates; the end certified as
+    the loop certifies its own (:meth:`Plant.finish`). ``waypoints`` None: a
+    forward solve's path, the plant's fresh path from the scene's start
+    state to ``contraction`` (:meth:`Plant.equilibrium`). A step that does
+    not converge ends the replay with its equilibrium (not converged)."""
+    options = options or LEVEL_OPTIONS
+    plant = plant.fork()
+    if waypoints is None:
+        return plant.equilibrium(np.asarray(contraction, dtype=np.float64), options=options)
+    waypoints = np.asarray(waypoints, dtype=np.float64)
+    if len(waypoints) == 0:
+        raise SceneError("accuracy: the returned pose has no path to replay (a control run without iterates)")
+    eq = None
+    for c in waypoints:
+        eq = plant.drive(c, None, options, origin=REPLAY_ORIGIN)
+        if not eq.converged:
+            return eq
+        plant.commit(eq)
+    return plant.finish(eq, waypoints, options, origin=REPLAY_ORIGIN)
+
+
+def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, options) -> Level:
+    """``lv``'s mesh with the path replayed on it: a new :class:`Level`
+    (one pose, ``y`` (1, k, 2)); a :class:`SceneError` if its end is not
+    certified."""
+    s = dataclasses.replace(scene, element=lv.element)
+    eq = replay(make_plant(build_model(s, lv.mesh)), waypoints, contraction, options)
+    if not eq.converged:
+        raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
+                         f"{lv.mesh.n_nodes} nodes does not reach a certified pose: {eq.status}")
+    y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None]
+    return dataclasses.replace(lv, poses=[eq.x], y=y, difference_to_next=None, ratio=None, estimate=None,
+                               confirmed=False, bound=None, bound_via=None)
+
+
+def _estimated(levels: list[Level]) -> list[Level]:
+    for element in dict.fromkeys(lv.element for lv in levels):
+        estimate_levels([lv for lv in levels if lv.element == element])
+    bound_errors(levels)
+    return levels
+
+
+def levels_along(scene: Scene, levels: list[Level], waypoints, contraction, points, answer=None,
+                 options: EquilibriumOptions | None = None, progress=None) -> list[Level]:
+    """The sweep's ``levels`` with the returned path replayed on each
+    (:func:`replay`; ``waypoints`` None: a forward solve's fresh path to
+    ``contraction``), estimated there: new :class:`Level` objects in the same
+    order, as :func:`~plush_opt.solve.accuracy_check.bounds_at` returns
+    them. ``answer`` = (mesh, flat pose): the path's end on the mesh it was
+    solved on, taken as that level's pose (no replay). ``progress(line)``
+    hears of each level replayed."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    out = []
+    for lv in levels:
+        if answer is not None and answer[0] is lv.mesh:
+            y = Targets.at_points(lv.mesh, points, points).y(answer[1])[None]
+            out.append(dataclasses.replace(lv, poses=[answer[1]], y=y, difference_to_next=None, ratio=None,
+                                           estimate=None, confirmed=False, bound=None, bound_via=None))
+            continue
+        t0 = time.perf_counter()
+        out.append(_level_along(scene, lv, waypoints, contraction, points, options or LEVEL_OPTIONS))
+        if progress is not None:
+            progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes: the returned path replayed "
+                     f"in {time.perf_counter() - t0:.1f} s")
+    return _estimated(out)
+
+
+def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, tol: float, element: str,
+                 options: EquilibriumOptions | None = None, progress=None) -> tuple[list[Level], int | None]:
+    """No level of ``at`` (the levels with the path replayed,
+    :func:`levels_along`) meets ``tol``: the default levels of ``element``
+    not among them are meshed, timed as a sweep's level (one solve by the
+    plant's fresh path at the scene's contractions) and replayed, coarse to
+    fine, until one meets ``tol``. Returns (``at`` and the levels added, the
+    index of the cheapest level meeting ``tol`` or None)."""
+    options = options or LEVEL_OPTIONS
+    done = {(lv.element, lv.resolution) for lv in at}
+    s = dataclasses.replace(scene, element=element)
+    levels = list(at)
+    for res in default_levels(scene, element):
+        if (element, res) in done:
+            continue
+        t0 = time.perf_counter()
+        mesh = build_mesh(s, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=False)
+        t_mesh = time.perf_counter() - t0
+        plant = make_plant(build_model(s, mesh))
+        t1 = time.process_time()
+        cold = plant.equilibrium(scene.contraction, options=options)
+        t_solve = time.process_time() - t1
+        lv = Level(element, res, mesh, t_mesh, t_solve, cold.iterations, [], np.empty((0, 0, 2)))
+        levels.append(_level_along(scene, lv, waypoints, contraction, points, options))
+        if progress is not None:
+            progress(f"accuracy: {element} level of {mesh.n_nodes:,} nodes added: the returned path replayed "
+                     f"in {time.perf_counter() - t0:.1f} s")
+        levels.sort(key=lambda lv: (lv.element, lv.mesh.n_nodes))
+        meeting = [i for i, lv in enumerate(_estimated(levels)) if lv.meets(tol)]
+        if meeting:
+            return levels, min(meeting, key=lambda i: levels[i].t_solve)
+    return levels, None

@@ -1,0 +1,100 @@
+"""``--accuracy`` where the pose depends on the path (friction at via points):
+the sweep's probe poses are the plant's fresh paths, and at the returned
+pose every level replays the path it was reached by
+(plush_opt/solve/accuracy_path.py; docs/accuracy.md, "With friction").
+
+problems/gripper_friction.yaml on a coarse mesh keeps them fast.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from plush_opt import load
+from shipped import ROOT, with_max_area
+
+FRICTION = ROOT / "problems" / "gripper_friction.yaml"
+COARSE = 150.0          # max_area (mm^2): ~140 nodes, enough for the stick/slip paths
+SAME = 1e-6             # poses reached by the same path agree to solver tolerance (mm)
+HISTORY = 1e-3          # poses reached by other paths (or without friction) differ by more (mm)
+
+
+@pytest.fixture(scope="module")
+def friction_problem():
+    return load(FRICTION, max_area=COARSE)
+
+
+def test_replay_reaches_the_control_runs_answer_and_the_path_matters(friction_problem):
+    """The returned path (the control run's start and accepted iterates)
+    replayed on the answer's own mesh gives the answer back; the fresh path
+    straight to the same contractions gives another pose, so replaying is
+    what makes the levels comparable."""
+    from plush_opt.control import ControlOptions
+    from plush_opt.solve.accuracy_path import replay
+    from plush_opt.solve.plant import make_plant
+    p = friction_problem
+    res = p.control("reparam", options=ControlOptions(max_iterations=4))
+    assert res.equilibrium.converged and len(res.history) >= 3
+    waypoints = np.array([it.contraction for it in res.history])
+    plant = make_plant(p.model)
+    c = res.equilibrium.contraction
+    again = replay(plant, waypoints, c)
+    assert again.converged
+    assert np.max(np.abs(again.x - res.equilibrium.x)) < SAME
+    fresh = replay(plant, None, c)
+    assert fresh.converged and np.max(np.abs(fresh.x - res.equilibrium.x)) > HISTORY
+    assert plant.state is None          # the replay ran on a fork: nothing committed to the plant given
+
+
+def test_a_sweeps_probe_pose_is_the_plants_fresh_path(friction_problem):
+    """A level of the sweep solves each probe contraction by the plant's
+    fresh path from the start state (what ``Problem.equilibrium`` gives),
+    not by the frictionless model's equilibrium (what it did before, and
+    claimed the tolerance for a model the scene does not have)."""
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS, Resolution, _solve_level, probe_points
+    from plush_opt.problem import from_scene
+    from plush_opt.solve.equilibrium import solve_equilibrium
+    p = friction_problem
+    given = {"left": 12.0, "grip": 10.0}
+    c = p.contraction_vector(given)
+    points, _ = probe_points(p.scene)
+    level = _solve_level(p.scene, Resolution(COARSE, 0, COARSE), c[None], points, None, LEVEL_OPTIONS)
+    on_level = from_scene(p.scene, level.mesh)
+    x = level.poses[0]
+    assert np.max(np.abs(x - on_level.equilibrium(given).x)) < SAME
+    assert np.max(np.abs(x - solve_equilibrium(on_level.model, c).x)) > HISTORY
+
+
+@pytest.mark.slow          # a sweep of friction paths at four contractions on six levels
+def test_load_with_accuracy_chooses_the_mesh_on_the_friction_plants_poses(tmp_path):
+    """The Python API no longer refuses a friction scene: its mesh is chosen
+    on the plant's fresh paths to the probe contractions (the poses
+    ``Problem.equilibrium`` returns)."""
+    p = load(with_max_area(FRICTION, tmp_path, COARSE, "gripper_friction.yaml"), accuracy=20.0)
+    assert p.mesh_report["status"] == "met" and p.mesh_report["element"] in ("P1", "P2")
+    assert p.plant.path_dependent
+
+
+@pytest.mark.slow          # a sweep of friction paths and the control run's path replayed on each level (~15 CPU s)
+def test_solve_accuracy_on_a_friction_scene_replays_the_returned_path(tmp_path):
+    """``solve --accuracy`` on a friction scene (refused before): P2 levels,
+    the estimate at the returned pose made along the returned path (the
+    result says so, and how many waypoints it has: the run's start and its
+    accepted iterates, as its ``friction_path`` records them)."""
+    out = tmp_path / "r.json"
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(ROOT / "tests" / "data" / "friction_strip.yaml"),
+                        "--accuracy", "1", "--out", str(out)], capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert "Traceback" not in p.stderr and "the returned path replayed" in p.stderr
+    doc = json.loads(out.read_text())
+    at = doc["accuracy"]["at_result"]
+    assert at["met"] is True and at["estimated_error"] <= 1.0 and at["element"] == "P2"
+    assert at["path"] == f"the returned path replayed ({len(doc['friction_path']['contractions'])} waypoints)"
+    assert doc["friction_path"]["from"].startswith("the control run's starting state")
+    levels = doc["mesh_accuracy"]["at_result"][-1]["levels"]
+    assert len(levels) >= 3 and all(lv["element"] == "P2" for lv in levels)
