@@ -19,7 +19,9 @@ For each scene and tolerance (one row, run in its own process, at most
    the one before: the same branch of equilibria), refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
-   TOL, or until REF_MAX_NODES.
+   TOL, or until REF_MAX_NODES. Where the pose depends on the path
+   (friction), each level replays the path the returned pose was reached
+   by (its ``friction_path``) instead.
 3. The returned pose's error against it: the largest distance of the
    compared points (the targets, else the tendon stoppers and the scene's
    points, as docs/accuracy.md defines them; what the guarantee covers), and
@@ -88,9 +90,14 @@ def parse_scene(spec: str) -> tuple[Path, list[str]]:
 
 # -- one row, in its own process -------------------------------------------------------------------
 
-def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float):
+def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float, waypoints=None):
     """The P2 reference at ``contraction``: (mesh, pose, own estimated error
-    or None, finest nodes). See the module's docstring, step 2."""
+    or None, finest nodes). See the module's docstring, step 2. Where the
+    pose depends on the path (friction), each level replays the returned
+    path instead (``waypoints``: the control run's start and iterates; None:
+    a forward solve's fresh path; plush_opt.solve.accuracy_path.replay)."""
+    from plush_opt.solve.accuracy_path import replay
+    from plush_opt.solve.plant import make_plant, path_dependent
     from plush_opt.fem.mesh import build_mesh
     from plush_opt.fem.model import build_model
     from plush_opt.fem.objective import Targets
@@ -109,7 +116,8 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
         if m.n_nodes > REF_MAX_NODES:
             break
         model = build_model(s, m)
-        eq = equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
+        eq = replay(make_plant(model), waypoints, contraction) if path_dependent(scene) else \
+            equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
         mesh, x = m, eq.x
@@ -220,7 +228,10 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     row["ratio"] = row["cpu_accuracy_s"] / (row["cpu_plain_s"] + row["cpu_levels_s"])
     # the reference at the returned contractions
     partial(row, "the reference")
-    ref_mesh, x_ref, own = reference(scene, c, mesh, x, mesh.n_nodes, tol)
+    # friction: the reference replays the path the returned pose was reached by (its friction_path)
+    waypoints = None if doc["method"] == "forward" or "friction_path" not in doc else \
+        np.array([[row[n] for n in names] for row in doc["friction_path"]["contractions"]])
+    ref_mesh, x_ref, own = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints)
     points, _ = probe_points(scene)
     y = Targets.at_points(mesh, points, points).y(x)
     y_ref = Targets.at_points(ref_mesh, points, points).y(x_ref)
