@@ -18,8 +18,11 @@ how the winches got there), so a plant keeps a **committed state** and
   history, so that one problem can serve several histories.
 
 :func:`make_plant` is the one place that asks whether a scene has friction
-at via points. Control and the apps ask the plant (``path_dependent``,
-:meth:`Plant.require_history_free`, ``history_note``), never the scene.
+(at via points or at contacts); :func:`path_dependent` gives its answer
+for a scene before any model is built (the accuracy sweep builds one per
+mesh level). Control and the apps ask the plant (``path_dependent``,
+:meth:`Plant.require_history_free`, ``history_note``) or that function,
+never the scene.
 """
 
 from __future__ import annotations
@@ -41,7 +44,11 @@ def path_dependent(scene) -> bool:
     """Whether ``scene``'s plant is path-dependent (friction at via points
     or at contacts), read off the scene alone: what :func:`make_plant`
     decides, without building the model."""
-    return bool(friction_tendons(scene)) or (scene.contact is not None and scene.contact.friction > 0)
+    return bool(friction_tendons(scene)) or _contact_friction(scene)
+
+
+def _contact_friction(scene) -> bool:
+    return scene.contact is not None and scene.contact.friction > 0
 
 
 def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
@@ -64,7 +71,7 @@ def make_plant(model: Model, *, segmented: bool = False) -> "Plant":
     else an :class:`ElasticPlant`. Nothing is committed: the plant starts at the
     scene's start state.
     """
-    contact_friction = model.contact is not None and model.contact.friction > 0
+    contact_friction = _contact_friction(model.scene)
     if contact_friction and friction_tendons(model.scene):
         raise SceneError(f"{model.scene.source}: contact.friction: friction at contacts and friction at via "
                          "points in one scene are not supported together; set one of them to 0")
