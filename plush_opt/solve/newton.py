@@ -20,7 +20,7 @@ positive definite, they are undone and the solve goes on without them.
 Each such step must cut the residual by ``CHORD_CUT`` and pass the same
 admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
 follow one factorisation. Where they stall on a low-rank Hessian, the
-kept factor's sparse part serves on with the current pose's low-rank term
+kept factor serves on with the current pose's tendon terms
 (``FRESH_LOW_RANK``). Before each Newton step's factorisation, and where
 kept-factor steps stall, an inexact Newton step is tried: conjugate
 gradients on the current Hessian preconditioned by the kept factor, to
