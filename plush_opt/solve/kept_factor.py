@@ -56,16 +56,13 @@ CHORD_DEPTH = 1e-3
 # afresh at the current pose, the rest of the low-rank term kept (in the
 # split form the segments' couplings pair with their blocks in the kept
 # sparse part), this many times per run of such steps (the set-up
-# substitutes the tendons' columns alone: a tenth of a factorisation) ...
+# substitutes the tendons' columns alone: a tenth of a factorisation); and
+# a factor the caller hands in takes the start's tendon terms first (0:
+# neither) ...
 FRESH_LOW_RANK = 1
-# ... where the relative residual is at most this (and above the tolerance:
-# a converged pose needs its certificate, no more steps): 1, a control
-# trial's predictor too, where the committed factor's steps diverge (its
-# tendon terms stale) and the refreshed ones converge (the gripper at
-# 10,000 nodes: one factorisation fewer in the iterates that move the
-# contractions by a millimetre; a refresh of the whole low-rank term was
-# not positive definite there).
-FRESH_BELOW = 1.0
+# ... and only in the local phase: relative residual at most this (and
+# above the tolerance: a converged pose needs its certificate, no more steps).
+FRESH_BELOW = 1e-3
 # An inexact Newton step instead of a factorisation: conjugate gradients on
 # the current Hessian preconditioned by the factor kept from a nearby pose
 # (one solve and one product with H per iteration), tried before each
@@ -140,9 +137,9 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     cheaply (:func:`_chord_pays`, on the rate the last step cut the
     residual by; before the first, on the cut predicted from the Hessian
     in hand: g + H dx = (H - F) dx). Where they would stop short of the
-    tolerance, a factor of a low-rank Hessian goes on with the tendons'
-    low-rank terms set up afresh at the current pose (``FRESH_LOW_RANK``,
-    ``FRESH_BELOW``), and where that stalls too, an inexact Newton
+    tolerance in the local phase (``FRESH_BELOW``), a factor of a low-rank
+    Hessian goes on with the tendons' low-rank terms set up afresh at the
+    current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
     ``KRYLOV_STEPS``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
