@@ -223,6 +223,50 @@ def test_a_low_rank_factor_with_another_low_rank_term_keeps_its_sparse_part(back
     assert Factorizer(backend, mode).factor(H1.assemble()).with_low_rank_of(H2) is None
 
 
+def _with_fast(n=300, seed=7, tendon=(1.0, 2.0, 3.0)):
+    """A low-rank Hessian shaped as the split form's: two 2 x 2 blocks of M
+    (segment couplings, rows 0-3), then one diagonal entry per tendon (its
+    own row of Q, rows 4-6: ``fast``), then another 2 x 2 block (rows 7-8)."""
+    rng = np.random.default_rng(seed)
+    body = (sp.diags([-1.0, 2.5, -1.0], [-1, 0, 1], shape=(n, n))).tocsc()
+    Q = sp.random(9, n, density=0.2, random_state=seed, format="csr")
+    M = np.zeros((9, 9))
+    for a in (0, 2, 7):
+        B = rng.standard_normal((2, 2))
+        M[a:a + 2, a:a + 2] = 0.005 * (B + B.T)         # (either sign: H stays definite)
+    M[4:7, 4:7] = np.diag(tendon)
+    return linalg.LowRankHessian(body, Q, M, (4, 7))
+
+
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_a_refreshed_low_rank_term_takes_the_fast_rows_alone(backend, mode):
+    """Where both Hessians name their ``fast`` rows (the tendons' own
+    terms), ``with_low_rank_of`` keeps the factor's sparse part and its
+    other low-rank rows and takes the fast rows of the newer Hessian: it
+    solves with body1 + (Q, M of H1 with the fast rows of H2), and with a
+    CHOLMOD factor its set-up substitutes only those rows' columns, giving
+    what a set-up of the whole mixed Hessian gives, bit for bit."""
+    H1 = _with_fast(seed=7)
+    H2 = _with_fast(seed=11, tendon=(0.5, 4.0, 1e-20))       # (a slack tendon: dropped)
+    f = Factorizer(backend, mode).factor(H1)
+    g = f.with_low_rank_of(H2)
+    Q = sp.vstack([H1.Q[:4], H2.Q[4:7], H1.Q[7:]]).toarray()
+    M = H1.M.copy()
+    M[4:7, 4:7] = H2.M[4:7, 4:7]
+    mixed = H1.body.toarray() + Q.T @ M @ Q
+    b = np.random.default_rng(3).standard_normal(H1.shape[0])
+    assert np.linalg.norm(mixed @ g.solve(b) - b) <= 1e-12 * np.linalg.norm(b)
+    assert g.H.fast == (4, 7) and np.array_equal(g.H.M, M) and np.array_equal(g.H.Q.toarray(), Q)
+    whole = linalg.Factor(linalg._WoodburySolve(f._chol._body, g.H, 0.0), g.H, 0.0)
+    assert np.array_equal(g.solve(b), whole.solve(b))
+    if backend == "cholmod":
+        assert np.array_equal(g._chol._Z, whole._chol._Z)
+    # a Hessian naming no fast rows, or others: its whole low-rank term
+    plain = linalg.LowRankHessian(H2.body, H2.Q, H2.M)
+    h = f.with_low_rank_of(plain)
+    assert h.H.fast is None and np.array_equal(h.H.M, H2.M)
+
+
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
 def test_low_rank_factor_refuses_an_indefinite_or_singular_update(backend, mode):
     """A definite body, an update that makes H indefinite: refused, as the

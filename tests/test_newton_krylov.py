@@ -11,7 +11,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from plush_opt.apps.timing import counting_factorisations
-from plush_opt.fem.model import Evaluation
+from plush_opt.fem.model import Evaluation, Model
 from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
@@ -81,3 +81,36 @@ def test_an_inexact_step_stops_after_its_iterations(monkeypatch):
     ev = Evaluation(0.0, g, sp.diags(np.arange(1.0, n + 1.0)).tocsc(), 1.0, True)
     assert kept_factor.krylov_step(None, None, np.zeros(n), ev, _Identity(), float(np.linalg.norm(g)),
                                EquilibriumOptions()) is None
+
+
+def test_a_trial_refreshes_the_tendon_term_at_its_predictor_and_spares_a_factorisation(monkeypatch, caplog):
+    """A control trial 0.8 mm from the committed equilibrium (split
+    Hessian): the committed factor's steps diverge at the predictor (the
+    tendons' stiffness moved in their smoothing zone); that factor with the
+    predictor's own tendon terms (its sparse part and segment couplings
+    kept) converges, so the certificate's is the only factorisation, where
+    without the refreshed tendon terms a Newton step's was needed too; the
+    same equilibrium, certified by a factor of its own Hessian."""
+    scene, mesh, _, _ = built("gripper")
+    model = Model(scene, mesh, hessian="split")
+    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
+    near = solve_equilibrium(model, [11.14, 0.5, 11.48])
+    c = np.array([11.95, 0.29, 11.2])
+    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
+    count = counting_factorisations(model)
+    try:
+        monkeypatch.setattr(kept_factor, "FRESH_LOW_RANK", 0)
+        stale = solve_equilibrium(model, c, guess, chord=near.factor)
+        n_stale, count["n"] = count["n"], 0
+        monkeypatch.setattr(kept_factor, "FRESH_LOW_RANK", 1)
+        refreshed = solve_equilibrium(model, c, guess, chord=near.factor)
+        n_refreshed = count["n"]
+    finally:
+        del model.factorizer.factor
+    assert stale.converged and refreshed.converged, (stale.status, refreshed.status)
+    assert (n_stale, n_refreshed) == (2, 1)
+    assert (stale.iterations, refreshed.iterations) == (1, 0)
+    assert np.abs(refreshed.x - stale.x).max() <= 1e-9 * body_size(model)
+    H = model.evaluate(refreshed.x, c).hessian
+    b = np.ones(model.n_dofs)
+    assert np.linalg.norm(H @ refreshed.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)

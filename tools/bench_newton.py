@@ -19,7 +19,8 @@ Variants (module constants switched between runs, nothing else changes):
   (``mapped.COMPILE_MAPPED_MIN``; the variants above call them once per
   element, on a second model of the same mesh);
 - ``refresh``: that, and the kept factor's low-rank term set up afresh
-  where its steps stall (``kept_factor.FRESH_LOW_RANK``);
+  where its steps stall, and a control trial's factor with its predictor's
+  tendon terms (``kept_factor.FRESH_LOW_RANK``);
 - ``now``: that, and an inexact Newton step (conjugate gradients
   preconditioned by the kept factor) where they stall even so
   (``kept_factor.KRYLOV_STEPS``): the shipped code.

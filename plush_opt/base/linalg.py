@@ -299,11 +299,16 @@ class LowRankHessian:
         low-rank factorisation (else H is factored assembled).
     Q : (k, n) CSR.
     M : (k, k) dense, symmetric, of any inertia.
+    fast : the rows [start, stop) of Q whose terms change fastest with the
+        pose (the tendons' own U'' l' l'^T: M is diagonal there and couples
+        them with no other row), or None (all rows): what a kept factor
+        takes from a newer Hessian (:meth:`Factor.with_low_rank_of`).
     """
 
     body: sp.csc_matrix
     Q: sp.csr_matrix
     M: np.ndarray
+    fast: tuple[int, int] | None = None
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -351,10 +356,12 @@ class _CholmodHalves:
         return f.apply_Pt(f.solve_DLt(V) if self._ldl else f.solve_Lt(V, use_LDLt_decomposition=False))
 
 
-def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """M's eigenpairs (lam, V) above round-off, block by block: M is block
     diagonal (a segment's 2 x 2 coupling, a tendon's own entry), so V is
-    exactly as sparse as its blocks and so is Q^T V."""
+    exactly as sparse as its blocks and so is Q^T V. Also the position
+    (row of M) each kept pair was found at, ascending: the pairs of one
+    block sit at that block's rows."""
     k = M.shape[0]
     lam, V = np.zeros(k), np.zeros((k, k))
     if k:
@@ -366,7 +373,26 @@ def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             idx = order[starts[sizes == size][:, None] + np.arange(size)]     # (blocks, size)
             lam[idx], V[idx[:, :, None], idx[:, None, :]] = np.linalg.eigh(M[idx[:, :, None], idx[:, None, :]])
     keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
-    return lam[keep], V[:, keep]
+    return lam[keep], V[:, keep], np.flatnonzero(keep)
+
+
+def _with_fast_rows(kept: LowRankHessian, H: LowRankHessian) -> tuple[LowRankHessian, bool]:
+    """``kept``'s sparse part with the low-rank term of ``H``: its ``fast``
+    rows alone (the others ``kept``'s) where both name the same ones on a Q
+    of the same shape, else the whole term; and whether the rows outside
+    ``fast`` are ``kept``'s."""
+    if H.fast is None or H.fast != kept.fast or H.Q.shape != kept.Q.shape:
+        return LowRankHessian(kept.body, H.Q, H.M, H.fast), False
+    a, b = H.fast
+    M = kept.M.copy()
+    M[a:b, a:b] = H.M[a:b, a:b]
+    Q = sp.vstack([kept.Q[:a], H.Q[a:b], kept.Q[b:]], format="csr")
+    return LowRankHessian(kept.body, Q, M, H.fast), True
+
+
+def _in(where: np.ndarray, span: tuple[int, int]) -> np.ndarray:
+    """Which of the positions ``where`` lie in [start, stop) = ``span``."""
+    return (where >= span[0]) & (where < span[1])
 
 
 class _WoodburySolve:
@@ -389,22 +415,16 @@ class _WoodburySolve:
     eigenvalue below ``PIVOT_MARGIN`` of its largest is a zero (the test
     of the sparse factor's pivots). Otherwise :class:`NotPositiveDefinite`."""
 
-    def __init__(self, body: "Factor", H: LowRankHessian, shift: float):
+    def __init__(self, body: "Factor", H: LowRankHessian, shift: float, kept: "_WoodburySolve | None" = None):
         self._body, self._H, self._shift = body, H, shift
         self._halves = body._halves if WOODBURY_HALVES else None
         self._checked = False       # the first solve's residual decides on refinement
         self._refine = True
-        D, V = _low_rank_eigen(H.M)
+        D, V, self._where = _low_rank_eigen(H.M)
         scale = np.sqrt(np.abs(D))
         n = H.shape[0]
         if self._halves is not None:
-            # Z is forward-substituted dense (CHOLMOD's dense solve beats its
-            # sparse one on these k columns), then kept on its nonzero rows
-            # alone (the paths of G's rows up the elimination tree)
-            G = (H.QT @ (V * scale)) if D.size else np.zeros((n, 0))
-            Z = self._halves.forward(np.asarray(G)) if D.size else G
-            self._rows = np.flatnonzero(np.any(Z != 0.0, axis=1))
-            self._Z = np.ascontiguousarray(Z[self._rows])
+            self._Z, self._rows = self._substituted(H, D, V, scale, kept)
             self._WT = (self._halves.dinv[self._rows, None] * self._Z).T.copy()
             T = np.diag(np.sign(D)) + self._Z.T @ self._WT.T
         else:
@@ -417,6 +437,32 @@ class _WoodburySolve:
             raise NotPositiveDefinite(f"low-rank update: {np.count_nonzero(t > 0) - np.count_nonzero(D > 0)} "
                                       "negative eigenvalue(s), or one near zero")
         self._t = t
+
+    def _substituted(self, H: LowRankHessian, D, V, scale, kept: "_WoodburySolve | None"):
+        """Z = L^-1 P G on its nonzero rows, and those rows. The columns of
+        M's pairs outside ``H.fast`` are ``kept``'s where it factored the same
+        sparse part with the same such pairs (a refreshed tendon term:
+        :meth:`Factor.with_low_rank_of`; only its own columns are
+        substituted), else every column is. Z is forward-substituted dense
+        (CHOLMOD's dense solve beats its sparse one on these columns), then
+        kept on its nonzero rows alone (the paths of G's rows up the
+        elimination tree)."""
+        if not D.size:
+            return np.zeros((0, 0)), np.zeros(0, np.int64)
+        new = np.ones(len(self._where), bool)                # the columns substituted here
+        if kept is not None and kept._halves is self._halves and H.fast is not None:
+            new = _in(self._where, H.fast)
+            if not (new.any() and np.array_equal(kept._where[~_in(kept._where, H.fast)], self._where[~new])):
+                new[:] = True
+        Zn = self._halves.forward(np.asarray(H.QT @ (V[:, new] * scale[new])))
+        rows = np.flatnonzero(np.any(Zn != 0.0, axis=1))
+        if new.all():
+            return np.ascontiguousarray(Zn[rows]), rows
+        if not np.all(np.isin(rows, kept._rows, assume_unique=True)):    # (beyond the kept rows)
+            return self._substituted(H, D, V, scale, None)
+        Z = np.empty((len(kept._rows), len(self._where)))
+        Z[:, ~new], Z[:, new] = kept._Z[:, ~_in(kept._where, H.fast)], Zn[kept._rows]
+        return Z, kept._rows
 
     def _inner(self, w: np.ndarray) -> np.ndarray:
         """T^-1 w (k,) or (k, m)."""
@@ -467,16 +513,20 @@ class Factor:
     def with_low_rank_of(self, H) -> "Factor | None":
         """For a factor of a :class:`LowRankHessian`: the factor of its
         sparse part (kept, not refactored) plus the low-rank term of ``H``
-        (a LowRankHessian of the same size): one low-rank set-up, no sparse
+        (a LowRankHessian of the same size), of its ``fast`` rows alone
+        where it names them (the rest of the low-rank term kept: in the
+        split form a segment's coupling there pairs with its diagonal
+        blocks in the kept sparse part): one low-rank set-up, no sparse
         factorisation. None for a factor of an assembled matrix, for an
         assembled ``H``, or where that sum is not positive definite."""
         chol = self._chol
         if not (isinstance(chol, _WoodburySolve) and isinstance(H, LowRankHessian)
                 and H.shape == self.H.shape):
             return None
-        mixed = LowRankHessian(chol._H.body, H.Q, H.M)
+        mixed, rest_kept = _with_fast_rows(chol._H, H)
         try:
-            return Factor(_WoodburySolve(chol._body, mixed, self.shift), mixed, self.shift)
+            return Factor(_WoodburySolve(chol._body, mixed, self.shift, chol if rest_kept else None), mixed,
+                          self.shift)
         except NotPositiveDefinite:
             return None
 

@@ -304,10 +304,12 @@ class HessianLayout:
             H = (H + sp.csc_matrix((extra.data, (extra.row, extra.col)), shape=H.shape)).tocsc()
             H.sort_indices()
         Q, M = self._low_rank_term(K, length_grad, dtension) if self.low_rank else (None, None)
+        # the tendons' own rows (after the segments' pairs): what moves fastest
+        fast = (self._pairs.shape[0], self._pairs.shape[0] + len(dtension)) if self.low_rank else None
         if via_hess is not None and self.via.split:
             Qv, Mv = self._via_pairs, pair_blocks(via_hess[:, :2, :2])
             Q, M = (Qv, Mv) if Q is None else (sp.vstack([Q, Qv], format="csr"), sla.block_diag(M, Mv))
-        return H if Q is None else LowRankHessian(H, Q, M)
+        return H if Q is None else LowRankHessian(H, Q, M, fast)
 
     @functools.cached_property
     def diagonal_slots(self) -> np.ndarray:

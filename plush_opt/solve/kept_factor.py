@@ -51,10 +51,14 @@ HESSIAN_COST = 2.0
 # that; a step with a kept factor costs a fraction of one.
 CHORD_DEPTH = 1e-3
 # Where a step with a kept factor of a low-rank Hessian fails, the factor's
-# sparse part is kept and the low-rank term (the tendons' U'' l' l'^T,
-# which changes fastest: their stretch sits in the smoothing zone) is set
-# up afresh at the current pose, this many times per run of such steps (a
-# set-up costs about a fifth of a factorisation) ...
+# sparse part is kept and the tendons' own low-rank terms (U'' l' l'^T,
+# which change fastest: their stretch sits in the smoothing zone) are set up
+# afresh at the current pose, the rest of the low-rank term kept (in the
+# split form the segments' couplings pair with their blocks in the kept
+# sparse part), this many times per run of such steps (the set-up
+# substitutes the tendons' columns alone: a tenth of a factorisation); and
+# a factor the caller hands in takes the start's tendon terms first (0:
+# neither) ...
 FRESH_LOW_RANK = 1
 # ... and only in the local phase: relative residual at most this (and
 # above the tolerance: a converged pose needs its certificate, no more steps).
@@ -133,9 +137,9 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     cheaply (:func:`_chord_pays`, on the rate the last step cut the
     residual by; before the first, on the cut predicted from the Hessian
     in hand: g + H dx = (H - F) dx). Where they would stop short of the
-    tolerance in the local phase, a factor of a low-rank Hessian goes on
-    with its low-rank term set up afresh at the current pose
-    (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
+    tolerance in the local phase (``FRESH_BELOW``), a factor of a low-rank
+    Hessian goes on with the tendons' low-rank terms set up afresh at the
+    current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
     ``KRYLOV_STEPS``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
@@ -166,8 +170,8 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
             if not (refresh or inexact):
                 break                   # (converged: its certificate next; or far from it)
             ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
-            # the tendons' stiffness changes fastest: the kept factor's
-            # sparse part with the low-rank term of this pose
+            # the tendons' stiffness changes fastest: the kept factor with
+            # the tendon terms of this pose
             fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
             if fresh is not None:
                 factor, refreshed, since = fresh, refreshed + 1, 0

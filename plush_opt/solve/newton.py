@@ -15,12 +15,13 @@ A factorisation is kept where it still serves (a chord step, no new
 factorisation): after a full Newton step that cut the residual by
 ``CHORD_START`` (the local phase), and from the start when the caller
 hands in the factor of a nearby certified equilibrium (a control trial
-from its iterate). Where the pose they reach has a Hessian that is not
+from its iterate; of a low-rank Hessian, it first takes the start's own
+tendon terms). Where the pose they reach has a Hessian that is not
 positive definite, they are undone and the solve goes on without them.
 Each such step must cut the residual by ``CHORD_CUT`` and pass the same
 admissibility and energy tests as a Newton step; at most ``CHORD_STEPS``
 follow one factorisation. Where they stall on a low-rank Hessian, the
-kept factor's sparse part serves on with the current pose's low-rank term
+kept factor serves on with the current pose's tendon terms
 (``FRESH_LOW_RANK``). Before each Newton step's factorisation, and where
 kept-factor steps stall, an inexact Newton step is tried: conjugate
 gradients on the current Hessian preconditioned by the kept factor, to
@@ -45,6 +46,7 @@ from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
 from .contact_step import corrected_step
 from .free_fall import free_fall
+from . import kept_factor
 from .kept_factor import ROUNDOFF_BAND, energy_slack, inexact_first, kept_factor_steps
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
@@ -183,13 +185,18 @@ def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOpt
 
 def _start_with(model: Model, c, x, ev: Evaluation, chord: Factor | None, options: EquilibriumOptions):
     """Kept-factor steps from the start with the caller's ``chord`` factor
-    (a positive definite one of this model): (pose, evaluation, where they
-    began or None, whether the body fell). A body nothing holds yet is first
-    moved onto what will (:func:`~plush_opt.solve.free_fall.free_fall`)."""
+    (a positive definite one of this model), with the start's own tendon
+    terms where it is of a low-rank Hessian and the start is not converged
+    (:meth:`~plush_opt.base.linalg.Factor.with_low_rank_of`: they change
+    fastest from the caller's pose to this one): (pose, evaluation, where
+    they began or None, whether the body fell). A body nothing holds yet is
+    first moved onto what will (:func:`~plush_opt.solve.free_fall.free_fall`)."""
     start = x
     x, ev = free_fall(model, c, x, ev)
     if chord is None or chord.shift != 0.0 or chord.H.shape != (model.n_dofs, model.n_dofs):
         return x, ev, None, x is not start
+    if kept_factor.FRESH_LOW_RANK and np.linalg.norm(ev.gradient) > options.gtol * ev.force_scale:
+        chord = chord.with_low_rank_of(ev.hessian_form) or chord
     xs, es, steps = kept_factor_steps(model, c, x, ev, chord, options)
     return xs, es, ((x, ev) if steps else None), x is not start
 
