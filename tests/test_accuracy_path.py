@@ -98,3 +98,28 @@ def test_solve_accuracy_on_a_friction_scene_replays_the_returned_path(tmp_path):
     assert doc["friction_path"]["from"].startswith("the control run's starting state")
     levels = doc["mesh_accuracy"]["at_result"][-1]["levels"]
     assert len(levels) >= 3 and all(lv["element"] == "P2" for lv in levels)
+
+
+def test_a_friction_path_solves_its_steps_to_the_callers_tolerance(friction_problem, monkeypatch):
+    """The path's inner equilibrium solves take the caller's residual
+    tolerance and round-off allowance (a fine level of ``--accuracy``
+    accepts a step at its round-off floor, where a 67,313-node P2 start state
+    once ended the reference "not converged"); with the defaults nothing
+    changes."""
+    from plush_opt.solve.certificate import EquilibriumOptions
+    from plush_opt.solve.friction_path import FrictionOptions
+    from plush_opt.solve.friction_solve import path_options
+    assert path_options(EquilibriumOptions()) == FrictionOptions()
+    level = path_options(EquilibriumOptions(gtol=1e-9, roundoff=1.0)).equilibrium
+    assert (level.gtol, level.roundoff, level.eigenvalue) == (1e-9, 1.0, False)
+    import plush_opt.solve.friction_solve as friction_solve
+    asked = []
+
+    def recorded(fm, start, path, options=None, **kw):
+        asked.append((options.equilibrium.gtol, options.equilibrium.roundoff))
+        return real(fm, start, path, options, **kw)
+    real = friction_solve.follow
+    monkeypatch.setattr(friction_solve, "follow", recorded)
+    c = friction_problem.contraction_vector({"left": 12.0, "grip": 10.0})
+    eq = friction_problem.plant.fork().equilibrium(c, options=EquilibriumOptions(gtol=1e-9, roundoff=1.0))
+    assert eq.converged and asked and set(asked) == {(1e-9, 1.0)}

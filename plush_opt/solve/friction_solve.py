@@ -18,7 +18,7 @@ proportion to its segments' lengths, r_j = |seg_j| r / l, all tensions equal
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -113,6 +113,8 @@ def solve_forward(fm: FrictionModel, contraction, steps: int = DEFAULT_PATH_STEP
     ``contraction`` along a straight line in ``steps`` steps; the state at
     the end as a :class:`FrictionEquilibrium`."""
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
+    if options is None and equilibrium is not None:
+        options = path_options(equilibrium)
     if start is None:
         start = start_state(fm, options)
     path = straight_path(start.contraction, c, steps)
@@ -122,6 +124,16 @@ def solve_forward(fm: FrictionModel, contraction, steps: int = DEFAULT_PATH_STEP
     # each step's final Newton solve (the stick/slip rounds before it are not counted)
     newton = sum(s.equilibrium.iterations for s in states if s.equilibrium is not None)
     return finish(fm, states[-1], path, sum(s.converged for s in states), equilibrium, newton)
+
+
+def path_options(equilibrium: EquilibriumOptions) -> FrictionOptions:
+    """The path solver's default options with the residual tolerance
+    (``gtol``) and round-off allowance (``roundoff``) of ``equilibrium`` in
+    its inner equilibrium solves: a caller that accepts a pose at the
+    round-off floor of a fine mesh (``--accuracy``'s levels) accepts its path
+    steps there too. With ``equilibrium``'s defaults these are the defaults."""
+    base = FrictionOptions()
+    return replace(base, equilibrium=replace(base.equilibrium, gtol=equilibrium.gtol, roundoff=equilibrium.roundoff))
 
 
 def segment_table(model, x, c, eq: Equilibrium | None = None) -> list[dict]:
