@@ -87,6 +87,12 @@ KRYLOV_CHECK, KRYLOV_CHECK_CUT = 5, 0.1
 # ... or once |H dx + g| is this fraction of |g|: the step then cuts the
 # residual about as far, and the kept-factor steps after it go on.
 KRYLOV_TOL = 1e-3
+# An inexact step that lands below the tolerance but leaves more than this
+# many times the residual its conjugate gradients predicted has met the
+# residual's round-off floor (that near the equilibrium its nonlinear error
+# is decades smaller): the steps stop there, where a further one would only
+# repeat that residual.
+ROUNDOFF_FLOOR_GAP = 2.0
 
 
 def energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -141,20 +147,28 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     Hessian goes on with the tendons' low-rank terms set up afresh at the
     current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
-    ``KRYLOV_STEPS``).
+    ``KRYLOV_STEPS``): on the Hessian of this pose, or of the last pose of
+    these steps where one was evaluated in the local phase (near enough:
+    the step is tested as any other), its first solve the failed step's
+    own; with that Hessian in hand the next step is inexact too. They stop
+    where an inexact step lands below the tolerance at the residual's
+    round-off floor (``ROUNDOFF_FLOOR_GAP``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
     steps, since, refreshed, krylov = 0, 0, 0, 0    # steps; with this factor; refreshes; inexact Newton
     ev1 = ev
     last = 0.0                             # the residual before the last step
+    local = _local_hessian(ev1, None)      # a Hessian of these steps' local phase
+    floor = False                          # an inexact step met the round-off floor
+    again = False                          # the next step inexact too, on the local Hessian
     while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
         target = CHORD_DEPTH * options.gtol * ev1.force_scale
-        if norm <= target:
+        if norm <= target or floor:
             break
-        dx, pays = None, since < CHORD_STEPS
+        dx, pays = None, since < CHORD_STEPS and not again
         if pays and since == 0 and ev1.hessian_form is not None:
             dx = -factor.solve(g)
             rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
@@ -162,14 +176,19 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         elif pays and since > 0:
             pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
         last = norm
-        taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
+        if pays and dx is None:
+            dx = -factor.solve(g)
+        taken = _kept_step(model, c, x, ev1, dx, norm, options) if pays else None
         if taken is None:
             rel = norm / ev1.force_scale
-            refresh = refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW
+            refresh = not again and refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW and \
+                isinstance(factor.H, LowRankHessian)         # (else nothing to refresh)
             inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
             if not (refresh or inexact):
                 break                   # (converged: its certificate next; or far from it)
-            ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
+            if ev1.hessian_form is None and (refresh or local is None):
+                ev1 = model.evaluate(x, c, order=2)
+                local = _local_hessian(ev1, local)
             # the tendons' stiffness changes fastest: the kept factor with
             # the tendon terms of this pose
             fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
@@ -177,10 +196,21 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
                 factor, refreshed, since = fresh, refreshed + 1, 0
                 continue
             # the rest of the Hessian moved too: an inexact Newton step
-            taken = krylov_step(model, c, x, ev1, factor, norm, options) if inexact else None
+            # (the failed step's solve is its first: the same factor, the same g)
+            H = ev1.hessian_form if ev1.hessian_form is not None else local
+            taken = krylov_step(model, c, x, ev1, factor, norm, options, H, dx, True) if inexact else None
             if taken is None:
                 break
+            (xk, ek), predicted = taken
+            taken, landed = (xk, ek), float(np.linalg.norm(ek.gradient))
+            below = landed <= options.gtol * ek.force_scale
+            floor = below and landed > ROUNDOFF_FLOOR_GAP * predicted
             krylov, since = krylov + 1, 0
+            # with the local Hessian in hand, the next step is inexact too:
+            # a kept-factor step right after one cuts the residual little
+            again = H is local and krylov < KRYLOV_STEPS and not below
+        else:
+            again = False
         (x, ev1), steps, since = taken, steps + 1, since + 1
     if steps:
         log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es), %d inexact Newton), "
@@ -189,26 +219,31 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     return x, ev, 0
 
 
-def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float, options: EquilibriumOptions,
-                dx: np.ndarray | None = None) -> tuple[np.ndarray, Evaluation] | None:
-    """One step of :func:`kept_factor_steps` from (``x``, ``ev``, residual norm
-    ``norm``; ``dx``: the step -F^-1 g if already solved for): the pose and
-    its evaluation (order 1), or None where the step fails its tests."""
-    dx = -factor.solve(ev.gradient) if dx is None else dx
-    return _kept_step(model, c, x, ev, dx, norm, options)
+def _local_hessian(ev: Evaluation, kept):
+    """``ev``'s Hessian where it has one at a relative residual of at most
+    ``FRESH_BELOW`` (the local phase: near enough the equilibrium's for an
+    inexact step's operator further on), else ``kept``."""
+    if ev.hessian_form is None or np.linalg.norm(ev.gradient) > FRESH_BELOW * ev.force_scale:
+        return kept
+    return ev.hessian_form
 
 
 def krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
-    """An inexact Newton step from (``x``, ``ev`` with its Hessian, residual
-    norm ``norm``): H dx = -g by conjugate gradients preconditioned with the
-    kept ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests
-    of a kept-factor step. None where CG meets a curvature that is not
-    positive (H is not positive definite along its search), does not
-    converge, or the step fails its tests."""
-    g, H = ev.gradient, ev.hessian_form
+                options: EquilibriumOptions, H=None, first: np.ndarray | None = None,
+                predicted: bool = False):
+    """An inexact Newton step from (``x``, ``ev``, residual norm ``norm``):
+    H dx = -g by conjugate gradients preconditioned with the kept
+    ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests of a
+    kept-factor step. ``H``: ``ev``'s Hessian unless given (a nearby
+    pose's); ``first``: F^-1 (-g) where already solved for. None where CG
+    meets a curvature that is not positive (H is not positive definite
+    along its search), does not converge, or the step fails its tests;
+    else (pose, evaluation of order 1), with ``predicted`` as
+    ((pose, evaluation), |H dx + g| of the step)."""
+    g = ev.gradient
+    H = ev.hessian_form if H is None else H
     r = -g
-    z = factor.solve(r)
+    z = factor.solve(r) if first is None else first
     p, rz = z.copy(), float(r @ z)
     dx = np.zeros_like(g)
     for i in range(KRYLOV_ITERATIONS):
@@ -221,7 +256,8 @@ def krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
         r -= alpha * Hp
         left = float(np.linalg.norm(r))
         if left <= KRYLOV_TOL * norm:
-            return _kept_step(model, c, x, ev, dx, norm, options)
+            taken = _kept_step(model, c, x, ev, dx, norm, options)
+            return (taken, left) if predicted and taken is not None else taken
         if i + 1 == KRYLOV_CHECK and left > KRYLOV_CHECK_CUT * norm:
             return None
         z = factor.solve(r)
