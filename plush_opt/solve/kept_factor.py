@@ -132,7 +132,7 @@ def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: 
 
 
 def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
+                 options: EquilibriumOptions, inexact: bool = False) -> tuple[np.ndarray, Evaluation, int]:
     """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
     Hessian, no factorisation: each is taken whole (never beyond
     ``Model.max_step``) only if it is admissible, does not raise the energy
@@ -150,9 +150,12 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     ``KRYLOV_STEPS``): on the Hessian of this pose, or of the last pose of
     these steps where one was evaluated in the local phase (near enough:
     the step is tested as any other), its first solve the failed step's
-    own; with that Hessian in hand the next step is inexact too. They stop
-    where an inexact step lands below the tolerance at the residual's
-    round-off floor (``ROUNDOFF_FLOOR_GAP``).
+    own; with that Hessian in hand the next step is inexact too (a
+    kept-factor step right after an inexact one cuts the residual little),
+    as is the first where ``inexact`` says the caller's last step was one
+    (landing in the local phase). They stop where an inexact step lands
+    below the tolerance at the residual's round-off floor
+    (``ROUNDOFF_FLOOR_GAP``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
@@ -161,7 +164,7 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     last = 0.0                             # the residual before the last step
     local = _local_hessian(ev1, None)      # a Hessian of these steps' local phase
     floor = False                          # an inexact step met the round-off floor
-    again = False                          # the next step inexact too, on the local Hessian
+    again = inexact                        # the next step inexact (on the local Hessian)
     while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
@@ -299,12 +302,15 @@ def inexact_first(model: Model, c, x, ev: Evaluation, factor: Factor, options: E
     """Before factoring at (``x``, ``ev``): an inexact Newton step with the
     last Newton step's ``factor`` (:func:`krylov_step`) where the relative
     residual is at most ``KRYLOV_BELOW`` (and above the tolerance), then the
-    kept-factor steps after it: (pose, evaluation with its Hessian) or None."""
+    kept-factor steps after it (from another inexact step where it landed
+    in the local phase): (pose, evaluation with its Hessian) or None."""
     norm = float(np.linalg.norm(ev.gradient))
     if KRYLOV_STEPS == 0 or not _inexact_pays(ev.gradient, norm / ev.force_scale, options):
         return None
     taken = krylov_step(model, c, x, ev, factor, norm, options)
     if taken is None:
         return None
-    xs, es, _ = kept_factor_steps(model, c, taken[0], taken[1], factor, options)
+    landed = float(np.linalg.norm(taken[1].gradient)) / taken[1].force_scale
+    xs, es, _ = kept_factor_steps(model, c, taken[0], taken[1], factor, options,
+                                  options.gtol < landed <= FRESH_BELOW)
     return xs, (es if es.hessian_form is not None else model.evaluate(xs, c, order=2))
