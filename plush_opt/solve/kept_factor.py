@@ -171,16 +171,8 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         target = CHORD_DEPTH * options.gtol * ev1.force_scale
         if norm <= target or floor:
             break
-        dx, pays = None, since < CHORD_STEPS and not again
-        if pays and since == 0 and ev1.hessian_form is not None:
-            dx = -factor.solve(g)
-            rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
-            pays = _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
-        elif pays and since > 0:
-            pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
+        dx, pays = (None, False) if again else _chord_dx(factor, ev1, norm, target, since, last)
         last = norm
-        if pays and dx is None:
-            dx = -factor.solve(g)
         taken = _kept_step(model, c, x, ev1, dx, norm, options) if pays else None
         if taken is None:
             rel = norm / ev1.force_scale
@@ -201,17 +193,14 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
             # the rest of the Hessian moved too: an inexact Newton step
             # (the failed step's solve is its first: the same factor, the same g)
             H = ev1.hessian_form if ev1.hessian_form is not None else local
-            taken = krylov_step(model, c, x, ev1, factor, norm, options, H, dx, True) if inexact else None
-            if taken is None:
+            stepped = _inexact_step(model, c, x, ev1, factor, norm, options, H, dx) if inexact else None
+            if stepped is None:
                 break
-            (xk, ek), predicted = taken
-            taken, landed = (xk, ek), float(np.linalg.norm(ek.gradient))
-            below = landed <= options.gtol * ek.force_scale
-            floor = below and landed > ROUNDOFF_FLOOR_GAP * predicted
+            taken, floor, above = stepped
             krylov, since = krylov + 1, 0
             # with the local Hessian in hand, the next step is inexact too:
             # a kept-factor step right after one cuts the residual little
-            again = H is local and krylov < KRYLOV_STEPS and not below
+            again = H is local and krylov < KRYLOV_STEPS and above
         else:
             again = False
         (x, ev1), steps, since = taken, steps + 1, since + 1
@@ -220,6 +209,40 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
                   "residual %.3e", steps, refreshed, krylov, np.linalg.norm(ev1.gradient) / ev1.force_scale)
         return x, (ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)), steps
     return x, ev, 0
+
+
+def _chord_dx(factor: Factor, ev: Evaluation, norm: float, target: float, since: int, last: float):
+    """(the kept-factor step -F^-1 g at ``ev``, residual norm ``norm``,
+    or None; whether it pays): ``since`` steps taken with ``factor``, the
+    last from residual ``last`` (:func:`_chord_pays` on its rate; before the
+    first, on the rate predicted from the Hessian in hand, the step solved
+    for either way)."""
+    g = ev.gradient
+    if since >= CHORD_STEPS:
+        return None, False
+    if since == 0 and ev.hessian_form is not None:
+        dx = -factor.solve(g)
+        rate = float(np.linalg.norm(ev.hessian_form @ dx - factor.H @ dx)) / norm
+        return dx, _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
+    if since > 0 and not _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False):
+        return None, False
+    return -factor.solve(g), True
+
+
+def _inexact_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
+                  options: EquilibriumOptions, H, dx: np.ndarray | None):
+    """An inexact step of :func:`kept_factor_steps` on ``H`` (``dx``: the
+    failed kept-factor step's solve F^-1 (-g), or None): None, or ((pose,
+    evaluation of order 1), whether it landed below the tolerance at the
+    round-off floor (``ROUNDOFF_FLOOR_GAP``), whether it landed above the
+    tolerance)."""
+    taken = krylov_step(model, c, x, ev, factor, norm, options, H, dx, True)
+    if taken is None:
+        return None
+    (xk, ek), predicted = taken
+    landed = float(np.linalg.norm(ek.gradient))
+    below = landed <= options.gtol * ek.force_scale
+    return (xk, ek), below and landed > ROUNDOFF_FLOOR_GAP * predicted, not below
 
 
 def _local_hessian(ev: Evaluation, kept):
