@@ -132,7 +132,7 @@ def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: 
 
 
 def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
-                 options: EquilibriumOptions, inexact: bool = False) -> tuple[np.ndarray, Evaluation, int]:
+                 options: EquilibriumOptions, start_inexact: bool = False) -> tuple[np.ndarray, Evaluation, int]:
     """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
     Hessian, no factorisation: each is taken whole (never beyond
     ``Model.max_step``) only if it is admissible, does not raise the energy
@@ -152,7 +152,7 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     the step is tested as any other), its first solve the failed step's
     own; with that Hessian in hand the next step is inexact too (a
     kept-factor step right after an inexact one cuts the residual little),
-    as is the first where ``inexact`` says the caller's last step was one
+    as is the first where ``start_inexact`` says the caller's last step was one
     (landing in the local phase). They stop where an inexact step lands
     below the tolerance at the residual's round-off floor
     (``ROUNDOFF_FLOOR_GAP``).
@@ -164,7 +164,7 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     last = 0.0                             # the residual before the last step
     local = _local_hessian(ev1, None)      # a Hessian of these steps' local phase
     floor = False                          # an inexact step met the round-off floor
-    again = inexact                        # the next step inexact (on the local Hessian)
+    again = start_inexact                  # the next step inexact (on the local Hessian)
     while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
