@@ -1,7 +1,7 @@
 """``--accuracy`` where the pose depends on the path (friction at via points):
 the sweep's probe poses are the plant's fresh paths, and at the returned
 pose every level replays the path it was reached by
-(plush_opt/solve/accuracy_path.py; docs/accuracy.md, "With friction").
+(plush_opt/solve/accuracy_path.py; docs/accuracy.md, "What is guaranteed").
 
 problems/gripper_friction.yaml on a coarse mesh keeps them fast.
 """
