@@ -1,0 +1,74 @@
+"""``--accuracy`` at a returned contraction where a level has no
+equilibrium near the answer: the hexapod's control drives winch ``b`` to its
+bound, where the legs it pulls fold on P2 meshes (and on fine P1 meshes)
+while the coarse P1 mesh's straight legs still stand. Such a level is left
+out of the estimate after a few dozen Newton iterations instead of being
+solved by continuation onto another branch, and the answer of a level whose
+branch a finer level does not have is solved again (issue 35)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from plush_opt.io import load_scene
+from plush_opt.solve.accuracy import (BRANCH_ITERATIONS, LEVEL_OPTIONS, Level, Resolution, _solve_level,
+                                      default_levels, estimate_errors, estimate_levels, probe_points)
+from plush_opt.fem.model import build_model
+from plush_opt.solve.equilibrium import solve_equilibrium
+from shipped import ROOT
+
+HEXAPOD = ROOT / "problems" / "hexapod.yaml"
+
+
+def _nested(ks, off=()):
+    """A nested family of P2 levels ``ks`` converging geometrically (ratio
+    0.2); those whose index is in ``off`` have no pose (not on the branch)."""
+    return [Level("P2", Resolution(16.0, k, 16.0), type("M", (), {"n_nodes": 100 * 4 ** k})(), 0.0, 0.0, 0,
+                  [None if k in off else "pose"],
+                  np.full((1, 1, 2), np.nan) if k in off else np.array([[[1.0 + 0.5 * 0.2 ** k, 2.0]]]))
+            for k in ks]
+
+
+def test_a_level_off_the_branch_and_the_coarser_ones_of_its_family_take_no_part_in_the_estimate():
+    levels = _nested(range(5), off=(1,))
+    estimate_levels(levels)
+    assert not levels[1].on_branch and all(lv.on_branch for k, lv in enumerate(levels) if k != 1)
+    # the run after the gap alone: levels 2-4, estimated as if the coarse ones did not exist
+    run = estimate_errors([lv.y for lv in levels[2:]], [lv.mesh.n_nodes for lv in levels[2:]], "P2", nested=True)
+    assert levels[3].estimate == pytest.approx(run[1]["estimate"]) and levels[3].confirmed
+    for lv in levels[:3]:
+        assert lv.estimate is None and not lv.confirmed
+    # no bound for the level off the branch, and never one through it
+    assert levels[1].bound is None and not levels[1].meets(math.inf)
+    assert all(lv.bound_via != 1 for lv in levels)
+    assert levels[0].bound == pytest.approx(levels[3].estimate + abs(levels[0].y - levels[3].y).max())
+
+
+@pytest.mark.slow        # two levels and 60 Newton iterations on 889 P2 nodes: about 10 s
+def test_a_level_with_no_equilibrium_near_the_answer_is_left_out_after_a_few_newton_steps(monkeypatch):
+    """The coarse P1 level's answer at a=11.9, b=25 (legs straight): the P2
+    level of 889 nodes has no equilibrium near it (its legs b fold near
+    b=22.5). Before: 500 Newton iterations, then continuation from rest onto
+    the folded branch (minutes); now off the branch after
+    BRANCH_ITERATIONS, and a P2 level is finer than the P1 level in use."""
+    import plush_opt.solve.accuracy_check as check
+    scene = load_scene(HEXAPOD)
+    points, _ = probe_points(scene)
+    cs = scene.contraction[None]
+    p1 = _solve_level(dataclasses.replace(scene, element="P1"), default_levels(scene, "P1")[0], cs,
+                      points, None, LEVEL_OPTIONS)
+    p2 = _solve_level(dataclasses.replace(scene, element="P2"), default_levels(scene, "P2")[0], cs,
+                      points, None, LEVEL_OPTIONS)
+    c = np.array([11.9, 25.0])
+    answer = solve_equilibrium(build_model(dataclasses.replace(scene, element="P1"), p1.mesh), c,
+                               None, LEVEL_OPTIONS)
+    assert answer.converged
+    monkeypatch.setattr(check, "equilibrium_at", lambda *a, **k: pytest.fail("solved from the probe's pose"))
+    lines = []
+    at = check.bounds_at(scene, [p1, p2], cs, c, points, start=(p1.mesh, answer.x), progress=lines.append, used=0)
+    assert at[0].on_branch and at[0].poses[0] is not None
+    assert not at[1].on_branch and at[1].poses == [None] and at[1].bound is None
+    assert check.finer(at[1], at[0])
+    assert f"did not converge in {BRANCH_ITERATIONS} iterations" in lines[-1] and "not solved" in lines[-1]
