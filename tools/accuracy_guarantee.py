@@ -14,9 +14,11 @@ For each scene and tolerance (one row, run in its own process, at most
    imports: its exit code, what it claims at the returned contractions
    (``accuracy.at_result``: met, estimated error) and its CPU seconds.
 2. An independent reference at the returned contractions: the P2 levels
-   of the sweep's family A (a graded mesh refined uniformly) solved afresh
-   there (the first from the returned pose carried over, each finer one from
-   the one before: the same branch of equilibria), refined until it has at
+   of the sweep's family A (a graded mesh refined uniformly) with at least
+   the returned mesh's nodes solved afresh there (the first from the
+   returned pose carried over, each finer one from the one before: the same
+   branch of equilibria; none coarser than the answer, which near a fold
+   can settle in another state), refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
    TOL, or until REF_MAX_NODES.
@@ -108,6 +110,10 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
         m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
         if m.n_nodes > REF_MAX_NODES:
             break
+        if m.n_nodes < nodes_returned:
+            # coarser than the returned mesh: near a fold such a level can settle in another
+            # stable state from the answer, which the finer levels would then follow
+            continue
         model = build_model(s, m)
         eq = equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
         if not eq.converged:
