@@ -150,7 +150,7 @@ class AccurateSolve:
         :meth:`_estimate_at`): (the index of the level to solve again on, or
         None; the contractions to solve again from; whether the sweep went
         on; why, in words)."""
-        at, used, lost, p2 = found["at"], found["used"], found["lost"], found["p2"]
+        at, lost, p2 = found["at"], found["lost"], found["p2"]
         estimate = found["round"]["estimated_error"]
         if lost is not None:         # the answer's branch ends before it on a finer level: a coarse mesh's artefact
             why = (f"has an answer the {lost.element} level of {lost.mesh.n_nodes:,} nodes has no equilibrium "

@@ -138,6 +138,53 @@ def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
     return (mesh_to.X + out).reshape(-1)
 
 
+#: Segments of the source's boundary tried per boundary node of the target
+#: mesh (the nearest by midpoint): a node on the source's boundary lies on
+#: one of the few nearest.
+ON_BOUNDARY_CANDIDATES = 8
+
+
+def transfer_pose_along_boundary(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
+    """:func:`transfer_pose`, except that each boundary node of ``mesh_to``
+    lying on a boundary segment of ``mesh_from`` (as contact sees it:
+    straight between consecutive boundary nodes, midside nodes included)
+    goes to the same fraction of that segment in the pose: on the chord,
+    not on the quadratic edge, which can bulge into an obstacle the chords
+    keep clear of. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
+    from scipy.spatial import cKDTree
+    from ..fem.contact_boundary import boundary_segments
+    out = transfer_pose(mesh_from, x_from, mesh_to).reshape(-1, 2)
+    xf = np.asarray(x_from, dtype=np.float64).reshape(-1, 2)
+    seg = boundary_segments(mesh_from)
+    a, b = mesh_from.X[seg[:, 0]], mesh_from.X[seg[:, 1]]
+    nodes = np.unique(boundary_segments(mesh_to))
+    p = mesh_to.X[nodes]
+    k = min(ON_BOUNDARY_CANDIDATES, len(seg))
+    _, cand = cKDTree(0.5 * (a + b)).query(p, k=k)
+    cand = cand.reshape(len(p), k)
+    ab = b[cand] - a[cand]
+    t = np.clip(np.einsum("nkd,nkd->nk", p[:, None] - a[cand], ab) / np.einsum("nkd,nkd->nk", ab, ab), 0.0, 1.0)
+    dist = np.linalg.norm(a[cand] + t[..., None] * ab - p[:, None], axis=-1)
+    best = np.argmin(dist, axis=1)
+    rows = np.arange(len(p))
+    on = dist[rows, best] <= 1e-9 * mesh_from.diameter
+    s_, tt = cand[rows, best][on], t[rows, best][on]
+    out[nodes[on]] = xf[seg[s_, 0]] + tt[:, None] * (xf[seg[s_, 1]] - xf[seg[s_, 0]])
+    return out.reshape(-1)
+
+
+def carried_start(model: Model, mesh_from: Mesh, x_from) -> np.ndarray | None:
+    """An admissible start on ``model``'s mesh from the pose ``x_from`` on
+    ``mesh_from``: :func:`transfer_pose`, or where that is not admissible
+    (a quadratic edge carried across a contact) the boundary carried along
+    the chords (:func:`transfer_pose_along_boundary`); None if neither is."""
+    x0 = transfer_pose(mesh_from, x_from, model.mesh)
+    if model.admissible(x0):
+        return x0
+    x0 = transfer_pose_along_boundary(mesh_from, x_from, model.mesh)
+    return x0 if model.admissible(x0) else None
+
+
 def equilibrium_at(model: Model, contraction, x0=None,
                    options: EquilibriumOptions | None = None, steps: int = 4) -> Equilibrium:
     """Certified equilibrium at ``contraction`` from ``x0`` (default the rest
@@ -220,9 +267,10 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     every contraction of ``cs`` from the previous level's poses. None if
     an explicit level is not really finer than ``prev``. With ``follow``
     (and ``prev``), each pose follows ``prev``'s branch
-    (:func:`branch_options`), and where it does not converge the level is
-    returned off the branch (its pose None, ``y`` NaN) instead of solved
-    by continuation."""
+    (:func:`branch_options`) from its pose carried over where that is
+    admissible, and where it does not converge the level is returned off
+    the branch (its pose None, ``y`` NaN) instead of solved by
+    continuation."""
     t0 = time.perf_counter()
     mesh = build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements)
     t_mesh = time.perf_counter() - t0
@@ -246,8 +294,9 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
-        if follow and x0 is not None:
-            eq = solve_equilibrium(model, c, x0, branch_options(options))
+        start = carried_start(model, prev.mesh, prev.poses[j]) if follow and prev is not None else None
+        if start is not None:
+            eq = solve_equilibrium(model, c, start, branch_options(options))
             poses.append(eq.x if eq.converged else None)
             ys.append(probe.y(eq.x) if eq.converged else np.full((len(points), 2), np.nan))
             continue

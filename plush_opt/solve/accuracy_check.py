@@ -27,8 +27,8 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, branch_options, equilibrium_at,
-                       estimate_levels, transfer_pose)
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, branch_options, carried_start,
+                       equilibrium_at, estimate_levels)
 from .equilibrium import EquilibriumOptions, solve_equilibrium
 
 
@@ -81,7 +81,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             src = start if start is not None and start[0] is lv.mesh else max(here, key=lambda m: m[0].n_nodes)
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
             eq = follow(model, c, src[0], src[1], options)
-        else:                         # nothing to follow: from the probe's pose, by continuation where that fails
+        if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
             if not eq.converged:
                 raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
@@ -125,9 +125,13 @@ def follow(model, contraction, mesh_from, x_from, options: EquilibriumOptions | 
     pose ``x_from`` (flat, on ``mesh_from``): Newton from that pose carried
     to the model's mesh, at most :data:`~plush_opt.solve.accuracy.BRANCH_ITERATIONS` iterations, no
     continuation. Its ``converged`` is False where the level has no
-    equilibrium near that branch there."""
-    return solve_equilibrium(model, contraction, transfer_pose(mesh_from, x_from, model.mesh),
-                             branch_options(options or LEVEL_OPTIONS))
+    equilibrium near that branch there; None where no admissible start is
+    carried over (:func:`~plush_opt.solve.accuracy.carried_start`: a
+    contact in the way; that says nothing of the branch)."""
+    x0 = carried_start(model, mesh_from, x_from)
+    if x0 is None:
+        return None
+    return solve_equilibrium(model, contraction, x0, branch_options(options or LEVEL_OPTIONS))
 
 
 def cheapest_meeting(levels: list[Level], tol: float) -> int | None:
