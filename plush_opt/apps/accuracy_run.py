@@ -203,7 +203,9 @@ class AccurateSolve:
                 seeds[(CHECK_ELEMENT, first)] = lv
                 self.progress(f"accuracy: {CHECK_ELEMENT} level of {lv.mesh.n_nodes:,} nodes solved from the answer "
                               f"(one solve {lv.t_solve:.2f} CPU s)")
-            sweep = choose_levels(self.scene, self.tol, contractions=c[None], solved=seeds,
+            # (the other element's poses there serve as starts where no P2 pose carries over admissibly)
+            starts = {(lv.element, lv.resolution): lv for lv in at if lv.element != CHECK_ELEMENT and lv.on_branch}
+            sweep = choose_levels(self.scene, self.tol, contractions=c[None], solved={**starts, **seeds},
                                   elements=(CHECK_ELEMENT,), progress=self.progress, follow=True)
         except SceneError as exc:      # no certified P2 pose there: no agreement shown, nothing claimed
             self.refuted = True

@@ -53,7 +53,7 @@ from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
-from ..base.geometry import body_area
+from ..base.geometry import body_area, locate_in_triangles
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -138,51 +138,47 @@ def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
     return (mesh_to.X + out).reshape(-1)
 
 
-#: Segments of the source's boundary tried per boundary node of the target
-#: mesh (the nearest by midpoint): a node on the source's boundary lies on
-#: one of the few nearest.
-ON_BOUNDARY_CANDIDATES = 8
+def transfer_pose_piecewise_linear(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
+    """:func:`transfer_pose` with the displacement interpolated linearly in
+    the triangles of ``mesh_from``'s nodes (a P2 element split in four at
+    its midside nodes): a strongly curved quadratic map can invert the
+    triangles of a finer mesh inside it, and its edges bulge beyond the
+    straight segments between boundary nodes that contact sees (into an
+    obstacle they keep clear of), where linear pieces through the same
+    nodes do neither. The same as :func:`transfer_pose` for a P1
+    ``mesh_from``. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
+    e = mesh_from.elements
+    if e.shape[1] == 3:
+        return transfer_pose(mesh_from, x_from, mesh_to)
+    a, b, c, ab, bc, ca = e.T
+    pieces = np.concatenate([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c], np.c_[ab, bc, ca]])
+    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
+    tri, beta = locate_in_triangles(mesh_from.X[pieces], mesh_to.X, 1e-6 * mesh_from.diameter)
+    out = np.empty_like(mesh_to.X)
+    inside = tri >= 0
+    out[inside] = np.einsum("kj,kjd->kd", beta[inside], u[pieces[tri[inside]]])
+    if not inside.all():
+        from scipy.spatial import cKDTree
+        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
+        out[~inside] = u[near]
+    return (mesh_to.X + out).reshape(-1)
 
 
-def transfer_pose_along_boundary(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
-    """:func:`transfer_pose`, except that each boundary node of ``mesh_to``
-    lying on a boundary segment of ``mesh_from`` (as contact sees it:
-    straight between consecutive boundary nodes, midside nodes included)
-    goes to the same fraction of that segment in the pose: on the chord,
-    not on the quadratic edge, which can bulge into an obstacle the chords
-    keep clear of. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
-    from scipy.spatial import cKDTree
-    from ..fem.contact_boundary import boundary_segments
-    out = transfer_pose(mesh_from, x_from, mesh_to).reshape(-1, 2)
-    xf = np.asarray(x_from, dtype=np.float64).reshape(-1, 2)
-    seg = boundary_segments(mesh_from)
-    a, b = mesh_from.X[seg[:, 0]], mesh_from.X[seg[:, 1]]
-    nodes = np.unique(boundary_segments(mesh_to))
-    p = mesh_to.X[nodes]
-    k = min(ON_BOUNDARY_CANDIDATES, len(seg))
-    _, cand = cKDTree(0.5 * (a + b)).query(p, k=k)
-    cand = cand.reshape(len(p), k)
-    ab = b[cand] - a[cand]
-    t = np.clip(np.einsum("nkd,nkd->nk", p[:, None] - a[cand], ab) / np.einsum("nkd,nkd->nk", ab, ab), 0.0, 1.0)
-    dist = np.linalg.norm(a[cand] + t[..., None] * ab - p[:, None], axis=-1)
-    best = np.argmin(dist, axis=1)
-    rows = np.arange(len(p))
-    on = dist[rows, best] <= 1e-9 * mesh_from.diameter
-    s_, tt = cand[rows, best][on], t[rows, best][on]
-    out[nodes[on]] = xf[seg[s_, 0]] + tt[:, None] * (xf[seg[s_, 1]] - xf[seg[s_, 0]])
-    return out.reshape(-1)
-
-
-def carried_start(model: Model, mesh_from: Mesh, x_from) -> np.ndarray | None:
-    """An admissible start on ``model``'s mesh from the pose ``x_from`` on
-    ``mesh_from``: :func:`transfer_pose`, or where that is not admissible
-    (a quadratic edge carried across a contact) the boundary carried along
-    the chords (:func:`transfer_pose_along_boundary`); None if neither is."""
-    x0 = transfer_pose(mesh_from, x_from, model.mesh)
-    if model.admissible(x0):
-        return x0
-    x0 = transfer_pose_along_boundary(mesh_from, x_from, model.mesh)
-    return x0 if model.admissible(x0) else None
+def carried_start(model: Model, sources) -> np.ndarray | None:
+    """An admissible start on ``model``'s mesh from poses of the same
+    branch: ``sources``, (mesh, flat pose) pairs, tried in order (the
+    finest first), each by :func:`transfer_pose` and, where that is not
+    admissible (an element inverted, or an edge across a contact), with
+    the displacement interpolated linearly
+    (:func:`transfer_pose_piecewise_linear`); None if none is admissible
+    (a strongly curved P2 element near a contact can have inverted pieces:
+    a coarser or P1 pose then serves)."""
+    for mesh_from, x_from in sources:
+        for carry in (transfer_pose, transfer_pose_piecewise_linear):
+            x0 = carry(mesh_from, x_from, model.mesh)
+            if model.admissible(x0):
+                return x0
+    return None
 
 
 def equilibrium_at(model: Model, contraction, x0=None,
@@ -262,13 +258,15 @@ def probe_contractions(scene: Scene) -> np.ndarray:
 
 
 def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
-                 options: EquilibriumOptions, follow: bool = False) -> Level | None:
+                 options: EquilibriumOptions, follow: bool = False, sources=()) -> Level | None:
     """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
     every contraction of ``cs`` from the previous level's poses. None if
     an explicit level is not really finer than ``prev``. With ``follow``
     (and ``prev``), each pose follows ``prev``'s branch
     (:func:`branch_options`) from its pose carried over where that is
-    admissible, and where it does not converge the level is returned off
+    admissible (else from the first of the levels ``sources``, solved at
+    the same contractions, that gives one: :func:`carried_start`), and
+    where it does not converge the level is returned off
     the branch (its pose None, ``y`` NaN) instead of solved by
     continuation."""
     t0 = time.perf_counter()
@@ -294,7 +292,8 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
-        start = carried_start(model, prev.mesh, prev.poses[j]) if follow and prev is not None else None
+        start = carried_start(model, [(prev.mesh, prev.poses[j])] + [(lv.mesh, lv.poses[j]) for lv in sources]) \
+            if follow and prev is not None else None
         if start is not None:
             eq = solve_equilibrium(model, c, start, branch_options(options))
             poses.append(eq.x if eq.converged else None)
@@ -380,10 +379,12 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
         level = solved.get((element, res))
         if level is None:
             prev = [lv for lv in computed if lv.element == element and lv.on_branch]
+            others = sorted((lv for lv in {id(lv): lv for lv in [*computed, *solved.values()]}.values()
+                             if lv.on_branch), key=lambda lv: -lv.mesh.n_nodes) if follow else []
             t0 = time.perf_counter()
             level = _solve_level(dataclasses.replace(scene, element=element), res, cs, points,
                                  max(prev, key=lambda lv: lv.mesh.n_nodes) if follow and prev else
-                                 prev[-1] if prev else None, options, follow)
+                                 prev[-1] if prev else None, options, follow, others)
             solved[(element, res)] = level
             if progress is not None:
                 progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "

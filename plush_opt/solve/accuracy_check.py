@@ -78,9 +78,12 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         t0 = time.perf_counter()
         model = build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
         if here:                      # follow the answer's branch: Newton from the finest pose there
-            src = start if start is not None and start[0] is lv.mesh else max(here, key=lambda m: m[0].n_nodes)
+            sources = sorted(here, key=lambda m: -m[0].n_nodes)
+            if start is not None and start[0] is lv.mesh:
+                sources.insert(0, start)
+            src = sources[0]
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
-            eq = follow(model, c, src[0], src[1], options)
+            eq = follow(model, c, sources, options)
         if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
             if not eq.converged:
@@ -120,15 +123,16 @@ def finer(lv: Level, than: Level) -> bool:
     return n > m or (n == m and lv.element == "P2" and than.element == "P1")
 
 
-def follow(model, contraction, mesh_from, x_from, options: EquilibriumOptions | None = None):
+def follow(model, contraction, sources, options: EquilibriumOptions | None = None):
     """The equilibrium of ``model`` at ``contraction`` on the branch of the
-    pose ``x_from`` (flat, on ``mesh_from``): Newton from that pose carried
-    to the model's mesh, at most :data:`~plush_opt.solve.accuracy.BRANCH_ITERATIONS` iterations, no
+    poses ``sources`` ((mesh, flat pose) pairs at ``contraction``, the
+    finest first): Newton from the first of them carried to the model's
+    mesh admissibly (:func:`~plush_opt.solve.accuracy.carried_start`), at
+    most :data:`~plush_opt.solve.accuracy.BRANCH_ITERATIONS` iterations, no
     continuation. Its ``converged`` is False where the level has no
-    equilibrium near that branch there; None where no admissible start is
-    carried over (:func:`~plush_opt.solve.accuracy.carried_start`: a
-    contact in the way; that says nothing of the branch)."""
-    x0 = carried_start(model, mesh_from, x_from)
+    equilibrium near that branch there; None where none carries over
+    admissibly (that says nothing of the branch)."""
+    x0 = carried_start(model, sources)
     if x0 is None:
         return None
     return solve_equilibrium(model, contraction, x0, branch_options(options or LEVEL_OPTIONS))
