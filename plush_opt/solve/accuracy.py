@@ -261,11 +261,11 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
                  options: EquilibriumOptions, follow: bool = False, sources=()) -> Level | None:
     """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
     every contraction of ``cs`` from the previous level's poses. None if
-    an explicit level is not really finer than ``prev``. With ``follow``
-    (and ``prev``), each pose follows ``prev``'s branch
-    (:func:`branch_options`) from its pose carried over where that is
-    admissible (else from the first of the levels ``sources``, solved at
-    the same contractions, that gives one: :func:`carried_start`), and
+    an explicit level is not really finer than ``prev``. With ``follow``,
+    each pose follows the branch of ``prev`` (if given) and the levels
+    ``sources`` (solved at the same contractions), from the first of their
+    poses that carries over admissibly (:func:`carried_start`,
+    :func:`branch_options`), and
     where it does not converge the level is returned off
     the branch (its pose None, ``y`` NaN) instead of solved by
     continuation."""
@@ -292,8 +292,8 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None else None
-        start = carried_start(model, [(prev.mesh, prev.poses[j])] + [(lv.mesh, lv.poses[j]) for lv in sources]) \
-            if follow and prev is not None else None
+        start = carried_start(model, [(lv.mesh, lv.poses[j]) for lv in ([prev] if prev is not None else [])
+                                      + list(sources)]) if follow else None
         if start is not None:
             eq = solve_equilibrium(model, c, start, branch_options(options))
             poses.append(eq.x if eq.converged else None)
