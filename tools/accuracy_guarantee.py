@@ -18,7 +18,8 @@ For each scene and tolerance (one row, run in its own process, at most
    the returned mesh's nodes solved afresh there (the first from the
    returned pose carried over, each finer one from the one before: the same
    branch of equilibria; none coarser than the answer, which near a fold
-   can settle in another state), refined until it has at
+   can settle in another state; carried admissibly,
+   plush_opt.solve.accuracy.carried_start), refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
    TOL, or until REF_MAX_NODES.
@@ -97,7 +98,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     from plush_opt.fem.model import build_model
     from plush_opt.fem.objective import Targets
     from plush_opt.solve.accuracy import (EXPECTED_ORDER, GRADED, LEVEL_OPTIONS, MAX_RATIO, SAFETY, base_area,
-                                          equilibrium_at, probe_points, transfer_pose)
+                                          carried_start, equilibrium_at, probe_points, transfer_pose)
     from plush_opt.base.errors import SceneError
     s = dataclasses.replace(scene, element="P2")
     points, _ = probe_points(scene)
@@ -115,7 +116,11 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
             # stable state from the answer, which the finer levels would then follow
             continue
         model = build_model(s, m)
-        eq = equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
+        # an admissible start on the same branch (a P2 pose carried as it is can invert an element or
+        # cross a contact, and equilibrium_at would then start from rest, in another contact state)
+        x0 = carried_start(model, [(prev_mesh, prev_x), (mesh_returned, x_returned)])
+        x0 = transfer_pose(prev_mesh, prev_x, m) if x0 is None else x0
+        eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS)
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
         mesh, x = m, eq.x
