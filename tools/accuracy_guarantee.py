@@ -19,7 +19,7 @@ For each scene and tolerance (one row, run in its own process, at most
    returned pose carried over, each finer one from the one before: the same
    branch of equilibria; none coarser than the answer, which near a fold
    can settle in another state; carried admissibly,
-   plush_opt.solve.accuracy.carried_start), refined until it has at
+   plush_opt.solve.accuracy_carry.carried_start), refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
    TOL, or until REF_MAX_NODES.

@@ -50,10 +50,13 @@ import numpy as np
 from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
                                 _json_number, bound_errors, estimate_errors, estimate_levels)
 from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
+# carrying poses between levels (callers import these from here too)
+from .accuracy_carry import (BRANCH_ITERATIONS, BRANCH_PROGRESS, branch_options, carried_start,  # noqa: F401
+                             solve_on_branch, transfer_pose, transfer_pose_piecewise_linear)
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
-from ..base.geometry import body_area, locate_in_triangles
+from ..base.geometry import body_area
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -100,86 +103,6 @@ ELEMENT_ORDER = ("P2", "P1")
 #: A positive definite pose whose residual stalls within its round-off floor
 #: (plush_opt.solve.certificate.roundoff_floor) is converged as well.
 LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9, roundoff=1.0)
-
-#: Newton iterations a level's solve at a returned contraction may take
-#: from a pose of the answer's branch carried to its mesh: such a start is
-#: within Newton's local reach of the level's equilibrium on that branch,
-#: which it reaches in a few dozen steps where it exists; a level whose
-#: branch ends before that contraction (a coarse or locking level folding
-#: earlier) would otherwise run to the 500-iteration limit and then to a
-#: pose of another branch by continuation, which measures nothing.
-BRANCH_ITERATIONS = 60
-
-
-def branch_options(options: EquilibriumOptions) -> EquilibriumOptions:
-    """``options`` for following a branch from a pose on it: at most
-    :data:`BRANCH_ITERATIONS` Newton iterations, no continuation."""
-    return dataclasses.replace(options, continuation=0,
-                               max_iterations=min(options.max_iterations, BRANCH_ITERATIONS))
-
-
-def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
-    """The pose ``x_from`` (flat, on ``mesh_from``) carried to ``mesh_to``:
-    each rest node of ``mesh_to`` moves with the displacement interpolated
-    in the rest triangle of ``mesh_from`` that holds it. Nodes outside
-    ``mesh_from`` (round-off at curved boundaries) take the nearest node's
-    displacement. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
-    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
-    tri, beta = mesh_from.locate(mesh_to.X, tol=1e-6 * mesh_from.diameter)
-    out = np.empty_like(mesh_to.X)
-    inside = tri >= 0
-    nodes = mesh_from.elements[tri[inside]]          # P2: through the six shape functions
-    weights = mesh_from.element.interpolation_weights(beta[inside])
-    out[inside] = np.einsum("kj,kjd->kd", weights, u[nodes])
-    if not inside.all():
-        from scipy.spatial import cKDTree
-        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
-        out[~inside] = u[near]
-    return (mesh_to.X + out).reshape(-1)
-
-
-def transfer_pose_piecewise_linear(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
-    """:func:`transfer_pose` with the displacement interpolated linearly in
-    the triangles of ``mesh_from``'s nodes (a P2 element split in four at
-    its midside nodes): a strongly curved quadratic map can invert the
-    triangles of a finer mesh inside it, and its edges bulge beyond the
-    straight segments between boundary nodes that contact sees (into an
-    obstacle they keep clear of), where linear pieces through the same
-    nodes do neither. The same as :func:`transfer_pose` for a P1
-    ``mesh_from``. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
-    e = mesh_from.elements
-    if e.shape[1] == 3:
-        return transfer_pose(mesh_from, x_from, mesh_to)
-    a, b, c, ab, bc, ca = e.T
-    pieces = np.concatenate([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c], np.c_[ab, bc, ca]])
-    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
-    tri, beta = locate_in_triangles(mesh_from.X[pieces], mesh_to.X, 1e-6 * mesh_from.diameter)
-    out = np.empty_like(mesh_to.X)
-    inside = tri >= 0
-    out[inside] = np.einsum("kj,kjd->kd", beta[inside], u[pieces[tri[inside]]])
-    if not inside.all():
-        from scipy.spatial import cKDTree
-        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
-        out[~inside] = u[near]
-    return (mesh_to.X + out).reshape(-1)
-
-
-def carried_start(model: Model, sources) -> np.ndarray | None:
-    """An admissible start on ``model``'s mesh from poses of the same
-    branch: ``sources``, (mesh, flat pose) pairs, tried in order (the
-    finest first), each by :func:`transfer_pose` and, where that is not
-    admissible (an element inverted, or an edge across a contact), with
-    the displacement interpolated linearly
-    (:func:`transfer_pose_piecewise_linear`); None if none is admissible
-    (a strongly curved P2 element near a contact can have inverted pieces:
-    a coarser or P1 pose then serves)."""
-    for mesh_from, x_from in sources:
-        for carry in (transfer_pose, transfer_pose_piecewise_linear):
-            x0 = carry(mesh_from, x_from, model.mesh)
-            if model.admissible(x0):
-                return x0
-    return None
-
 
 def equilibrium_at(model: Model, contraction, x0=None,
                    options: EquilibriumOptions | None = None, steps: int = 4) -> Equilibrium:
@@ -295,7 +218,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         start = carried_start(model, [(lv.mesh, lv.poses[j]) for lv in ([prev] if prev is not None else [])
                                       + list(sources)]) if follow else None
         if start is not None:
-            eq = solve_equilibrium(model, c, start, branch_options(options))
+            eq = solve_on_branch(model, c, start, options)
             poses.append(eq.x if eq.converged else None)
             ys.append(probe.y(eq.x) if eq.converged else np.full((len(points), 2), np.nan))
             continue

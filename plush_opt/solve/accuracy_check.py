@@ -27,9 +27,9 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, branch_options, carried_start,
-                       equilibrium_at, estimate_levels)
-from .equilibrium import EquilibriumOptions, solve_equilibrium
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, carried_start,
+                       equilibrium_at, estimate_levels, solve_on_branch)
+from .equilibrium import EquilibriumOptions
 
 
 def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
@@ -46,7 +46,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     Newton from the finest pose solved there so far (the answer first),
     carried to the level's mesh, so every level on the same branch. A level
     that has no equilibrium near that branch there (its Newton does not
-    converge within :data:`~plush_opt.solve.accuracy.BRANCH_ITERATIONS`: a coarse level, or one that
+    converge within :data:`~plush_opt.solve.accuracy_carry.BRANCH_ITERATIONS`: a coarse level, or one that
     locks, whose branch ends earlier) is not on the branch
     (:attr:`~plush_opt.solve.accuracy_estimate.Level.on_branch`: ``y``
     NaN, its pose None) and takes no part in the estimates. Without
@@ -127,15 +127,14 @@ def follow(model, contraction, sources, options: EquilibriumOptions | None = Non
     """The equilibrium of ``model`` at ``contraction`` on the branch of the
     poses ``sources`` ((mesh, flat pose) pairs at ``contraction``, the
     finest first): Newton from the first of them carried to the model's
-    mesh admissibly (:func:`~plush_opt.solve.accuracy.carried_start`), at
-    most :data:`~plush_opt.solve.accuracy.BRANCH_ITERATIONS` iterations, no
-    continuation. Its ``converged`` is False where the level has no
+    mesh admissibly (:func:`~plush_opt.solve.accuracy_carry.carried_start`),
+    :func:`~plush_opt.solve.accuracy_carry.solve_on_branch`. Its ``converged`` is False where the level has no
     equilibrium near that branch there; None where none carries over
     admissibly (that says nothing of the branch)."""
     x0 = carried_start(model, sources)
     if x0 is None:
         return None
-    return solve_equilibrium(model, contraction, x0, branch_options(options or LEVEL_OPTIONS))
+    return solve_on_branch(model, contraction, x0, options or LEVEL_OPTIONS)
 
 
 def cheapest_meeting(levels: list[Level], tol: float) -> int | None:
@@ -157,7 +156,7 @@ def seed_level(scene: Scene, used: Level, contraction, resolution: Resolution, p
     """The level ``resolution`` of :data:`CHECK_ELEMENT` solved at
     ``contraction`` ((n_winches,)), from the pose of ``used`` there (a level
     as :func:`bounds_at` returns it) carried over, so on the same branch of
-    equilibria (:func:`~plush_opt.solve.accuracy.branch_options`); its cost
+    equilibria (:func:`~plush_opt.solve.accuracy_carry.solve_on_branch`); its cost
     timed as a sweep's level's. A level with no equilibrium near that pose
     is a :class:`SceneError`."""
     c = np.asarray(contraction, dtype=np.float64).reshape(1, -1)
