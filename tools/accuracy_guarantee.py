@@ -14,9 +14,12 @@ For each scene and tolerance (one row, run in its own process, at most
    imports: its exit code, what it claims at the returned contractions
    (``accuracy.at_result``: met, estimated error) and its CPU seconds.
 2. An independent reference at the returned contractions: the P2 levels
-   of the sweep's family A (a graded mesh refined uniformly) solved afresh
-   there (the first from the returned pose carried over, each finer one from
-   the one before: the same branch of equilibria), refined until it has at
+   of the sweep's family A (a graded mesh refined uniformly) with at least
+   the returned mesh's nodes solved afresh there (the first from the
+   returned pose carried over, each finer one from the one before: the same
+   branch of equilibria; none coarser than the answer, which near a fold
+   can settle in another state; carried admissibly,
+   plush_opt.solve.accuracy_carry.carried_start), refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
    TOL, or until REF_MAX_NODES. Where the pose depends on the path
@@ -102,7 +105,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     from plush_opt.fem.model import build_model
     from plush_opt.fem.objective import Targets
     from plush_opt.solve.accuracy import (EXPECTED_ORDER, GRADED, LEVEL_OPTIONS, MAX_RATIO, SAFETY, base_area,
-                                          equilibrium_at, probe_points, transfer_pose)
+                                          carried_start, equilibrium_at, probe_points, transfer_pose)
     from plush_opt.base.errors import SceneError
     s = dataclasses.replace(scene, element="P2")
     points, _ = probe_points(scene)
@@ -115,9 +118,19 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
         m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
         if m.n_nodes > REF_MAX_NODES:
             break
+        if m.n_nodes < nodes_returned:
+            # coarser than the returned mesh: near a fold such a level can settle in another
+            # stable state from the answer, which the finer levels would then follow
+            continue
         model = build_model(s, m)
-        eq = replay(make_plant(model), waypoints, contraction) if path_dependent(scene) else \
-            equilibrium_at(model, contraction, transfer_pose(prev_mesh, prev_x, m), LEVEL_OPTIONS)
+        if path_dependent(scene):
+            eq = replay(make_plant(model), waypoints, contraction)
+        else:
+            # an admissible start on the same branch (a P2 pose carried as it is can invert an element or
+            # cross a contact, and equilibrium_at would then start from rest, in another contact state)
+            x0 = carried_start(model, [(prev_mesh, prev_x), (mesh_returned, x_returned)])
+            x0 = transfer_pose(prev_mesh, prev_x, m) if x0 is None else x0
+            eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS)
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
         mesh, x = m, eq.x
@@ -218,7 +231,6 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
                                          (), "forward")[0] for lv in levels)
     row["cpu_plain_s"], mesh = plain_cost(scene, acc["element"], acc["max_area"], acc["graded"],
                                           acc["refinements"] or 0, given, doc["method"])
-    s = dataclasses.replace(scene, element=acc["element"])
     x = np.asarray(doc["nodes"], dtype=np.float64).reshape(-1)
     if mesh.n_nodes != len(doc["nodes"]):
         row["verdict"], row["note"] = "NO", f"the accuracy block rebuilds {mesh.n_nodes} nodes, not {len(doc['nodes'])}"

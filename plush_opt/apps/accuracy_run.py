@@ -22,7 +22,8 @@ from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
 from ..solve.accuracy import ELEMENT_ORDER, Resolution, choose_levels, default_levels, summary
-from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, cheapest_meeting, seed_level
+from ..solve.accuracy_check import (CHECK_ELEMENT, bound_through, bounds_at, cheapest_meeting, finer,
+                                   seed_level)
 from ..solve.accuracy_path import extend_along, levels_along
 from ..solve.plant import path_dependent
 
@@ -63,67 +64,44 @@ class AccurateSolve:
         p = from_scene(dataclasses.replace(self.scene, element=lv.element), lv.mesh)
         return Problem(p.scene, p.mesh, p.model, p.targets, repick(self.report, self.levels, k))
 
-    def check(self, solved, resolve):
+    def check(self, solved, resolve, start=None):
         """``solved`` = (problem, equilibrium, result document, history) of
         a solve on :attr:`problem`; ``resolve(problem, contraction by winch
-        name)`` solves again on another level from there. Returns the same
-        four of the last solve, its document's ``accuracy`` with
-        ``at_result`` (and ``mesh_accuracy`` with each check's levels)."""
+        name)`` solves again on another level from there. ``start``: the
+        contractions by winch name the first solve started from (default:
+        the file's); a P1 answer that no P2 level can follow (every P2 level
+        solved has no equilibrium near it) is left for a solve on a P2 level
+        from there. Returns the same four of the last solve, its document's
+        ``accuracy`` with ``at_result`` (and ``mesh_accuracy`` with each
+        check's levels)."""
         if self.levels is None:
             return solved
         rounds, resolves = [], 0
         for attempt in range(MAX_RESOLVES + 1):
             p, eq, doc, history = solved
+            here = dict(zip(p.winch_names, eq.contraction.tolist()))
             if not eq.converged:            # no certified pose: nothing to estimate at, and nothing claimed
                 lv = self.levels[self.index]
-                rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
-                               "element": lv.element, "nodes": lv.mesh.n_nodes, "estimated_error": None,
-                               "met": False, "levels": []})
+                rounds.append({"contraction": here, "element": lv.element, "nodes": lv.mesh.n_nodes,
+                               "estimated_error": None, "met": False, "levels": []})
                 break
-            self.progress(f"accuracy: estimating the error at the returned contractions on the "
-                          f"{len(self.levels)} levels")
-            at, waypoints = self._levels_at(p, eq, doc["method"], history)
-            used = at[self.index]
-            met, estimate = used.meets(self.tol), _number(used.bound)
-            cross = p2 = None
-            via = used if used.bound_via is None else at[used.bound_via]
-            if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
-                # a claim resting on a P1 level's estimate (a P1 answer, or a P2 one
-                # bounded through P1): never without P2 levels agreeing
-                cross, p2 = self._cross_check(at, eq.contraction)
-                met = cross["agrees"]
-                estimate = max(estimate, cross["bound"]) if met else None
-            rounds.append({"contraction": dict(zip(p.winch_names, eq.contraction.tolist())),
-                           "element": used.element, "nodes": used.mesh.n_nodes,
-                           "estimated_error": estimate, "met": met, "levels": [lv.row() for lv in at]})
-            if self.path_dependent:
-                rounds[-1]["path"] = "the plant's fresh path from the start state" if waypoints is None else \
-                    f"the returned path replayed ({len(waypoints)} waypoints)"
-            if cross is not None:
-                rounds[-1]["cross_check"] = cross
-            if met or attempt == MAX_RESOLVES:
+            found = self._estimate_at(p, eq, doc["method"], history)
+            rounds.append(found["round"])
+            if found["round"]["met"] or attempt == MAX_RESOLVES:
                 break
-            if p2 is not None:        # the P1 claim refuted: the P2 levels solved there go on
-                best, self.levels, self.report = p2
-                k, extended = (self.levels.index(best) if self.report["reached"] else None), True
-            else:
-                k, extended = cheapest_meeting(at, self.tol), False
-                if k is None and self.path_dependent:     # finer levels, the path replayed on each
-                    k, extended = self._extend_along(at, waypoints, eq.contraction), True
-                elif k is None:       # no level solved so far meets it there: the sweep goes on, there too
-                    k, extended = self._extend(at, eq.contraction), True
+            k, again, extended, why = self._next_level(found, here, start)
             if k is None:
                 break
+            used = found["used"]
             if (self.levels[k].element, self.levels[k].resolution) == (used.element, used.resolution):
                 if extended:          # the same level: estimate again on the sweep's levels, no new solve
                     continue
                 break
             resolves += 1
-            est = "no estimate" if estimate is None else f"estimated {estimate:.3g}"
-            self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes is {est} > "
-                          f"{self.tol:g} at the returned contractions: solving again on the {self.levels[k].element} "
-                          f"level of {self.levels[k].mesh.n_nodes:,} nodes")
-            solved = resolve(self._problem(k), dict(zip(p.winch_names, eq.contraction.tolist())))
+            self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes {why}: solving again "
+                          f"on the {self.levels[k].element} level of {self.levels[k].mesh.n_nodes:,} nodes"
+                          + (" from the start" if again is not here else ""))
+            solved = resolve(self._problem(k), again)
         p, eq, doc, history = solved
         if rounds:
             last = rounds[-1]
@@ -138,6 +116,70 @@ class AccurateSolve:
             doc["accuracy"]["at_result"] = at_result
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
+
+    def _estimate_at(self, p, eq, method: str, history) -> dict:
+        """The levels solved at the contractions of the answer ``eq`` (on
+        ``p``; by ``method``, through the control iterates ``history``), the
+        estimate there and, for a claim resting on a P1 level's
+        estimate, its check against P2 levels: ``round`` (what the result
+        keeps), ``at`` (the levels there), ``used`` (the answer's level
+        there), ``lost`` (the first level finer than it that has no
+        equilibrium near the answer, or None), ``cross`` and ``p2`` (of
+        :meth:`_cross_check`, or None), ``waypoints`` (the path replayed, see
+        :meth:`_levels_at`)."""
+        self.progress(f"accuracy: estimating the error at the returned contractions on the "
+                      f"{len(self.levels)} levels")
+        at, waypoints = self._levels_at(p, eq, method, history)
+        used = at[self.index]
+        lost = next((lv for lv in at if not lv.on_branch and finer(lv, used)), None)
+        met, estimate = lost is None and used.meets(self.tol), None if lost is not None else _number(used.bound)
+        cross = p2 = None
+        via = used if used.bound_via is None else at[used.bound_via]
+        if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
+            # a claim resting on a P1 level's estimate (a P1 answer, or a P2 one
+            # bounded through P1): never without P2 levels agreeing
+            cross, p2 = self._cross_check(at, eq.contraction)
+            met = cross["agrees"]
+            estimate = max(estimate, cross["bound"]) if met else None
+        found = {"contraction": dict(zip(p.winch_names, eq.contraction.tolist())), "element": used.element,
+                 "nodes": used.mesh.n_nodes, "estimated_error": estimate, "met": met,
+                 "levels": [lv.row() for lv in at]}
+        if cross is not None:
+            found["cross_check"] = cross
+        if lost is not None:
+            found["branch_lost"] = {"element": lost.element, "nodes": lost.mesh.n_nodes}
+        if self.path_dependent:
+            found["path"] = "the plant's fresh path from the start state" if waypoints is None else \
+                f"the returned path replayed ({len(waypoints)} waypoints)"
+        return {"round": found, "at": at, "used": used, "lost": lost, "cross": cross, "p2": p2,
+                "waypoints": waypoints}
+
+    def _next_level(self, found: dict, here: dict, start) -> tuple[int | None, dict, bool, str]:
+        """Where to go on after an estimate at the returned contractions
+        ``here`` (by winch name) that does not meet the tolerance (``found``:
+        :meth:`_estimate_at`): (the index of the level to solve again on, or
+        None; the contractions to solve again from; whether the sweep went
+        on; why, in words)."""
+        at, lost, p2 = found["at"], found["lost"], found["p2"]
+        estimate = found["round"]["estimated_error"]
+        if lost is not None:         # the answer's branch ends before it on a finer level: a coarse mesh's artefact
+            why = (f"has an answer the {lost.element} level of {lost.mesh.n_nodes:,} nodes has no equilibrium "
+                   "near (its branch does not survive refinement)")
+            return self._beyond(lost), dict(start or {}), False, why
+        why = f"is {'no estimate' if estimate is None else f'estimated {estimate:.3g}'} > {self.tol:g} there"
+        if p2 is not None:           # the P1 claim refuted: the P2 levels solved there go on
+            best, self.levels, self.report = p2
+            return (self.levels.index(best) if self.report["reached"] else None), here, True, why
+        if found["cross"] is not None and self.refuted:
+            # no P2 pose near the P1 answer: its branch is one only P1's locking has; control
+            # again on the P2 level the sweep picks at its probes, from where the first solve started
+            return _cheapest_of(self.levels, (CHECK_ELEMENT,), self.tol), dict(start or {}), False, why
+        k = cheapest_meeting(at, self.tol)
+        if k is None and self.path_dependent:     # finer levels, the path replayed on each
+            return self._extend_along(at, found["waypoints"], list(here.values())), here, True, why
+        if k is None:                # no level solved so far meets it there: the sweep goes on, there too
+            return self._extend(at, list(here.values())), here, True, why
+        return k, here, False, why
 
     def _cross_check(self, at, contraction) -> tuple[dict, tuple | None]:
         """The level in use meets the tolerance at ``contraction`` (``at``:
@@ -157,7 +199,7 @@ class AccurateSolve:
         (best, levels, report), the levels to go on with when the claim is
         refuted (``self.refuted``), or None if it could not be made)."""
         used = at[self.index]
-        seeds = {(lv.element, lv.resolution): lv for lv in at if lv.element == CHECK_ELEMENT}
+        seeds = {(lv.element, lv.resolution): lv for lv in at if lv.element == CHECK_ELEMENT and lv.on_branch}
         first = [Resolution(r["family"], 0, r["family"]) for r in self.report.get("not_solved", ())
                  if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
         first = max(first, key=lambda res: res.max_area, default=None) or \
@@ -173,8 +215,10 @@ class AccurateSolve:
                 seeds[(CHECK_ELEMENT, first)] = lv
                 self.progress(f"accuracy: {CHECK_ELEMENT} level of {lv.mesh.n_nodes:,} nodes solved from the answer "
                               f"(one solve {lv.t_solve:.2f} CPU s)")
-            sweep = choose_levels(self.scene, self.tol, contractions=c[None], solved=seeds,
-                                  elements=(CHECK_ELEMENT,), progress=self.progress)
+            # (the other element's poses there serve as starts where no P2 pose carries over admissibly)
+            starts = {(lv.element, lv.resolution): lv for lv in at if lv.element != CHECK_ELEMENT and lv.on_branch}
+            sweep = choose_levels(self.scene, self.tol, contractions=c[None], solved={**starts, **seeds},
+                                  elements=(CHECK_ELEMENT,), progress=self.progress, follow=True)
         except SceneError as exc:      # no certified P2 pose there: no agreement shown, nothing claimed
             self.refuted = True
             return {**found, "note": str(exc)}, None
@@ -203,7 +247,7 @@ class AccurateSolve:
         points = self.report["point_coordinates"]
         if not self.path_dependent:
             return bounds_at(self.scene, self.levels, self.report["contractions"], eq.contraction, points,
-                             start=(p.mesh, eq.x), progress=self.progress), None
+                             start=(p.mesh, eq.x), progress=self.progress, used=self.index), None
         waypoints = None if method == "forward" else np.array([it.contraction for it in history])
         return levels_along(self.scene, self.levels, waypoints, eq.contraction, points, answer=(p.mesh, eq.x),
                             progress=self.progress), waypoints
@@ -220,6 +264,16 @@ class AccurateSolve:
                                       self.tol, CHECK_ELEMENT, progress=self.progress)
         self.report = {**self.report, "picked": None}      # indices of the sweep's levels no longer hold
         return k
+    def _beyond(self, lost) -> int | None:
+        """The level to solve again on when the level ``lost`` (as solved at
+        a returned contraction) has no equilibrium near the answer: the one
+        with the least solve time among ``lost`` and the levels finer than
+        it that meets the tolerance at the probe contractions (P2 alone after
+        a refuted P1 claim), or None."""
+        elements = (CHECK_ELEMENT,) if self.refuted else ELEMENT_ORDER
+        ok = [i for i, lv in enumerate(self.levels) if (lv.element, lv.resolution) == (lost.element, lost.resolution)
+              or finer(lv, lost)]
+        return _cheapest_of([lv if i in ok else None for i, lv in enumerate(self.levels)], elements, self.tol)
 
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``
@@ -238,8 +292,16 @@ class AccurateSolve:
         self.progress(f"accuracy: no level solved meets {self.tol:g} at the returned contractions: "
                       "the sweep goes on there" + (f" ({CHECK_ELEMENT} levels)" if self.refuted else ""))
         best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=c, solved=kept,
-                                                       elements=elements, progress=self.progress)
+                                                       elements=elements, progress=self.progress, follow=True)
         return self.levels.index(best) if self.report["reached"] else None
+
+def _cheapest_of(levels, elements, tol: float) -> int | None:
+    """The index of the level (None entries skipped) of one of ``elements``
+    with the least solve time whose bound (at the contractions it was
+    estimated at) is within ``tol``, or None."""
+    meeting = [i for i, lv in enumerate(levels) if lv is not None and lv.element in elements and lv.meets(tol)]
+    return min(meeting, key=lambda i: levels[i].t_solve) if meeting else None
+
 
 def repick(report: dict, levels, k: int) -> dict:
     """The sweep's ``report`` with level ``k`` of ``levels`` in use (its

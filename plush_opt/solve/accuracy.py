@@ -50,6 +50,9 @@ import numpy as np
 from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
                                 _json_number, bound_errors, estimate_errors, estimate_levels)
 from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
+# carrying poses between levels (callers import these from here too)
+from .accuracy_carry import (BRANCH_ITERATIONS, BRANCH_PROGRESS, branch_options, carried_start,  # noqa: F401
+                             solve_on_branch, transfer_pose, transfer_pose_piecewise_linear)
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
@@ -101,27 +104,6 @@ ELEMENT_ORDER = ("P2", "P1")
 #: A positive definite pose whose residual stalls within its round-off floor
 #: (plush_opt.solve.certificate.roundoff_floor) is converged as well.
 LEVEL_OPTIONS = EquilibriumOptions(eigenvalue=False, gtol=1e-9, roundoff=1.0)
-
-
-def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
-    """The pose ``x_from`` (flat, on ``mesh_from``) carried to ``mesh_to``:
-    each rest node of ``mesh_to`` moves with the displacement interpolated
-    in the rest triangle of ``mesh_from`` that holds it. Nodes outside
-    ``mesh_from`` (round-off at curved boundaries) take the nearest node's
-    displacement. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
-    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
-    tri, beta = mesh_from.locate(mesh_to.X, tol=1e-6 * mesh_from.diameter)
-    out = np.empty_like(mesh_to.X)
-    inside = tri >= 0
-    nodes = mesh_from.elements[tri[inside]]          # P2: through the six shape functions
-    weights = mesh_from.element.interpolation_weights(beta[inside])
-    out[inside] = np.einsum("kj,kjd->kd", weights, u[nodes])
-    if not inside.all():
-        from scipy.spatial import cKDTree
-        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
-        out[~inside] = u[near]
-    return (mesh_to.X + out).reshape(-1)
-
 
 def equilibrium_at(model: Model, contraction, x0=None,
                    options: EquilibriumOptions | None = None, steps: int = 4) -> Equilibrium:
@@ -200,10 +182,17 @@ def probe_contractions(scene: Scene) -> np.ndarray:
 
 
 def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
-                 options: EquilibriumOptions) -> Level | None:
+                 options: EquilibriumOptions, follow: bool = False, sources=()) -> Level | None:
     """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
     every contraction of ``cs`` from the previous level's poses. None if
-    an explicit level is not really finer than ``prev``."""
+    an explicit level is not really finer than ``prev``. With ``follow``,
+    each pose follows the branch of ``prev`` (if given) and the levels
+    ``sources`` (solved at the same contractions), from the first of their
+    poses that carries over admissibly (:func:`carried_start`,
+    :func:`branch_options`), and
+    where it does not converge the level is returned off
+    the branch (its pose None, ``y`` NaN) instead of solved by
+    continuation."""
     t0 = time.perf_counter()
     mesh = build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements)
     t_mesh = time.perf_counter() - t0
@@ -231,6 +220,14 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None and plant is None else None
+        # (a path-dependent plant has no branch to follow from a carried pose: a pose alone is no state)
+        start = carried_start(model, [(lv.mesh, lv.poses[j]) for lv in ([prev] if prev is not None else [])
+                                      + list(sources)]) if follow and plant is None else None
+        if start is not None:
+            eq = solve_on_branch(model, c, start, options)
+            poses.append(eq.x if eq.converged else None)
+            ys.append(probe.y(eq.x) if eq.converged else np.full((len(points), 2), np.nan))
+            continue
         eq = cold if x0 is None and np.array_equal(c, timed) and cold.converged else \
             equilibrium_at(model, c, x0, options) if plant is None else plant.equilibrium(c, options=options)
         if not eq.converged:
@@ -284,14 +281,15 @@ def _cheapest_meeting(levels: list[Level], tol: float) -> Level | None:
 
 
 def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solved: dict | None = None,
-                  progress=None) -> tuple[Level | None, list[Level], Planner]:
+                  progress=None, follow: bool = False) -> tuple[Level | None, list[Level], Planner]:
     """The default levels of ``elements`` solved in the order
     :class:`~plush_opt.solve.accuracy_sweep.Planner` gives (the cheapest
     predicted way to a level that meets ``tol``) until it stops: (the
     cheapest level meeting ``tol`` or None, the levels solved in the order
     solved, the planner: its ``stopped`` says why it stopped,
     ``not_solved()`` the levels it left). ``solved``, ``progress``: as in
-    :func:`sweep`."""
+    :func:`sweep`; ``follow``: each level follows the branch of the
+    finest level of its element solved before it (:func:`_solve_level`)."""
     solved = {} if solved is None else solved
     chains = []
     for element in elements:
@@ -309,15 +307,19 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             else None
         level = solved.get((element, res))
         if level is None:
-            prev = [lv for lv in computed if lv.element == element]
+            prev = [lv for lv in computed if lv.element == element and lv.on_branch]
+            others = sorted((lv for lv in {id(lv): lv for lv in [*computed, *solved.values()]}.values()
+                             if lv.on_branch), key=lambda lv: -lv.mesh.n_nodes) if follow else []
             t0 = time.perf_counter()
             level = _solve_level(dataclasses.replace(scene, element=element), res, cs, points,
-                                 prev[-1] if prev else None, options)
+                                 max(prev, key=lambda lv: lv.mesh.n_nodes) if follow and prev else
+                                 prev[-1] if prev else None, options, follow, others)
             solved[(element, res)] = level
             if progress is not None:
                 progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
                          f"contraction(s) in {time.perf_counter() - t0:.1f} s (one solve {level.t_solve:.2f} CPU s"
-                         + ("" if predicted is None else f", predicted {predicted:.2f}") + ")")
+                         + ("" if predicted is None else f", predicted {predicted:.2f}") + ")"
+                         + ("" if level.on_branch else ": no equilibrium near the branch it follows, left out"))
         if best is not None:
             plan.extra_spent += level.t_solve
         plan.solved(chain, level)
@@ -413,12 +415,14 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
 
 def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, points=None,
                   options: EquilibriumOptions | None = None, elements=ELEMENT_ORDER,
-                  solved: dict | None = None, progress=None) -> tuple[Level, list[Level], dict]:
+                  solved: dict | None = None, progress=None, follow: bool = False) -> tuple[Level, list[Level], dict]:
     """:func:`choose_mesh` of an outline scene, with its levels: (the picked
     level, every level computed in the order of ``report["levels"]``, the
     report). The levels let the error be estimated again at other
     contractions (:func:`plush_opt.solve.accuracy_check.bounds_at`).
-    ``progress(line)``, if given, hears of each level solved."""
+    ``progress(line)``, if given, hears of each level solved; ``follow``:
+    default levels follow the branch of the levels solved before them
+    (:func:`planned_sweep`: at a returned contraction, from its answer)."""
     options = options or LEVEL_OPTIONS
     tol, levels = _check_arguments(tol, levels, scene)
     if points is None:
@@ -431,7 +435,8 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
     best: Level | None = None
     plan = None
     if levels is None:
-        best, computed, plan = planned_sweep(scene, tol, elements, cs, points, options, solved, progress)
+        best, computed, plan = planned_sweep(scene, tol, elements, cs, points, options, solved, progress,
+                                              follow)
     else:
         for element in elements:
             computed += sweep(scene, element, levels, cs, points, tol, options,
@@ -472,7 +477,8 @@ def _explicit(scene: Scene, tol) -> tuple[Mesh, dict]:
 def _fallback(computed: list[Level], elements) -> Level:
     """No level met the tolerance: the finest level of the first element
     (of any, if none of it was solved)."""
-    first = [lv for lv in computed if lv.element == elements[0]] or computed
+    on = [lv for lv in computed if lv.on_branch] or computed
+    first = [lv for lv in on if lv.element == elements[0]] or on
     return max(first, key=lambda lv: lv.mesh.n_nodes)
 
 

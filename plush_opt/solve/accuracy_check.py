@@ -27,28 +27,39 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, equilibrium_at,
-                       estimate_levels, transfer_pose)
-from .equilibrium import EquilibriumOptions, solve_equilibrium
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, carried_start,
+                       equilibrium_at, estimate_levels, solve_on_branch)
+from .equilibrium import EquilibriumOptions
 
 
 def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
-              options: EquilibriumOptions | None = None, start=None, progress=None) -> list[Level]:
+              options: EquilibriumOptions | None = None, start=None, progress=None,
+              used: int | None = None) -> list[Level]:
     """The sweep's ``levels`` (solved at the contractions ``probes``, (m,
-    n_winches)) solved at ``contraction`` ((n_winches,)), each from
-    ``start`` (a (mesh, flat pose) at ``contraction``, e.g. the solve's
-    answer) if given, or from the finest pose solved there so far if that
-    is finer (carried to the level's mesh: closer to its answer than a
-    coarse one, and every level on the same branch as ``start``), if that
-    converges, else from its pose at the nearest
-    probe contraction, by continuation where that fails (at a probe
-    contraction itself: the sweep's poses, nothing solved), and estimated there: new
-    :class:`Level` objects (same meshes, one pose
-    each, ``y`` of shape (1, k, 2) at ``points``, (k, 2) rest coordinates),
-    in the same order, with their ``estimate`` and ``bound`` at that
-    contraction. A level whose equilibrium there cannot be certified is a
-    :class:`SceneError`. ``progress(line)``, if given, hears of each level
-    solved (its nodes, wall seconds, and how it was started)."""
+    n_winches)) solved at ``contraction`` ((n_winches,)) and estimated
+    there: new :class:`Level` objects (same meshes, one pose each, ``y`` of
+    shape (1, k, 2) at ``points``, (k, 2) rest coordinates), in the same
+    order, with their ``estimate`` and ``bound`` at that contraction.
+
+    With ``start`` (a (mesh, flat pose) at ``contraction``, e.g. the
+    solve's answer) each level follows the answer's branch (:func:`follow`):
+    Newton from the finest pose solved there so far (the answer first),
+    carried to the level's mesh, so every level on the same branch. A level
+    that has no equilibrium near that branch there (its Newton does not
+    converge within :data:`~plush_opt.solve.accuracy_carry.BRANCH_ITERATIONS`: a coarse level, or one that
+    locks, whose branch ends earlier) is not on the branch
+    (:attr:`~plush_opt.solve.accuracy_estimate.Level.on_branch`: ``y``
+    NaN, its pose None) and takes no part in the estimates. Without
+    ``start`` each level is solved from its pose at the nearest probe
+    contraction, by continuation where that fails, and a level whose
+    equilibrium cannot be certified is a :class:`SceneError`. At a probe
+    contraction itself the sweep's poses are used, nothing solved. ``used``
+    (an index in ``levels``: the level the answer is on): once a level
+    :func:`finer` than it is not on the branch, the answer's branch is one
+    of the coarser levels alone, and the levels after it are not solved
+    (off the branch too).
+    ``progress(line)``, if given, hears of each level solved (its nodes,
+    wall seconds, Newton iterations and how it was started)."""
     options = options or LEVEL_OPTIONS
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
@@ -56,35 +67,74 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     gap = np.max(np.abs(probes - c), axis=1)
     near = int(np.argmin(gap))
     out, here = [], ([] if start is None else [start])
+    refuted = None                    # a level finer than the one in use that cannot follow the answer
     for lv in levels:
         if gap[near] == 0.0:          # a probe contraction: its poses were solved in the sweep
-            out.append(dataclasses.replace(lv, poses=[lv.poses[near]], y=lv.y[near:near + 1], difference_to_next=None,
-                                           ratio=None, estimate=None, confirmed=False, bound=None, bound_via=None))
+            out.append(_one_pose(lv, lv.poses[near], lv.y[near:near + 1]))
+            continue
+        if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
+            out.append(_one_pose(lv, None, np.full((1, len(points), 2), np.nan)))
             continue
         t0 = time.perf_counter()
-        s = dataclasses.replace(scene, element=lv.element)
-        model = build_model(s, lv.mesh)
-        probe = Targets.at_points(lv.mesh, points, points)
-        eq, how = None, "from the answer"
-        if here:
-            src = start if start is not None and start[0] is lv.mesh else max(here, key=lambda m: m[0].n_nodes)
+        model = build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
+        if here:                      # follow the answer's branch: Newton from the finest pose there
+            sources = sorted(here, key=lambda m: -m[0].n_nodes)
+            if start is not None and start[0] is lv.mesh:
+                sources.insert(0, start)
+            src = sources[0]
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
-            eq = solve_equilibrium(model, c, transfer_pose(src[0], src[1], lv.mesh), options)
-        if eq is None or not eq.converged:
+            eq = follow(model, c, sources, options)
+        if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
-        if not eq.converged:
-            raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
-                             f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
-        here.append((lv.mesh, eq.x))
+            if not eq.converged:
+                raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
+                                 f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
+        if not eq.converged and used is not None and finer(lv, levels[used]):
+            refuted = lv
+        said = (f"solved {how} in {time.perf_counter() - t0:.1f} s ({eq.iterations} Newton iterations)"
+                if eq.converged else
+                f"not on the answer's branch: Newton {how} did not converge in {eq.iterations} iterations "
+                f"({time.perf_counter() - t0:.1f} s; {eq.status}): left out of the estimate there"
+                + ("" if refuted is None else "; finer than the level in use, so the answer's branch does not "
+                   "survive refinement: the levels after it are not solved"))
         if progress is not None:
-            progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes solved at the returned "
-                     f"contractions {how} in {time.perf_counter() - t0:.1f} s")
-        out.append(dataclasses.replace(lv, poses=[eq.x], y=probe.y(eq.x)[None], difference_to_next=None,
-                                       ratio=None, estimate=None, confirmed=False, bound=None, bound_via=None))
+            progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions {said}")
+        if eq.converged:
+            here.append((lv.mesh, eq.x))
+        y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
+            np.full((1, len(points), 2), np.nan)
+        out.append(_one_pose(lv, eq.x if eq.converged else None, y))
     for element in dict.fromkeys(lv.element for lv in out):
         estimate_levels([lv for lv in out if lv.element == element])
     bound_errors(out)
     return out
+
+
+def _one_pose(lv: Level, pose, y) -> Level:
+    """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
+    return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
+                               confirmed=False, bound=None, bound_via=None)
+
+
+def finer(lv: Level, than: Level) -> bool:
+    """Whether ``lv`` resolves more than ``than``: more nodes, or P2 on as
+    many nodes as a P1 level."""
+    n, m = lv.mesh.n_nodes, than.mesh.n_nodes
+    return n > m or (n == m and lv.element == "P2" and than.element == "P1")
+
+
+def follow(model, contraction, sources, options: EquilibriumOptions | None = None):
+    """The equilibrium of ``model`` at ``contraction`` on the branch of the
+    poses ``sources`` ((mesh, flat pose) pairs at ``contraction``, the
+    finest first): Newton from the first of them carried to the model's
+    mesh admissibly (:func:`~plush_opt.solve.accuracy_carry.carried_start`),
+    :func:`~plush_opt.solve.accuracy_carry.solve_on_branch`. Its ``converged`` is False where the level has no
+    equilibrium near that branch there; None where none carries over
+    admissibly (that says nothing of the branch)."""
+    x0 = carried_start(model, sources)
+    if x0 is None:
+        return None
+    return solve_on_branch(model, contraction, x0, options or LEVEL_OPTIONS)
 
 
 def cheapest_meeting(levels: list[Level], tol: float) -> int | None:
@@ -106,11 +156,16 @@ def seed_level(scene: Scene, used: Level, contraction, resolution: Resolution, p
     """The level ``resolution`` of :data:`CHECK_ELEMENT` solved at
     ``contraction`` ((n_winches,)), from the pose of ``used`` there (a level
     as :func:`bounds_at` returns it) carried over, so on the same branch of
-    equilibria; its cost timed as a sweep's level's. A pose that cannot be
-    certified there is a :class:`SceneError`."""
+    equilibria (:func:`~plush_opt.solve.accuracy_carry.solve_on_branch`); its cost
+    timed as a sweep's level's. A level with no equilibrium near that pose
+    is a :class:`SceneError`."""
     c = np.asarray(contraction, dtype=np.float64).reshape(1, -1)
-    return _solve_level(dataclasses.replace(scene, element=CHECK_ELEMENT), resolution, c, points, used,
-                        options or LEVEL_OPTIONS)
+    level = _solve_level(dataclasses.replace(scene, element=CHECK_ELEMENT), resolution, c, points, used,
+                         options or LEVEL_OPTIONS, follow=True)
+    if not level.on_branch:
+        raise SceneError(f"{scene.source}: accuracy: the {CHECK_ELEMENT} mesh of {level.mesh.n_nodes} nodes has "
+                         f"no equilibrium near the answer at contraction {c[0].tolist()}")
+    return level
 
 
 def bound_through(used: Level, others: list[Level]) -> tuple[float | None, Level | None]:

@@ -69,6 +69,14 @@ class Level:
     def meets(self, tol: float) -> bool:
         return self.bound is not None and self.bound <= tol
 
+    @property
+    def on_branch(self) -> bool:
+        """Whether the level has its poses (``y`` finite): False for a level
+        that has no equilibrium near the pose it was to follow (see
+        :func:`~plush_opt.solve.accuracy_check.bounds_at`), which takes no
+        part in the estimates and bounds."""
+        return bool(np.all(np.isfinite(self.y)))
+
     def row(self) -> dict:
         return {"element": self.element, "max_area": self.max_area,
                 "refinements": self.resolution.refinements, "nested": self.resolution.family is not None,
@@ -142,10 +150,10 @@ def bound_errors(levels: list[Level]) -> None:
     through a finer P2 level). Never below the
     estimate of the level it comes from, so no optimism is added."""
     anchors = [(j, m) for j, m in enumerate(levels)
-               if m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]
+               if m.on_branch and m.confirmed and m.estimate is not None and math.isfinite(m.estimate)]
     for lv in levels:
         lv.bound = lv.bound_via = None
-        for j, m in anchors:
+        for j, m in anchors if lv.on_branch else ():
             b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.y - m.y, axis=-1))))
             if lv.bound is None or b < lv.bound:
                 lv.bound, lv.bound_via = b, j
@@ -154,9 +162,19 @@ def bound_errors(levels: list[Level]) -> None:
 def estimate_levels(levels: list[Level]) -> None:
     """Set the estimates of levels of one element (coarse to fine): each
     nested family on its own, an explicit sequence as one; then the
-    bounds (:func:`bound_errors`)."""
+    bounds (:func:`bound_errors`). Levels not on the branch
+    (:attr:`Level.on_branch`) get no estimate, and neither do the levels of
+    their family coarser than them: the differences are taken over the
+    unbroken run of finer levels only (a gap would pass for a step)."""
+    for lv in levels:
+        lv.difference_to_next = lv.ratio = lv.estimate = None
+        lv.confirmed = False
     for family in dict.fromkeys(lv.resolution.family for lv in levels):
         group = [lv for lv in levels if lv.resolution.family == family]
+        off = [i for i, lv in enumerate(group) if not lv.on_branch]
+        group = group[off[-1] + 1:] if off else group
+        if not group:
+            continue
         est = estimate_errors([lv.y for lv in group], [lv.mesh.n_nodes for lv in group],
                               group[0].element, nested=family is not None)
         for lv, e in zip(group, est):

@@ -1,0 +1,124 @@
+"""Carrying a pose from one mesh level to another, and following its
+branch of equilibria there (the levels of ``--accuracy``, docs/accuracy.md).
+
+:func:`transfer_pose` carries a pose from one mesh of a scene to another
+(interpolation of the displacement); :func:`carried_start` makes that an
+admissible start; :func:`solve_on_branch` solves from it without leaving
+its branch: a level that has no equilibrium near the branch there says so
+after a few dozen Newton steps instead of reaching another branch by
+continuation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..base.geometry import locate_in_triangles
+from ..fem.mesh import Mesh
+from ..fem.model import Model
+from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
+
+#: Newton iterations a level's solve at a returned contraction may take
+#: from a pose of the answer's branch carried to its mesh: such a start is
+#: within Newton's local reach of the level's equilibrium on that branch,
+#: which it reaches in a few dozen steps where it exists; a level whose
+#: branch ends before that contraction (a coarse or locking level folding
+#: earlier) would otherwise run to the 500-iteration limit and then to a
+#: pose of another branch by continuation, which measures nothing.
+BRANCH_ITERATIONS = 60
+
+
+#: ... unless by then it has cut its residual by this factor: then it is on
+#: its way to that equilibrium, slowly (a fine level near a fold, from a
+#: coarser pose), and goes on to the options' own iteration limit. Newton
+#: that has left the branch wanders at a residual of the order of its
+#: start's (the hexapod's P2 levels: 0.9 of the force scale after 60 steps).
+BRANCH_PROGRESS = 0.1
+
+
+def branch_options(options: EquilibriumOptions) -> EquilibriumOptions:
+    """``options`` for following a branch from a pose on it: at most
+    :data:`BRANCH_ITERATIONS` Newton iterations, no continuation."""
+    return dataclasses.replace(options, continuation=0,
+                               max_iterations=min(options.max_iterations, BRANCH_ITERATIONS))
+
+
+def solve_on_branch(model: Model, contraction, x0, options: EquilibriumOptions) -> Equilibrium:
+    """The equilibrium at ``contraction`` on the branch of the admissible
+    start ``x0`` (a pose of that branch carried over): Newton, no
+    continuation, :data:`BRANCH_ITERATIONS` iterations and, where those cut
+    the residual by :data:`BRANCH_PROGRESS`, on from there up to
+    ``options.max_iterations`` in all. Not converged: the model has no
+    equilibrium near that branch there."""
+    first = solve_equilibrium(model, contraction, x0, branch_options(options))
+    if first.converged or first.iterations < BRANCH_ITERATIONS or \
+            not first.residual_norm <= BRANCH_PROGRESS * np.linalg.norm(model.evaluate(x0, contraction, 1).gradient):
+        return first
+    rest = dataclasses.replace(options, continuation=0, max_iterations=max(options.max_iterations - first.iterations, 1))
+    then = solve_equilibrium(model, contraction, first.x, rest)
+    return dataclasses.replace(then, iterations=first.iterations + then.iterations)
+
+
+def transfer_pose(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
+    """The pose ``x_from`` (flat, on ``mesh_from``) carried to ``mesh_to``:
+    each rest node of ``mesh_to`` moves with the displacement interpolated
+    in the rest triangle of ``mesh_from`` that holds it. Nodes outside
+    ``mesh_from`` (round-off at curved boundaries) take the nearest node's
+    displacement. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
+    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
+    tri, beta = mesh_from.locate(mesh_to.X, tol=1e-6 * mesh_from.diameter)
+    out = np.empty_like(mesh_to.X)
+    inside = tri >= 0
+    nodes = mesh_from.elements[tri[inside]]          # P2: through the six shape functions
+    weights = mesh_from.element.interpolation_weights(beta[inside])
+    out[inside] = np.einsum("kj,kjd->kd", weights, u[nodes])
+    if not inside.all():
+        from scipy.spatial import cKDTree
+        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
+        out[~inside] = u[near]
+    return (mesh_to.X + out).reshape(-1)
+
+
+def transfer_pose_piecewise_linear(mesh_from: Mesh, x_from, mesh_to: Mesh) -> np.ndarray:
+    """:func:`transfer_pose` with the displacement interpolated linearly in
+    the triangles of ``mesh_from``'s nodes (a P2 element split in four at
+    its midside nodes): a strongly curved quadratic map can invert the
+    triangles of a finer mesh inside it, and its edges bulge beyond the
+    straight segments between boundary nodes that contact sees (into an
+    obstacle they keep clear of), where linear pieces through the same
+    nodes do neither. The same as :func:`transfer_pose` for a P1
+    ``mesh_from``. Returns a flat (2 n_nodes,) pose on ``mesh_to``."""
+    e = mesh_from.elements
+    if e.shape[1] == 3:
+        return transfer_pose(mesh_from, x_from, mesh_to)
+    a, b, c, ab, bc, ca = e.T
+    pieces = np.concatenate([np.c_[a, ab, ca], np.c_[ab, b, bc], np.c_[ca, bc, c], np.c_[ab, bc, ca]])
+    u = np.asarray(x_from, dtype=np.float64).reshape(-1, 2) - mesh_from.X
+    tri, beta = locate_in_triangles(mesh_from.X[pieces], mesh_to.X, 1e-6 * mesh_from.diameter)
+    out = np.empty_like(mesh_to.X)
+    inside = tri >= 0
+    out[inside] = np.einsum("kj,kjd->kd", beta[inside], u[pieces[tri[inside]]])
+    if not inside.all():
+        from scipy.spatial import cKDTree
+        _, near = cKDTree(mesh_from.X).query(mesh_to.X[~inside])
+        out[~inside] = u[near]
+    return (mesh_to.X + out).reshape(-1)
+
+
+def carried_start(model: Model, sources) -> np.ndarray | None:
+    """An admissible start on ``model``'s mesh from poses of the same
+    branch: ``sources``, (mesh, flat pose) pairs, tried in order (the
+    finest first), each by :func:`transfer_pose` and, where that is not
+    admissible (an element inverted, or an edge across a contact), with
+    the displacement interpolated linearly
+    (:func:`transfer_pose_piecewise_linear`); None if none is admissible
+    (a strongly curved P2 element near a contact can have inverted pieces:
+    a coarser or P1 pose then serves)."""
+    for mesh_from, x_from in sources:
+        for carry in (transfer_pose, transfer_pose_piecewise_linear):
+            x0 = carry(mesh_from, x_from, model.mesh)
+            if model.admissible(x0):
+                return x0
+    return None
