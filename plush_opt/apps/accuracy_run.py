@@ -85,7 +85,7 @@ class AccurateSolve:
                 rounds.append({"contraction": here, "element": lv.element, "nodes": lv.mesh.n_nodes,
                                "estimated_error": None, "met": False, "levels": []})
                 break
-            found = self._estimate_at(p, eq, doc["method"], history)
+            found = self._estimate_at(p, eq, doc.get("method"), history)
             rounds.append(found["round"])
             if found["round"]["met"] or attempt == MAX_RESOLVES:
                 break
