@@ -149,3 +149,24 @@ def test_the_hexapod_at_tolerance_1_finishes_within_it_of_a_fine_p2_solve_at_its
     assert eq.converged, eq.status
     true = float(np.max(np.linalg.norm(y - Targets.at_points(fine, points, points).y(eq.x), axis=1)))
     assert fine.n_nodes > 10_000 and true <= 1.0, true
+
+
+def test_at_a_probe_contraction_an_answer_other_than_the_sweeps_pose_is_followed():
+    """At one of the sweep's probe contractions the levels' swept poses
+    serve only when the answer is the sweep's own pose on its mesh; an
+    answer solved again from elsewhere (another branch, perhaps) has the
+    levels follow it (the locking test's crescent once claimed 0.35 for a
+    pose 0.60 from a fine P2 solve: the claim was about the swept pose)."""
+    from plush_opt.solve.accuracy import choose_levels
+    from plush_opt.solve.accuracy_check import bounds_at
+    scene = load_scene(ROOT / "problems" / "cantilever.yaml")
+    c = scene.contraction[None]
+    best, levels, report = choose_levels(scene, 1.0, contractions=c)
+    k = levels.index(best)
+    points = report["point_coordinates"]
+    said = []
+    bounds_at(scene, levels, c, c[0], points, start=(best.mesh, best.poses[0]), progress=said.append, used=k)
+    assert said == []                              # the sweep's own pose: nothing solved again
+    moved = best.poses[0] + 1e-3 * best.mesh.diameter
+    bounds_at(scene, levels, c, c[0], points, start=(best.mesh, moved), progress=said.append, used=k)
+    assert len(said) == len(levels) and all("at the returned contractions solved" in line for line in said)

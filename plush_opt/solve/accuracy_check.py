@@ -53,7 +53,9 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     ``start`` each level is solved from its pose at the nearest probe
     contraction, by continuation where that fails, and a level whose
     equilibrium cannot be certified is a :class:`SceneError`. At a probe
-    contraction itself the sweep's poses are used, nothing solved. ``used``
+    contraction itself the sweep's poses are used, nothing solved, unless
+    ``start`` is another pose than the sweep's on its mesh there (solved
+    again from elsewhere: possibly another branch). ``used``
     (an index in ``levels``: the level the answer is on): once a level
     :func:`finer` than it is not on the branch, the answer's branch is one
     of the coarser levels alone, and the levels after it are not solved
@@ -68,8 +70,11 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     near = int(np.argmin(gap))
     out, here = [], ([] if start is None else [start])
     refuted = None                    # a level finer than the one in use that cannot follow the answer
+    # a probe contraction: the sweep's poses serve, unless the answer is another pose than the sweep's
+    # on its own level (solved again from elsewhere, e.g. from rest: possibly another branch)
+    swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
     for lv in levels:
-        if gap[near] == 0.0:          # a probe contraction: its poses were solved in the sweep
+        if swept:
             out.append(_one_pose(lv, lv.poses[near], lv.y[near:near + 1]))
             continue
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
@@ -108,6 +113,17 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         estimate_levels([lv for lv in out if lv.element == element])
     bound_errors(out)
     return out
+
+
+def _sweep_has(levels: list[Level], start, j: int) -> bool:
+    """Whether the answer ``start`` = (mesh, flat pose) is the pose the sweep
+    solved at its probe contraction ``j`` on that mesh (to solver tolerance:
+    1e-6 of the mesh's diameter)."""
+    mesh, x = start
+    for lv in levels:
+        if lv.mesh is mesh and lv.poses[j] is not None:
+            return float(np.max(np.abs(np.asarray(lv.poses[j]) - x))) <= 1e-6 * mesh.diameter
+    return False
 
 
 def _one_pose(lv: Level, pose, y) -> Level:
