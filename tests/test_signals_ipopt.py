@@ -101,7 +101,9 @@ def test_signal_during_cli_ipopt_equilibrium(tmp_path, name):
 @pytest.mark.parametrize("name", ["SIGINT", "SIGHUP"])
 def test_signal_during_cli_bilevel(tmp_path, name):
     out = tmp_path / "r.json"
-    args = [sys.executable, "-m", "plush_opt", "solve", str(_fine(tmp_path, 8.0)), "--method", "bilevel",
+    # (about 12,700 nodes: its IPOPT iterations take seconds, so the signal lands mid-run; on a
+    # mesh of max_area 8 the run ended within the 0.3 s the signal waits after the first iteration)
+    args = [sys.executable, "-m", "plush_opt", "solve", str(_fine(tmp_path, 0.6)), "--method", "bilevel",
             "--ipopt-print-level", "5", "-o", str(out)]
     proc = _start(args, "iter    objective")
     code, err = interrupt(proc, name, WAIT)

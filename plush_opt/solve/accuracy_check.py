@@ -53,9 +53,8 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     ``start`` each level is solved from its pose at the nearest probe
     contraction, by continuation where that fails, and a level whose
     equilibrium cannot be certified is a :class:`SceneError`. At a probe
-    contraction itself the sweep's poses are used, nothing solved, unless
-    ``start`` is another pose than the sweep's on its mesh there (solved
-    again from elsewhere: possibly another branch). ``used``
+    contraction itself the sweep's poses are used (nothing solved) unless
+    ``start`` is another pose than the sweep's on its mesh there. ``used``
     (an index in ``levels``: the level the answer is on): once a level
     :func:`finer` than it is not on the branch, the answer's branch is one
     of the coarser levels alone, and the levels after it are not solved
