@@ -18,27 +18,36 @@ from plush_opt.solve.sensitivity import state_sensitivity
 from shipped import body_size, built
 
 
+def _trial_both_ways(monkeypatch, model, at, c, switch: str, off, on):
+    """A control trial's re-solve at ``c`` from the predictor at the
+    equilibrium at ``at``, with that equilibrium's factor kept, once with
+    ``kept_factor.<switch>`` = ``off`` and once = ``on`` (inexact steps
+    allowed on this small mesh): (equilibrium, factorisations) of each."""
+    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
+    near = solve_equilibrium(model, at)
+    c = np.asarray(c, dtype=np.float64)
+    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
+    count = counting_factorisations(model)
+    out = []
+    try:
+        for value in (off, on):
+            monkeypatch.setattr(kept_factor, switch, value)
+            count["n"] = 0
+            out.append((solve_equilibrium(model, c, guess, chord=near.factor), count["n"]))
+    finally:
+        del model.factorizer.factor
+    return out
+
+
 def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(monkeypatch, caplog):
     """A control trial's re-solve after a 0.05 mm step, from the predictor
     with the last equilibrium's factor: its kept-factor steps stall above
     the tolerance; with the inexact Newton step the certificate's is the
     only factorisation, at the same equilibrium."""
     _, _, model, _ = built("gripper")
-    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
-    near = solve_equilibrium(model, [9.8, 0.0, 5.0])
-    c = np.array([9.85, 0.0, 5.05])
-    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
-    count = counting_factorisations(model)
-    try:
-        monkeypatch.setattr(kept_factor, "KRYLOV_STEPS", 0)
-        without = solve_equilibrium(model, c, guess, chord=near.factor)
-        n_without, count["n"] = count["n"], 0
-        monkeypatch.setattr(kept_factor, "KRYLOV_STEPS", 2)
-        with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
-            with_ = solve_equilibrium(model, c, guess, chord=near.factor)
-        n_with = count["n"]
-    finally:
-        del model.factorizer.factor
+    with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
+        (without, n_without), (with_, n_with) = _trial_both_ways(
+            monkeypatch, model, [9.8, 0.0, 5.0], [9.85, 0.0, 5.05], "KRYLOV_STEPS", 0, 2)
     assert without.converged and with_.converged, (without.status, with_.status)
     assert (n_without, n_with) == (2, 1)
     assert any("1 inexact Newton" in r.getMessage() for r in caplog.records)
@@ -93,24 +102,12 @@ def test_a_trial_refreshes_the_tendon_term_at_its_predictor_and_spares_a_factori
     same equilibrium, certified by a factor of its own Hessian."""
     scene, mesh, _, _ = built("gripper")
     model = Model(scene, mesh, hessian="split")
-    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
-    near = solve_equilibrium(model, [11.14, 0.5, 11.48])
-    c = np.array([11.95, 0.29, 11.2])
-    guess = near.x + state_sensitivity(model, near) @ (c - near.contraction)
-    count = counting_factorisations(model)
-    try:
-        monkeypatch.setattr(kept_factor, "FRESH_LOW_RANK", 0)
-        stale = solve_equilibrium(model, c, guess, chord=near.factor)
-        n_stale, count["n"] = count["n"], 0
-        monkeypatch.setattr(kept_factor, "FRESH_LOW_RANK", 1)
-        refreshed = solve_equilibrium(model, c, guess, chord=near.factor)
-        n_refreshed = count["n"]
-    finally:
-        del model.factorizer.factor
+    (stale, n_stale), (refreshed, n_refreshed) = _trial_both_ways(
+        monkeypatch, model, [11.14, 0.5, 11.48], [11.95, 0.29, 11.2], "FRESH_LOW_RANK", 0, 1)
     assert stale.converged and refreshed.converged, (stale.status, refreshed.status)
     assert (n_stale, n_refreshed) == (2, 1)
     assert (stale.iterations, refreshed.iterations) == (1, 0)
     assert np.abs(refreshed.x - stale.x).max() <= 1e-9 * body_size(model)
-    H = model.evaluate(refreshed.x, c).hessian
+    H = model.evaluate(refreshed.x, refreshed.contraction).hessian
     b = np.ones(model.n_dofs)
     assert np.linalg.norm(H @ refreshed.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)

@@ -48,7 +48,8 @@ import numpy as np
 
 # the estimate's names are also this module's (callers import them from here)
 from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
-                                _json_number, bound_errors, estimate_errors, estimate_levels)
+                                _json_number, bound_errors, estimate_each_element, estimate_errors,
+                                estimate_levels, one_pose)
 from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
 # carrying poses between levels (callers import these from here too)
 from .accuracy_carry import (BRANCH_ITERATIONS, BRANCH_PROGRESS, branch_options, carried_start,  # noqa: F401
@@ -324,8 +325,7 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             plan.extra_spent += level.t_solve
         plan.solved(chain, level)
         computed.append(level)
-        for el in dict.fromkeys(lv.element for lv in computed):
-            estimate_levels([lv for lv in computed if lv.element == el])
+        estimate_each_element(computed)
         best = _cheapest_meeting(computed, tol)
     plan.stopped = _stopped(plan, best, tol)
     if progress is not None:

@@ -27,8 +27,8 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, bound_errors, carried_start,
-                       equilibrium_at, estimate_levels, solve_on_branch)
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
+                       estimate_each_element, one_pose, solve_on_branch)
 from .equilibrium import EquilibriumOptions
 
 
@@ -74,10 +74,10 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
     for lv in levels:
         if swept:
-            out.append(_one_pose(lv, lv.poses[near], lv.y[near:near + 1]))
+            out.append(one_pose(lv, lv.poses[near], lv.y[near:near + 1]))
             continue
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
-            out.append(_one_pose(lv, None, np.full((1, len(points), 2), np.nan)))
+            out.append(one_pose(lv, None, np.full((1, len(points), 2), np.nan)))
             continue
         t0 = time.perf_counter()
         model = build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
@@ -107,11 +107,8 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             here.append((lv.mesh, eq.x))
         y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
             np.full((1, len(points), 2), np.nan)
-        out.append(_one_pose(lv, eq.x if eq.converged else None, y))
-    for element in dict.fromkeys(lv.element for lv in out):
-        estimate_levels([lv for lv in out if lv.element == element])
-    bound_errors(out)
-    return out
+        out.append(one_pose(lv, eq.x if eq.converged else None, y))
+    return estimate_each_element(out)
 
 
 def _sweep_has(levels: list[Level], start, j: int) -> bool:
@@ -123,12 +120,6 @@ def _sweep_has(levels: list[Level], start, j: int) -> bool:
         if lv.mesh is mesh and lv.poses[j] is not None:
             return float(np.max(np.abs(np.asarray(lv.poses[j]) - x))) <= 1e-6 * mesh.diameter
     return False
-
-
-def _one_pose(lv: Level, pose, y) -> Level:
-    """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
-    return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, bound=None, bound_via=None)
 
 
 def finer(lv: Level, than: Level) -> bool:

@@ -181,3 +181,19 @@ def estimate_levels(levels: list[Level]) -> None:
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
             lv.confirmed = e["confirmed"]
     bound_errors(levels)
+
+
+def estimate_each_element(levels: list[Level]) -> list[Level]:
+    """Set the estimates of ``levels`` of several elements: each element's
+    levels on their own (:func:`estimate_levels`), then the bounds across
+    them (:func:`bound_errors`). Returns ``levels``."""
+    for element in dict.fromkeys(lv.element for lv in levels):
+        estimate_levels([lv for lv in levels if lv.element == element])
+    bound_errors(levels)
+    return levels
+
+
+def one_pose(lv: Level, pose, y) -> Level:
+    """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
+    return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
+                               confirmed=False, bound=None, bound_via=None)

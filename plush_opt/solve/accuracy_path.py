@@ -27,7 +27,7 @@ from ..fem.mesh import build_mesh
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import GRADED, LEVEL_OPTIONS, Level, bound_errors, default_levels, estimate_levels
+from .accuracy import GRADED, LEVEL_OPTIONS, Level, default_levels, estimate_each_element, one_pose
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
@@ -71,16 +71,7 @@ def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, option
     if not eq.converged:
         raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
                          f"{lv.mesh.n_nodes} nodes does not reach a certified pose: {eq.status}")
-    y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None]
-    return dataclasses.replace(lv, poses=[eq.x], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, bound=None, bound_via=None)
-
-
-def _estimated(levels: list[Level]) -> list[Level]:
-    for element in dict.fromkeys(lv.element for lv in levels):
-        estimate_levels([lv for lv in levels if lv.element == element])
-    bound_errors(levels)
-    return levels
+    return one_pose(lv, eq.x, Targets.at_points(lv.mesh, points, points).y(eq.x)[None])
 
 
 def levels_along(scene: Scene, levels: list[Level], waypoints, contraction, points, answer=None,
@@ -96,16 +87,14 @@ def levels_along(scene: Scene, levels: list[Level], waypoints, contraction, poin
     out = []
     for lv in levels:
         if answer is not None and answer[0] is lv.mesh:
-            y = Targets.at_points(lv.mesh, points, points).y(answer[1])[None]
-            out.append(dataclasses.replace(lv, poses=[answer[1]], y=y, difference_to_next=None, ratio=None,
-                                           estimate=None, confirmed=False, bound=None, bound_via=None))
+            out.append(one_pose(lv, answer[1], Targets.at_points(lv.mesh, points, points).y(answer[1])[None]))
             continue
         t0 = time.perf_counter()
         out.append(_level_along(scene, lv, waypoints, contraction, points, options or LEVEL_OPTIONS))
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes: the returned path replayed "
                      f"in {time.perf_counter() - t0:.1f} s")
-    return _estimated(out)
+    return estimate_each_element(out)
 
 
 def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, tol: float, element: str,
@@ -136,7 +125,7 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
             progress(f"accuracy: {element} level of {mesh.n_nodes:,} nodes added: the returned path replayed "
                      f"in {time.perf_counter() - t0:.1f} s")
         levels.sort(key=lambda lv: (lv.element, lv.mesh.n_nodes))
-        meeting = [i for i, lv in enumerate(_estimated(levels)) if lv.meets(tol)]
+        meeting = [i for i, lv in enumerate(estimate_each_element(levels)) if lv.meets(tol)]
         if meeting:
             return levels, min(meeting, key=lambda i: levels[i].t_solve)
     return levels, None
