@@ -239,7 +239,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         ys.append(probe.y(eq.x))
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
-    return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys))
+    return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys), model=model)
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,

@@ -72,15 +72,15 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     # a probe contraction: the sweep's poses serve, unless the answer is another pose than the sweep's
     # on its own level (solved again from elsewhere, e.g. from rest: possibly another branch)
     swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
+    if swept:
+        return estimate_each_element([one_pose(lv, lv.poses[near], lv.y[near:near + 1]) for lv in levels])
     for lv in levels:
-        if swept:
-            out.append(one_pose(lv, lv.poses[near], lv.y[near:near + 1]))
-            continue
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
             out.append(one_pose(lv, None, np.full((1, len(points), 2), np.nan)))
             continue
         t0 = time.perf_counter()
-        model = build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
+        model = lv.model if lv.model is not None else \
+            build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
         if here:                      # follow the answer's branch: Newton from the finest pose there
             sources = sorted(here, key=lambda m: -m[0].n_nodes)
             if start is not None and start[0] is lv.mesh:

@@ -67,7 +67,8 @@ def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, option
     (one pose, ``y`` (1, k, 2)); a :class:`SceneError` if its end is not
     certified."""
     s = dataclasses.replace(scene, element=lv.element)
-    eq = replay(make_plant(build_model(s, lv.mesh)), waypoints, contraction, options)
+    model = lv.model if lv.model is not None else build_model(s, lv.mesh)
+    eq = replay(make_plant(model), waypoints, contraction, options)
     if not eq.converged:
         raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
                          f"{lv.mesh.n_nodes} nodes does not reach a certified pose: {eq.status}")
