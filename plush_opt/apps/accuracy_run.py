@@ -123,7 +123,7 @@ class AccurateSolve:
         estimate there and, for a claim resting on a P1 level's
         estimate, its check against P2 levels: ``round`` (what the result
         keeps), ``at`` (the levels there), ``used`` (the answer's level
-        there), ``lost`` (the first level finer than it that has no
+        there), ``lost`` (the cheapest level finer than it that has no
         equilibrium near the answer, or None), ``cross`` and ``p2`` (of
         :meth:`_cross_check`, or None), ``waypoints`` (the path replayed, see
         :meth:`_levels_at`)."""
@@ -131,7 +131,8 @@ class AccurateSolve:
                       f"{len(self.levels)} levels")
         at, waypoints = self._levels_at(p, eq, method, history)
         used = at[self.index]
-        lost = next((lv for lv in at if not lv.on_branch and finer(lv, used)), None)
+        # (bounds_at solves the levels cheapest first and none after one that is lost)
+        lost = min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.t_solve, default=None)
         met, estimate = lost is None and used.meets(self.tol), None if lost is not None else _number(used.bound)
         cross = p2 = None
         via = used if used.bound_via is None else at[used.bound_via]

@@ -55,10 +55,11 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     equilibrium cannot be certified is a :class:`SceneError`. At a probe
     contraction itself the sweep's poses are used (nothing solved) unless
     ``start`` is another pose than the sweep's on its mesh there. ``used``
-    (an index in ``levels``: the level the answer is on): once a level
-    :func:`finer` than it is not on the branch, the answer's branch is one
-    of the coarser levels alone, and the levels after it are not solved
-    (off the branch too).
+    (an index in ``levels``: the level the answer is on): the levels are
+    solved cheapest first (``t_solve``), and once a level :func:`finer`
+    than it is not on the branch, the answer's branch is one of the
+    coarser levels alone, and the dearer levels are not solved (off the
+    branch too).
     ``progress(line)``, if given, hears of each level solved (its nodes,
     wall seconds, Newton iterations and how it was started)."""
     options = options or LEVEL_OPTIONS
@@ -67,16 +68,20 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     probes = np.asarray(probes, dtype=np.float64).reshape(-1, c.size)
     gap = np.max(np.abs(probes - c), axis=1)
     near = int(np.argmin(gap))
-    out, here = [], ([] if start is None else [start])
+    here = [] if start is None else [start]
     refuted = None                    # a level finer than the one in use that cannot follow the answer
     # a probe contraction: the sweep's poses serve, unless the answer is another pose than the sweep's
     # on its own level (solved again from elsewhere, e.g. from rest: possibly another branch)
     swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
     if swept:
         return estimate_each_element([one_pose(lv, lv.poses[near], lv.y[near:near + 1]) for lv in levels])
-    for lv in levels:
+    out = [None] * len(levels)
+    # the cheapest first: where a level finer than the one in use cannot follow the answer, the
+    # dearer levels are not solved on a branch that does not survive refinement
+    for i in sorted(range(len(levels)), key=lambda i: levels[i].t_solve):
+        lv = levels[i]
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
-            out.append(one_pose(lv, None, np.full((1, len(points), 2), np.nan)))
+            out[i] = one_pose(lv, None, np.full((1, len(points), 2), np.nan))
             continue
         t0 = time.perf_counter()
         model = lv.model if lv.model is not None else \
@@ -100,14 +105,14 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
                 f"not on the answer's branch: Newton {how} did not converge in {eq.iterations} iterations "
                 f"({time.perf_counter() - t0:.1f} s; {eq.status}): left out of the estimate there"
                 + ("" if refuted is None else "; finer than the level in use, so the answer's branch does not "
-                   "survive refinement: the levels after it are not solved"))
+                   "survive refinement: the dearer levels are not solved"))
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions {said}")
         if eq.converged:
             here.append((lv.mesh, eq.x))
         y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
             np.full((1, len(points), 2), np.nan)
-        out.append(one_pose(lv, eq.x if eq.converged else None, y))
+        out[i] = one_pose(lv, eq.x if eq.converged else None, y)
     return estimate_each_element(out)
 
 
