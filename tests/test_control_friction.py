@@ -115,11 +115,13 @@ def _probe(c, failing=()):
 def test_the_probe_finds_no_move_at_a_kink_and_says_what_it_checked():
     rule, found, trials = _probe([1.0, 2.0])
     assert not found.moved and found.tried == 8 and found.failed == 0 and len(trials) == 8
-    converged, status = kink_verdict(rule, found, False, "stalled: ...", "friction at via points", "")
-    assert converged and status.startswith("stationary (nonsmooth, friction at via points): no step along")
+    converged, reason, status = kink_verdict(rule, found, (False, "no_decrease", "stalled: ..."),
+                                             "friction at via points", "")
+    assert converged and reason == "stationary" and status.startswith("stationary (nonsmooth, friction at via points): no step along")
     assert "single winch by 0.001 to 0.01 of its range within its bounds" in status
-    converged, status = kink_verdict(rule, found, True, "objective stopped decreasing", "friction at via points", "")
-    assert converged and status == ("objective stopped decreasing; at the kink (friction at via points) no move of "
+    converged, reason, status = kink_verdict(rule, found, (True, "stationary", "objective stopped decreasing"),
+                                             "friction at via points", "")
+    assert converged and reason == "stationary" and status == ("objective stopped decreasing; at the kink (friction at via points) no move of "
                                     "any single winch by 0.001 to 0.01 of its range within its bounds lowers O either")
 
 
@@ -136,8 +138,9 @@ def test_the_probe_takes_the_best_move_and_lengthens_it():
 def test_a_probe_with_a_trial_that_did_not_certify_claims_nothing_more():
     rule, found, _ = _probe([1.0, 2.0], failing=[[1.1, 2.0]])
     assert not found.moved and found.failed == 1
-    converged, status = kink_verdict(rule, found, False, "stalled: x", "friction at via points", "")
-    assert not converged and status == ("stalled: x; the test at the kink is incomplete: 1 of 8 single-winch "
+    converged, reason, status = kink_verdict(rule, found, (False, "no_decrease", "stalled: x"),
+                                             "friction at via points", "")
+    assert not converged and reason == "no_decrease" and status == ("stalled: x; the test at the kink is incomplete: 1 of 8 single-winch "
                                         "moves did not reach a certified equilibrium")
 
 
@@ -191,3 +194,22 @@ def test_a_step_that_vanishes_under_the_damping_is_not_called_stationary_with_fr
     converged, reason, status = _search_verdict(found, last, model, opts, friction)
     assert (converged, reason) == (False, "no_decrease") and status.startswith("stalled: no trial step lowered O")
     assert _search_verdict(Outcome("vanished", 1.0), last, model, opts, friction)[1] == "no_decrease"
+
+
+@pytest.mark.slow       # six control runs
+def test_the_table_in_docs_control_is_the_codes():
+    """docs/control.md's table of friction runs (tools/friction_control_table.py)
+    quotes the code: exit, O (its six digits) and iterates of every run
+    with the defaults (the 'before' cells: the same tool with the handling
+    of the kink switched off)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("table", ROOT / "tools" / "friction_control_table.py")
+    table = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(table)
+    text = (ROOT / "docs" / "control.md").read_text()
+    shown = text[text.index("<!-- kink-table -->"):text.index("<!-- /kink-table -->")].splitlines()[3:]
+
+    def now(row):           # the run's (exit, O, iterates), CPU seconds left out
+        return row.strip("| ").split(" | ")[-1].split(", ")[:3]
+
+    assert [now(r) for r in table.rows(before=False)] == [now(r) for r in shown]

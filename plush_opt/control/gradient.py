@@ -201,8 +201,7 @@ class Controller:
                 # same certified pose, re-scored for the new targets / frozen set
                 self._dirty = False
                 self._restarted = {}
-                self._grad, self._J, self._dxdc = self._gradient(
-                    self._eq, opts.direction == "gauss-newton")
+                self._grad, self._J, self._dxdc = self._gradient(self._eq, opts.direction == "gauss-newton")
                 yield self._iterate(self._eq, self._grad)
                 stall = self._rules().init_state(self.history[-1].objective)
                 self._objective_at_start = self.history[-1].objective
@@ -214,9 +213,10 @@ class Controller:
                 if reason is not None:
                     self.converged, self.reason, self.status = reason
                 if not self._rules().exhausted(last.objective, steps, last.t_wall):
-                    moved = self._kink(last)
-                    steps += moved is not None          # (a kink move is a step of the budget)
-                    moved = moved or self._restart(last)
+                    moved = self._restart(last)
+                    if moved is None:
+                        moved = self._kink(last)
+                        steps += moved is not None      # (a move at the kink is a step of the budget)
                     if moved is not None:
                         stall = self._rules().init_state(moved.objective)
                         yield moved
@@ -254,9 +254,9 @@ class Controller:
         if found.moved:
             log.info("at the kink: O %.6g -> %.6g by %s", last.objective, found.objective, found.contraction)
             return self._jump(found.contraction, found.equilibrium)
-        self.converged, self.status = kink_verdict(rule, found, self.converged, self.status, self.plant.path_cause,
-                                                   _bound_note(last, self.model, self.options.gtol))
-        self.reason = "stationary" if self.converged else self.reason
+        self.converged, self.reason, self.status = kink_verdict(
+            rule, found, (self.converged, self.reason, self.status), self.plant.path_cause,
+            _bound_note(last, self.model, self.options.gtol))
         return None
 
     def _jump(self, c, eq) -> Iterate:

@@ -132,22 +132,25 @@ def _lengthen(rule, c0, best, move, span, lower, upper, trial, value):
     return o, c, eq, extra
 
 
-def kink_verdict(rule: KinkRule, test: KinkProbe, converged: bool, status: str, cause: str,
-                 bound_note: str) -> tuple[bool, str]:
-    """(converged, status) after a test of the kink that found no move.
+def kink_verdict(rule: KinkRule, test: KinkProbe, stop: tuple[bool, str, str], cause: str,
+                 bound_note: str) -> tuple[bool, str, str]:
+    """(converged, reason, status) after a test of the kink that found no move.
 
-    ``converged``, ``status``: the loop's stop before the test; ``cause``
-    the plant's ``path_cause``; ``bound_note`` the held winches
+    ``stop``: the loop's (converged, reason, status) before the test;
+    ``cause`` the plant's ``path_cause``; ``bound_note`` the held winches
     (``; bound active: ...`` or empty). A complete test (every trial
     certified) makes a failed line search an honest stationary stop;
     an incomplete one claims nothing more than the stop before it."""
+    converged, reason, status = stop
     lo, hi = min(rule.steps), max(rule.steps)
     moves = f"move of any single winch by {lo:g} to {hi:g} of its range within its bounds"
     if test.failed:
-        return converged, (f"{status}; the test at the kink is incomplete: {test.failed} of "
-                           f"{test.failed + test.tried} single-winch moves did not reach a certified equilibrium")
+        return converged, reason, (f"{status}; the test at the kink is incomplete: {test.failed} of "
+                                   f"{test.failed + test.tried} single-winch moves did not reach a certified "
+                                   "equilibrium")
     if converged:
-        return True, f"{status}; at the kink ({cause}) no {moves} lowers O either"
-    return True, (f"stationary (nonsmooth, {cause}): no step along the sensitivities lowered O, nor does "
-                  f"a {moves}; a local optimum for the friction state this path reached (another path may "
-                  "end lower: the other --method or --direction, or other starting contractions)" + bound_note)
+        return True, reason, f"{status}; at the kink ({cause}) no {moves} lowers O either"
+    return True, "stationary", (
+        f"stationary (nonsmooth, {cause}): no step along the sensitivities lowered O, nor does a {moves}; "
+        "a local optimum for the friction state this path reached (another path may end lower: the other "
+        "--method or --direction, or other starting contractions)" + bound_note)
