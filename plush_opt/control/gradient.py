@@ -36,7 +36,7 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.plant import Plant, make_plant
 from .bounds import bounds_strategy
-from .kink import KINK_REASONS, kink_verdict, probe_kink
+from .kink import kink_verdict, probe_kink
 from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
 from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
                      projected_gradient)
@@ -215,7 +215,7 @@ class Controller:
                 if not self._rules().exhausted(last.objective, steps, last.t_wall):
                     moved = self._restart(last)
                     if moved is None:
-                        moved = self._kink(last)
+                        moved = self._kink(last, searched=reason is None)
                         steps += moved is not None      # (a move at the kink is a step of the budget)
                     if moved is not None:
                         stall = self._rules().init_state(moved.objective)
@@ -243,11 +243,11 @@ class Controller:
             self._restarted, solve, lambda eq: self._gradient(eq, False)[0])
         return None if move is None else self._jump(move.contraction, move.result)
 
-    def _kink(self, last: Iterate) -> Iterate | None:
-        """Where a path-dependent plant's loop would stop, the test at the kink
-        (:func:`.kink.probe_kink`): its move, or None with the verdict set."""
+    def _kink(self, last: Iterate, searched: bool) -> Iterate | None:
+        """The test at the kink (:func:`.kink.probe_kink`) where a path-dependent plant's loop would
+        stop after a line search (``searched``) or stationary: its move, or None with the verdict set."""
         rule = self.options.kink
-        if not (self.plant.path_dependent and rule.steps and self.reason in KINK_REASONS):
+        if not (self.plant.path_dependent and rule.steps and (searched or self.reason == "stationary")):
             return None
         found = probe_kink(rule, last.contraction, last.objective, self.frozen, self.model.lower,
                            self.model.upper, self._trial, lambda eq: self.targets.value(eq.x))

@@ -28,11 +28,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-#: The loop's stop reasons the test is run for: a stationary or stalled
-#: iterate, and a failed line search (not targets reached, not a budget).
-KINK_REASONS = ("stationary", "no_decrease")
-
-
 @dataclass(frozen=True)
 class KinkRule:
     """How the kink is tested.
