@@ -1,5 +1,5 @@
 """Where the gradient loop on a path-dependent plant would stop: a
-one-sided test of the kink (docs/control.md, "With friction at via points").
+one-sided test of the kink (docs/control.md, "Where O has a kink").
 
 With friction at via points the pose, and so O, is only piecewise smooth in
 the contractions: a via point that slipped in the last step sticks when its
@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+
 
 @dataclass(frozen=True)
 class KinkRule:
