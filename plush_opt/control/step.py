@@ -97,7 +97,7 @@ def trial_point(bounds, xi, contraction, step, frozen, floor: float | None = Non
 class Outcome:
     """What :func:`line_search` found: ``kind`` 'accepted' (``xi`` and
     ``equilibrium`` of the accepted trial), 'stationary' (the step moves no
-    contraction), 'vanished' (rejected trials raised the damping until the
+    contraction), 'vanished' (after rejected trials the damped or halved
     step moved no contraction) or 'no_decrease' (no trial lowered O);
     ``mu`` the Levenberg-Marquardt damping after the search."""
 
@@ -130,7 +130,7 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
         xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen,
                                 options.slope_floor if predicted else None)
         if np.array_equal(c_t, contraction):
-            return Outcome("stationary" if attempt == 0 or not gn else "vanished", mu)
+            return Outcome("stationary" if attempt == 0 else "vanished", mu)
         eq = trial(c_t)
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
