@@ -38,7 +38,9 @@ def test_replay_reaches_the_control_runs_answer_and_the_path_matters(friction_pr
     from plush_opt.solve.accuracy_path import replay
     from plush_opt.solve.plant import make_plant
     p = friction_problem
-    res = p.control("reparam", options=ControlOptions(max_iterations=4))
+    # six iterates: the state of the first four is also reached by a straight
+    # path to their contractions (to 3e-13 mm); by the sixth it is not
+    res = p.control("reparam", options=ControlOptions(max_iterations=6))
     assert res.equilibrium.converged and len(res.history) >= 3
     waypoints = np.array([it.contraction for it in res.history])
     plant = make_plant(p.model)

@@ -109,6 +109,16 @@ class ReparamBounds:
     def clamp(self, xi) -> np.ndarray:
         return self.reparam.clamp(xi)
 
+    def predicted(self, xi, step, floor: float) -> np.ndarray:
+        """The xi whose contraction is the one the step's linear model
+        predicts, f(xi) + f'(xi) step (f' floored at ``floor``, as the search
+        direction uses it), kept within the bounds; a winch with no step
+        keeps its xi. Away from the blend zones this is xi + step; inside
+        them f(xi + step) moves a winch the floor had scaled down by up to
+        1 / ``floor`` times what the model predicted."""
+        c = np.clip(self.f(xi) + self.slope(xi, floor) * step, self.lower, self.upper)
+        return np.where(step == 0, xi, self.to_xi(c))
+
     def margin(self) -> np.ndarray:
         """How close to a bound a winch counts as held there."""
         return (self.upper - self.lower) * self.blend
@@ -138,6 +148,10 @@ class ClipBounds:
 
     def clamp(self, xi) -> np.ndarray:
         return np.clip(xi, self.lower, self.upper)
+
+    def predicted(self, xi, step, floor: float) -> np.ndarray:
+        """The step's contraction, clipped (the linear model's prediction itself)."""
+        return self.clamp(xi + step)
 
     def margin(self) -> np.ndarray:
         return (self.upper - self.lower) * self.HELD

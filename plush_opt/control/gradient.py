@@ -36,6 +36,7 @@ from ..fem.model import Model
 from ..fem.objective import Targets
 from ..solve.plant import Plant, make_plant
 from .bounds import bounds_strategy
+from .kink import kink_verdict, probe_kink
 from .gradient_options import BOUNDS, DIRECTIONS, ControlOptions  # noqa: F401 (re-exported)
 from .policy import (LOOP_ORDER, ProbeSite, StallState, StopRules, held_at_bounds, look_further, predict,
                      projected_gradient)
@@ -200,8 +201,7 @@ class Controller:
                 # same certified pose, re-scored for the new targets / frozen set
                 self._dirty = False
                 self._restarted = {}
-                self._grad, self._J, self._dxdc = self._gradient(
-                    self._eq, opts.direction == "gauss-newton")
+                self._grad, self._J, self._dxdc = self._gradient(self._eq, opts.direction == "gauss-newton")
                 yield self._iterate(self._eq, self._grad)
                 stall = self._rules().init_state(self.history[-1].objective)
                 self._objective_at_start = self.history[-1].objective
@@ -214,11 +214,14 @@ class Controller:
                     self.converged, self.reason, self.status = reason
                 if not self._rules().exhausted(last.objective, steps, last.t_wall):
                     moved = self._restart(last)
+                    if moved is None:
+                        moved = self._kink(last, searched=reason is None)
+                        steps += moved is not None      # (a move at the kink is a step of the budget)
                     if moved is not None:
                         stall = self._rules().init_state(moved.objective)
                         yield moved
                         continue
-                self.status += self._slack_note(last)
+                self.status += _slack_note(self.model, last, self.frozen)
                 self._finished = True
                 return
             steps += 1
@@ -229,17 +232,6 @@ class Controller:
         """The stop rules, with the floor of the current targets."""
         return self.options.stop_rules(self.floor)
 
-    def _slack_winches(self, last: Iterate) -> list[int]:
-        """Free winches with zero gradient because all their tendons are slack."""
-        return slack_winches(self.model, last.x, last.contraction, ~self.frozen, last.gradient)
-
-    def _slack_note(self, last: Iterate) -> str:
-        slack = self._slack_winches(last)
-        if not slack:
-            return ""
-        names = ", ".join(self.model.winch_names[w] for w in slack)
-        return f"; winch {names}: all tendons slack (zero gradient)"
-
     def _restart(self, last: Iterate) -> Iterate | None:
         """Where the loop would stop, look a little further (:func:`_look_further`)."""
         def solve(c):
@@ -247,9 +239,25 @@ class Controller:
             return (self.targets.value(eq.x), eq) if eq.converged else None
 
         move, self._restarted = _look_further(
-            self.options, self.model, last, self._objective_at_start, self._slack_winches(last),
+            self.options, self.model, last, self._objective_at_start, _slack(self.model, last, self.frozen),
             self._restarted, solve, lambda eq: self._gradient(eq, False)[0])
         return None if move is None else self._jump(move.contraction, move.result)
+
+    def _kink(self, last: Iterate, searched: bool) -> Iterate | None:
+        """The test at the kink (:func:`.kink.probe_kink`) where a path-dependent plant's loop would
+        stop after a line search (``searched``) or stationary: its move, or None with the verdict set."""
+        rule = self.options.kink
+        if not (self.plant.path_dependent and rule.steps and (searched or self.reason == "stationary")):
+            return None
+        found = probe_kink(rule, last.contraction, last.objective, self.frozen, self.model.lower,
+                           self.model.upper, self._trial, lambda eq: self.targets.value(eq.x))
+        if found.moved:
+            log.info("at the kink: O %.6g -> %.6g by %s", last.objective, found.objective, found.contraction)
+            return self._jump(found.contraction, found.equilibrium)
+        self.converged, self.reason, self.status = kink_verdict(
+            rule, found, (self.converged, self.reason, self.status), self.plant.path_cause,
+            _bound_note(last, self.model, self.options.gtol))
+        return None
 
     def _jump(self, c, eq) -> Iterate:
         """Continue the loop from a certified equilibrium found off the line search."""
@@ -267,21 +275,15 @@ class Controller:
         """The next iterate by a line search from ``last``, or None (status set)."""
         found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
                             self.options, self._mu, lambda mu: self._direction(last, mu),
-                            self._trial, lambda eq: self.targets.value(eq.x))
+                            self._trial, lambda eq: self.targets.value(eq.x),
+                            self.options.predicted_trials(self.plant.path_dependent))
         self._mu = found.mu
         if found.kind == "accepted":
             self._accept(found.xi, found.equilibrium, last)
             return self._iterate(found.equilibrium, self._grad)
-        if found.kind == "stationary":
-            self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
-            return None
-        self.converged, self.reason = False, "no_decrease"
-        failed = stalled_on(self.plant.path_cause) if self.plant.path_dependent else LINE_SEARCH_FAILED
-        self.status = failed + _bound_note(last, self.model, self.options.gtol)
+        self.converged, self.reason, self.status = _search_verdict(found, last, self.model, self.options,
+                                                                   self.plant)
         return None
-
-    def _at_bounds_status(self, last: Iterate) -> str:
-        return "stationary: every free winch is held at a bound" + _bound_note(last, self.model, self.options.gtol)
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
         """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
@@ -379,6 +381,19 @@ def solve_control(model: Model, targets: Targets, contraction=None, frozen=None,
     return Controller(model, targets, contraction, frozen, x0, options).result()
 
 
+def _slack(model: Model, last: Iterate, frozen) -> list[int]:
+    """Free winches with zero gradient at ``last`` because all their tendons are slack."""
+    return slack_winches(model, last.x, last.contraction, ~frozen, last.gradient)
+
+
+def _slack_note(model: Model, last: Iterate, frozen) -> str:
+    """``; winch NAMES: all tendons slack (zero gradient)``, or empty."""
+    slack = _slack(model, last, frozen)
+    if not slack:
+        return ""
+    return f"; winch {', '.join(model.winch_names[w] for w in slack)}: all tendons slack (zero gradient)"
+
+
 def _stop(options: ControlOptions, rules: StopRules, last: Iterate, stall: StallState, steps: int,
           n_targets: int, frozen: np.ndarray, model: Model):
     """The loop's (converged, reason, status) when it should stop at
@@ -420,6 +435,19 @@ def _start_options(options: ControlOptions, plant: Plant) -> EquilibriumOptions:
     start pose, on a history-free plant (with history the path is the physics)."""
     steps = 0 if plant.path_dependent else options.start_continuation
     return dataclasses.replace(options.equilibrium, continuation=steps)
+
+
+def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions, plant: Plant):
+    """The loop's (converged, reason, status) after a line search from
+    ``last`` that accepted nothing (``found``: its outcome). A step that
+    vanished under the damping says the same as one that moves no winch on
+    a history-free plant; on a path-dependent one it is a failed search
+    (its stop is then tested at the kink, :mod:`.kink`)."""
+    note = _bound_note(last, model, options.gtol)
+    if found.kind == "stationary" or (found.kind == "vanished" and not plant.path_dependent):
+        return True, "stationary", "stationary: every free winch is held at a bound" + note
+    failed = stalled_on(plant.path_cause) if plant.path_dependent else LINE_SEARCH_FAILED
+    return False, "no_decrease", failed + note
 
 
 #: The status of a line search that found no decrease.

@@ -10,10 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..solve.equilibrium import EquilibriumOptions
+from .kink import KinkRule
 from .policy import LEVENBERG_MARQUARDT, Damping, ProbeRule, StopRules
 
 DIRECTIONS = ("gauss-newton", "gradient")
 BOUNDS = ("reparam", "clip")
+TRIALS_IN_BLEND = ("auto", "mapped", "predicted")
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,29 @@ class ControlOptions:
         many steps (``EquilibriumOptions.continuation``) before the loop
         gives up; 0: not. A history-free plant only: with history (friction)
         the path is the physics and is followed anyway.
+    trial_in_blend : where a step moves a winch inside the
+        reparametrisation's blend zone: 'mapped' (the trial is f(xi + dxi),
+        the plain map) or 'predicted' (the trial is the contraction the
+        step's linear model predicts, f(xi) + f'(xi) dxi with f' floored at
+        ``slope_floor``, kept within the bounds; xi is f's inverse there);
+        'auto' (default): 'predicted' on a path-dependent plant, 'mapped'
+        elsewhere. Near a bound the floor scales a winch's column down, so
+        f(xi + dxi) moves it up to 1 / ``slope_floor`` times what the model
+        predicted; on a smooth plant the line search shortens such a trial,
+        but with friction it crosses stick/slip changes the sensitivities do
+        not see, and the damping the rejections raise bends every winch's
+        step (docs/control.md, "With friction at via points").
+    kink_steps : on a path-dependent plant, where the loop would stop
+        (stationary, stalled or a failed line search), every free winch
+        alone is moved by each of these fractions of its range, largest
+        first, in both directions, as certified trials: a move that lowers
+        O is taken, and where none does the stop is a nonsmooth stationary
+        point (:mod:`.kink`); empty: no test. From a thousandth of the
+        range (the sensitivities' own scale of validity at a kink) down to
+        a millionth (a slope measured by a move above the solver's
+        residual tolerance).
+    kink_doublings : a move the kink test found is doubled while O keeps
+        falling, at most this many times (within ``max_step``).
     equilibrium : options of every equilibrium solve.
     """
 
@@ -102,6 +127,9 @@ class ControlOptions:
     probe_gain: float = 1e-3
     trial_newton: int = 100
     start_continuation: int = 4
+    trial_in_blend: str = "auto"
+    kink_steps: tuple[float, ...] = (1e-3, 1e-4, 1e-5, 1e-6)
+    kink_doublings: int = 8
     equilibrium: EquilibriumOptions = field(
         default_factory=lambda: EquilibriumOptions(eigenvalue=False))
 
@@ -124,6 +152,12 @@ class ControlOptions:
             raise ValueError(f"trial_newton: expected an integer >= 1, got {self.trial_newton!r}")
         if not (isinstance(self.start_continuation, int) and self.start_continuation >= 0):
             raise ValueError(f"start_continuation: expected an integer >= 0, got {self.start_continuation!r}")
+        if self.trial_in_blend not in TRIALS_IN_BLEND:
+            raise ValueError(f"trial_in_blend: expected one of {TRIALS_IN_BLEND}, got {self.trial_in_blend!r}")
+        if not all(0 < h < 1 for h in self.kink_steps):
+            raise ValueError(f"kink_steps: expected fractions in (0, 1), got {self.kink_steps!r}")
+        if not (isinstance(self.kink_doublings, int) and self.kink_doublings >= 0):
+            raise ValueError(f"kink_doublings: expected an integer >= 0, got {self.kink_doublings!r}")
         if not 0 < self.slope_floor <= 1:
             raise ValueError(f"slope_floor: expected 0 < slope_floor <= 1, got {self.slope_floor!r}")
 
@@ -137,6 +171,17 @@ class ControlOptions:
     def probe(self) -> ProbeRule:
         """The look-further rule of these options (each winch once per set of targets)."""
         return ProbeRule(self.stuck_fraction, tuple(self.probe_fractions), self.probe_gain, retry=False)
+
+    @property
+    def kink(self) -> KinkRule:
+        """The test at a kink of these options (:mod:`.kink`)."""
+        return KinkRule(tuple(sorted(self.kink_steps, reverse=True)), self.ftol, self.kink_doublings,
+                        self.max_step)
+
+    def predicted_trials(self, path_dependent: bool) -> bool:
+        """Whether trials are the step's linear prediction (``trial_in_blend``)
+        on a plant that is (or is not) ``path_dependent``."""
+        return self.trial_in_blend == "predicted" or (self.trial_in_blend == "auto" and path_dependent)
 
     def stop_rules(self, floor: float) -> StopRules:
         """The stop rules of these options with the objective floor ``floor`` (length^2)."""

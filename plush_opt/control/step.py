@@ -79,10 +79,14 @@ def search_direction(gradient, J, xi, frozen, bounds, span, options, mu: float,
     return (step / ratio if ratio > 1 else step), bb_step
 
 
-def trial_point(bounds, xi, contraction, step, frozen) -> tuple[np.ndarray, np.ndarray]:
-    """(xi, c) of the trial ``xi + step``, kept where xi stops; a frozen
-    winch keeps its xi and its contraction bit for bit."""
-    xi_t = bounds.clamp(xi + step)
+def trial_point(bounds, xi, contraction, step, frozen, floor: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(xi, c) of the trial ``xi + step``, kept where xi stops; with a slope
+    ``floor``, the trial whose contraction is the step's linear prediction
+    instead (``bounds.predicted``: they differ in the reparametrisation's
+    blend zones only). A frozen winch keeps its xi and its contraction bit
+    for bit."""
+    xi_t = bounds.clamp(xi + step) if floor is None else bounds.predicted(xi, step, floor)
     xi_t[frozen] = xi[frozen]
     c_t = bounds.f(xi_t)
     c_t[frozen] = contraction[frozen]
@@ -93,8 +97,9 @@ def trial_point(bounds, xi, contraction, step, frozen) -> tuple[np.ndarray, np.n
 class Outcome:
     """What :func:`line_search` found: ``kind`` 'accepted' (``xi`` and
     ``equilibrium`` of the accepted trial), 'stationary' (the step moves no
-    contraction) or 'no_decrease' (no trial lowered O); ``mu`` the
-    Levenberg-Marquardt damping after the search."""
+    contraction), 'vanished' (after rejected trials the damped or halved
+    step moved no contraction) or 'no_decrease' (no trial lowered O);
+    ``mu`` the Levenberg-Marquardt damping after the search."""
 
     kind: str
     mu: float
@@ -104,7 +109,7 @@ class Outcome:
 
 def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: float,
                 direction: Callable[[float], np.ndarray], trial: Callable[[np.ndarray], Any],
-                value: Callable[[Any], float]) -> Outcome:
+                value: Callable[[Any], float], predicted: bool = False) -> Outcome:
     """Backtrack from the iterate (xi, ``contraction``, O = ``objective``).
 
     ``direction(mu)`` is the step for damping mu, ``trial(c)`` the trial's
@@ -113,16 +118,19 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     (:class:`~.policy.Damping`) and lowers it after the accepted one;
     steepest descent halves its step. A trial is accepted only if its
     equilibrium is certified and O decreased; at most
-    ``options.max_backtracks`` trials.
+    ``options.max_backtracks`` trials. ``predicted``: each trial is the
+    contraction the step's linear model predicts (:func:`trial_point` with
+    ``options.slope_floor``).
     """
     gn = options.direction == "gauss-newton"
     for attempt in range(options.max_backtracks):
         step = direction(mu)
         if not gn:
             step = step * BACKTRACK ** attempt
-        xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen)
+        xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen,
+                                options.slope_floor if predicted else None)
         if np.array_equal(c_t, contraction):
-            return Outcome("stationary", mu)
+            return Outcome("stationary" if attempt == 0 else "vanished", mu)
         eq = trial(c_t)
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
