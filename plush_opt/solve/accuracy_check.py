@@ -76,8 +76,6 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     if swept:
         return estimate_each_element([one_pose(lv, lv.poses[near], lv.y[near:near + 1]) for lv in levels])
     out = [None] * len(levels)
-    # the cheapest first: where a level finer than the one in use cannot follow the answer, the
-    # dearer levels are not solved on a branch that does not survive refinement
     for i in sorted(range(len(levels)), key=lambda i: levels[i].t_solve):
         lv = levels[i]
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
