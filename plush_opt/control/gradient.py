@@ -265,23 +265,22 @@ class Controller:
 
     def _step(self, last: Iterate) -> Iterate | None:
         """The next iterate by a line search from ``last``, or None (status set)."""
+        roundoff = self.targets.roundoff(last.x)
         found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
                             self.options, self._mu, lambda mu: self._direction(last, mu),
-                            self._trial, lambda eq: self.targets.value(eq.x))
+                            self._trial, lambda eq: self.targets.value(eq.x),
+                            # (with history O is not smooth in c: no first-order prediction)
+                            None if self.plant.path_dependent else last.gradient, roundoff)
         self._mu = found.mu
         if found.kind == "accepted":
             self._accept(found.xi, found.equilibrium, last)
             return self._iterate(found.equilibrium, self._grad)
-        if found.kind == "stationary":
-            self.converged, self.reason, self.status = True, "stationary", self._at_bounds_status(last)
-            return None
-        self.converged, self.reason = False, "no_decrease"
-        failed = stalled_on(self.plant.path_cause) if self.plant.path_dependent else LINE_SEARCH_FAILED
-        self.status = failed + _bound_note(last, self.model, self.options.gtol)
+        self.converged, self.reason, self.status = _search_verdict(found, last, self.plant, roundoff, self.model,
+                                                                   self.options.gtol)
         return None
 
     def _at_bounds_status(self, last: Iterate) -> str:
-        return "stationary: every free winch is held at a bound" + _bound_note(last, self.model, self.options.gtol)
+        return _at_bounds(last, self.model, self.options.gtol)
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
         """The step on xi from ``last`` with damping ``mu`` (:func:`.direction.search_direction`)."""
@@ -440,6 +439,25 @@ def stalled_on(cause: str) -> str:
 
 #: A held winch within this fraction of its range from its bound is "at" it.
 AT_BOUND = 1e-9
+
+
+def _at_bounds(last: Iterate, model: Model, gtol: float) -> str:
+    return "stationary: every free winch is held at a bound" + _bound_note(last, model, gtol)
+
+
+def _search_verdict(found, last: Iterate, plant: Plant, roundoff: float, model: Model, gtol: float):
+    """The loop's (converged, reason, status) after a line search from
+    ``last`` that accepted no trial (``found``, :func:`.step.line_search`;
+    ``roundoff``: O's round-off at ``last``)."""
+    note = _bound_note(last, model, gtol)
+    if found.kind == "stationary":
+        return True, "stationary", _at_bounds(last, model, gtol)
+    if found.kind == "below_roundoff":
+        return True, "stationary", (f"stationary to the objective's round-off: no step tried could lower O by "
+                                    f"more than {max(found.predicted, 0.0):.2g} to first order, below its "
+                                    f"round-off {roundoff:.2g}" + note)
+    failed = stalled_on(plant.path_cause) if plant.path_dependent else LINE_SEARCH_FAILED
+    return False, "no_decrease", failed + note
 
 
 def _bound_note(last: Iterate, model: Model, gtol: float) -> str:
