@@ -5,14 +5,21 @@ factored afresh and only that factor certifies it."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import re
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
 from plush_opt.apps.bench_peers import peer_problem
 from plush_opt.apps.timing import counting_factorisations
+from plush_opt.control.gradient import ControlOptions
+from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import Evaluation, Model
+from plush_opt.io import load_scene
+from plush_opt.problem import from_scene
 from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
@@ -148,3 +155,28 @@ def test_a_solve_from_rest_takes_its_second_inexact_step_on_the_hessian_in_hand(
     H = model.evaluate(inexact.x, c).hessian
     b = np.ones(model.n_dofs)
     assert np.linalg.norm(H @ inexact.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)
+
+
+@pytest.mark.slow
+def test_control_with_inexact_steps_on_the_gripper_p2_level_of_17017_nodes_ends_stationary(caplog):
+    """Control as ``solve problems/gripper.yaml --accuracy 0.05`` runs it on
+    the level it picks (P2, graded at 16 x the file's max_area, refined
+    twice: 17,017 nodes, 34,034 unknowns; poses converged at their
+    round-off floor): inexact steps are taken, every trial certified, and
+    where the steps can no longer lower O by more than its round-off the
+    loop ends stationary (its line search failed there before that was
+    told apart), at the objective the loop reaches without inexact steps."""
+    scene = dataclasses.replace(load_scene(ROOT / "problems" / "gripper.yaml"), element="P2")
+    mesh = build_mesh(scene, max_area=16 * 25.0, graded=True, refinements=2, announce=False)
+    p = from_scene(scene, mesh)
+    assert p.model.n_dofs == 34_034
+    options = ControlOptions(equilibrium=EquilibriumOptions(eigenvalue=False, roundoff=1.0))
+    with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
+        res = p.control("reparam", options=options)
+    inexact = [int(m.group(1)) for r in caplog.records
+               if (m := re.search(r"(\d+) inexact Newton", r.getMessage()))]
+    assert sum(inexact) > 0
+    assert (res.converged, res.reason) == (True, "stationary"), res.status
+    assert all(it.equilibrium.converged for it in res.history)
+    # (without inexact steps, KRYLOV_STEPS = 0: 0.708209497745485, stationary after 9 iterates)
+    assert res.objective == pytest.approx(0.708209497745485, rel=1e-9)
