@@ -275,3 +275,58 @@ def test_the_step_is_a_function_of_explicit_state():
     found = line_search(xi, xi.copy(), frozen, bounds, 1.0, dataclasses.replace(gn, max_backtracks=2), 1e-3,
                         lambda mu: np.array([0.0, 1.0, 0.0]), trial, lambda eq: 2.0)
     assert found.kind == "no_decrease" and found.mu == 1e-3 * 10.0 * 10.0
+
+
+def test_a_line_search_no_comparison_of_O_could_decide_is_stationary():
+    """Where every trial fails, each certified, and none was predicted to
+    lower O by more than its round-off (first order, -g . dc), the line
+    search says so ('below_roundoff', the largest such decrease); with a
+    larger prediction, a trial not certified, or no gradient given, it
+    found no decrease ('no_decrease')."""
+    from types import SimpleNamespace
+
+    from plush_opt.control.bounds import ClipBounds
+    from plush_opt.control.step import line_search
+    bounds = ClipBounds(np.zeros(3), np.full(3, 10.0))
+    xi, frozen = np.array([1.0, 5.0, 5.0]), np.zeros(3, dtype=bool)
+    g = np.array([1e-8, -1e-8, 0.0])
+    gn = dataclasses.replace(ControlOptions(), max_backtracks=3)
+
+    def search(roundoff, certified=(True, True, True), gradient=g):
+        flags, sizes = iter(certified), iter([2e-6, 1e-6, 5e-7])    # -g . dc: 2e-14, 1e-14, 5e-15
+        return line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3,
+                           lambda mu: np.array([0.0, next(sizes), 0.0]),
+                           lambda c: SimpleNamespace(converged=next(flags)), lambda eq: 1.0,
+                           gradient=gradient, roundoff=roundoff)
+    found = search(1e-13)
+    assert found.kind == "below_roundoff" and found.predicted == pytest.approx(2e-14)
+    assert found.mu == 1e-3 * 10.0 ** 3                     # (the damping raised per trial as before)
+    assert search(2.001e-14).kind == "below_roundoff"       # (the largest prediction, the first trial's)
+    assert search(1.999e-14).kind == "no_decrease"
+    assert search(1e-13, certified=(True, False, True)).kind == "no_decrease"
+    assert search(1e-13, gradient=None).kind == "no_decrease"
+
+
+def test_objective_roundoff_bounds_its_evaluation_at_nearby_float_poses():
+    """Targets.roundoff(x): O at poses one unit in the last place from x
+    (each coordinate up or down) stays within it of O(x)."""
+    _, _, model, targets = built("gripper")
+    x = solve_equilibrium(model, np.array([12.0, 0.3, 11.0])).x
+    rng = np.random.default_rng(0)
+    O, bound = targets.value(x), targets.roundoff(x)
+    moved = [abs(targets.value(x * (1 + rng.choice([-1.0, 1.0], x.size) * np.finfo(float).eps)) - O)
+             for _ in range(200)]
+    assert 0 < max(moved) <= bound
+
+
+@pytest.mark.slow
+def test_a_loop_that_runs_out_of_resolution_ends_stationary_not_failed():
+    """Steepest descent on the hexapod's leg with no stop rule of its own
+    (gtol and ftol 0) goes on until its steps cannot lower O by more than
+    O's round-off: it ends there 'stationary' (to the objective's
+    round-off), at the golden optimum, not 'line search failed'."""
+    _, _, model, targets = built("hexapod_leg")
+    res = solve_control(model, targets, options=ControlOptions(gtol=0.0, ftol=0.0, direction="gradient"))
+    assert (res.converged, res.reason) == (True, "stationary"), res.status
+    assert res.status.startswith("stationary to the objective's round-off"), res.status
+    assert res.objective == pytest.approx(0.713999138600949, rel=1e-9)

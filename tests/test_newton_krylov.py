@@ -5,17 +5,25 @@ factored afresh and only that factor certifies it."""
 
 from __future__ import annotations
 
+import dataclasses
 import logging
+import re
 
 import numpy as np
+import pytest
 import scipy.sparse as sp
 
+from plush_opt.apps.bench_peers import peer_problem
 from plush_opt.apps.timing import counting_factorisations
+from plush_opt.control.gradient import ControlOptions
+from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import Evaluation, Model
+from plush_opt.io import load_scene
+from plush_opt.problem import from_scene
 from plush_opt.solve import kept_factor
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.solve.sensitivity import state_sensitivity
-from shipped import body_size, built
+from shipped import ROOT, body_size, built
 
 
 def _trial_both_ways(monkeypatch, model, at, c, switch: str, off, on):
@@ -42,15 +50,16 @@ def _trial_both_ways(monkeypatch, model, at, c, switch: str, off, on):
 def test_an_inexact_newton_step_spares_a_factorisation_never_the_certificate(monkeypatch, caplog):
     """A control trial's re-solve after a 0.05 mm step, from the predictor
     with the last equilibrium's factor: its kept-factor steps stall above
-    the tolerance; with the inexact Newton step the certificate's is the
-    only factorisation, at the same equilibrium."""
+    the tolerance; with inexact Newton steps (the second on the first's
+    Hessian) the certificate's is the only factorisation, at the same
+    equilibrium."""
     _, _, model, _ = built("gripper")
     with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
         (without, n_without), (with_, n_with) = _trial_both_ways(
             monkeypatch, model, [9.8, 0.0, 5.0], [9.85, 0.0, 5.05], "KRYLOV_STEPS", 0, 2)
     assert without.converged and with_.converged, (without.status, with_.status)
     assert (n_without, n_with) == (2, 1)
-    assert any("1 inexact Newton" in r.getMessage() for r in caplog.records)
+    assert any("2 inexact Newton" in r.getMessage() for r in caplog.records)
     assert with_.relative_residual <= 1e-10 and with_.iterations == 0
     assert np.abs(with_.x - without.x).max() <= 1e-9 * body_size(model)
     # its factor is its own Hessian's
@@ -111,3 +120,63 @@ def test_a_trial_refreshes_the_tendon_term_at_its_predictor_and_spares_a_factori
     H = model.evaluate(refreshed.x, refreshed.contraction).hessian
     b = np.ones(model.n_dofs)
     assert np.linalg.norm(H @ refreshed.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)
+
+
+def test_a_solve_from_rest_takes_its_second_inexact_step_on_the_hessian_in_hand(monkeypatch, caplog):
+    """The gripper's body under gravity from rest (the peer problem, no
+    tendons), inexact steps allowed on its small mesh: the Newton step, an
+    inexact step with its factor, then inexact steps in the local phase,
+    the second on the Hessian the first evaluated: four evaluations of
+    order 2 in all (rest, the line search's, the local phase's, the
+    certificate's) and two factorisations; the pose Newton reaches without
+    inexact steps, certified by a factor of its own Hessian."""
+    _, _, prob = peer_problem(ROOT / "problems" / "gripper.yaml", 0)
+    model = prob.model
+    c = np.zeros(model.n_winches)
+    newton = solve_equilibrium(model, c)           # (under KRYLOV_MIN_DOFS: no inexact steps)
+    monkeypatch.setattr(kept_factor, "KRYLOV_MIN_DOFS", 0)           # (a small mesh, for a short test)
+    orders = []
+    plain = model.evaluate
+
+    def evaluate(x, c, order=2):
+        orders.append(order)
+        return plain(x, c, order)
+    monkeypatch.setattr(model, "evaluate", evaluate)
+    count = counting_factorisations(model)
+    try:
+        with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
+            inexact = solve_equilibrium(model, c)
+    finally:
+        del model.factorizer.factor
+    assert newton.converged and inexact.converged, (newton.status, inexact.status)
+    assert any("2 inexact Newton" in r.getMessage() for r in caplog.records)
+    assert orders.count(2) == 4 and count["n"] == 2
+    assert np.abs(inexact.x - newton.x).max() <= 1e-9 * body_size(model)
+    H = model.evaluate(inexact.x, c).hessian
+    b = np.ones(model.n_dofs)
+    assert np.linalg.norm(H @ inexact.factor.solve(b) - b) <= 1e-8 * np.linalg.norm(b)
+
+
+@pytest.mark.slow
+def test_control_with_inexact_steps_on_the_gripper_p2_level_of_17017_nodes_ends_stationary(caplog):
+    """Control as ``solve problems/gripper.yaml --accuracy 0.05`` runs it on
+    the level it picks (P2, graded at 16 x the file's max_area, refined
+    twice: 17,017 nodes, 34,034 unknowns; poses converged at their
+    round-off floor): inexact steps are taken, every trial certified, and
+    where the steps can no longer lower O by more than its round-off the
+    loop ends stationary (its line search failed there before that was
+    told apart), at the objective the loop reaches without inexact steps."""
+    scene = dataclasses.replace(load_scene(ROOT / "problems" / "gripper.yaml"), element="P2")
+    mesh = build_mesh(scene, max_area=16 * 25.0, graded=True, refinements=2, announce=False)
+    p = from_scene(scene, mesh)
+    assert p.model.n_dofs == 34_034
+    options = ControlOptions(equilibrium=EquilibriumOptions(eigenvalue=False, roundoff=1.0))
+    with caplog.at_level(logging.DEBUG, logger="plush_opt.solve.equilibrium"):
+        res = p.control("reparam", options=options)
+    inexact = [int(m.group(1)) for r in caplog.records
+               if (m := re.search(r"(\d+) inexact Newton", r.getMessage()))]
+    assert sum(inexact) > 0
+    assert (res.converged, res.reason) == (True, "stationary"), res.status
+    assert all(it.equilibrium.converged for it in res.history)
+    # (without inexact steps, KRYLOV_STEPS = 0: 0.708209497745485, stationary after 9 iterates)
+    assert res.objective == pytest.approx(0.708209497745485, rel=1e-9)

@@ -273,16 +273,19 @@ class Controller:
 
     def _step(self, last: Iterate) -> Iterate | None:
         """The next iterate by a line search from ``last``, or None (status set)."""
+        roundoff = self.targets.roundoff(last.x)
         found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
                             self.options, self._mu, lambda mu: self._direction(last, mu),
                             self._trial, lambda eq: self.targets.value(eq.x),
-                            self.options.predicted_trials(self.plant.path_dependent))
+                            self.options.predicted_trials(self.plant.path_dependent),
+                            # (with history O is not smooth in c: no first-order prediction)
+                            None if self.plant.path_dependent else last.gradient, roundoff)
         self._mu = found.mu
         if found.kind == "accepted":
             self._accept(found.xi, found.equilibrium, last)
             return self._iterate(found.equilibrium, self._grad)
         self.converged, self.reason, self.status = _search_verdict(found, last, self.model, self.options,
-                                                                   self.plant)
+                                                                   self.plant, roundoff)
         return None
 
     def _direction(self, last: Iterate, mu: float) -> np.ndarray:
@@ -437,15 +440,21 @@ def _start_options(options: ControlOptions, plant: Plant) -> EquilibriumOptions:
     return dataclasses.replace(options.equilibrium, continuation=steps)
 
 
-def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions, plant: Plant):
+def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions, plant: Plant,
+                    roundoff: float = 0.0):
     """The loop's (converged, reason, status) after a line search from
-    ``last`` that accepted nothing (``found``: its outcome). A step that
-    vanished under the damping says the same as one that moves no winch on
-    a history-free plant; on a path-dependent one it is a failed search
-    (its stop is then tested at the kink, :mod:`.kink`)."""
+    ``last`` that accepted nothing (``found``: its outcome, :func:`.step.line_search`;
+    ``roundoff``: O's round-off at ``last``). A step that vanished under
+    the damping says the same as one that moves no winch on a history-free
+    plant; on a path-dependent one it is a failed search (its stop is then
+    tested at the kink, :mod:`.kink`)."""
     note = _bound_note(last, model, options.gtol)
     if found.kind == "stationary" or (found.kind == "vanished" and not plant.path_dependent):
         return True, "stationary", "stationary: every free winch is held at a bound" + note
+    if found.kind == "below_roundoff":
+        return True, "stationary", (f"stationary to the objective's round-off: no step tried could lower O by "
+                                    f"more than {max(found.predicted, 0.0):.2g} to first order, below its "
+                                    f"round-off {roundoff:.2g}" + note)
     failed = stalled_on(plant.path_cause) if plant.path_dependent else LINE_SEARCH_FAILED
     return False, "no_decrease", failed + note
 

@@ -98,18 +98,22 @@ class Outcome:
     """What :func:`line_search` found: ``kind`` 'accepted' (``xi`` and
     ``equilibrium`` of the accepted trial), 'stationary' (the step moves no
     contraction), 'vanished' (after rejected trials the damped or halved
-    step moved no contraction) or 'no_decrease' (no trial lowered O);
-    ``mu`` the Levenberg-Marquardt damping after the search."""
+    step moved no contraction), 'below_roundoff' (no trial lowered O, and
+    none could lower it by more than its round-off: ``predicted``, the
+    largest first-order decrease of the trials) or 'no_decrease' (no trial
+    lowered O); ``mu`` the Levenberg-Marquardt damping after the search."""
 
     kind: str
     mu: float
     xi: np.ndarray | None = None
     equilibrium: Any = None
+    predicted: float | None = None
 
 
 def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: float,
                 direction: Callable[[float], np.ndarray], trial: Callable[[np.ndarray], Any],
-                value: Callable[[Any], float], predicted: bool = False) -> Outcome:
+                value: Callable[[Any], float], linear_trials: bool = False, gradient=None,
+                roundoff: float = 0.0) -> Outcome:
     """Backtrack from the iterate (xi, ``contraction``, O = ``objective``).
 
     ``direction(mu)`` is the step for damping mu, ``trial(c)`` the trial's
@@ -118,22 +122,32 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     (:class:`~.policy.Damping`) and lowers it after the accepted one;
     steepest descent halves its step. A trial is accepted only if its
     equilibrium is certified and O decreased; at most
-    ``options.max_backtracks`` trials. ``predicted``: each trial is the
-    contraction the step's linear model predicts (:func:`trial_point` with
-    ``options.slope_floor``).
+    ``options.max_backtracks`` trials. ``linear_trials``: each trial is
+    the contraction the step's linear model predicts (:func:`trial_point`
+    with ``options.slope_floor``). Where none is accepted, every trial's
+    equilibrium was certified and none was predicted to lower O by more
+    than ``roundoff`` (O's round-off at the iterate, length^2) to first
+    order along ``gradient`` (dO/dc at the iterate, (n_winches,); the
+    Gauss-Newton model's decrease is at most that), the comparisons could
+    not have seen a decrease: 'below_roundoff', not 'no_decrease'.
     """
     gn = options.direction == "gauss-newton"
+    predicted, judged = -np.inf, gradient is not None    # (judged: every trial certified, judged by O)
     for attempt in range(options.max_backtracks):
         step = direction(mu)
         if not gn:
             step = step * BACKTRACK ** attempt
         xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen,
-                                options.slope_floor if predicted else None)
+                                options.slope_floor if linear_trials else None)
         if np.array_equal(c_t, contraction):
             return Outcome("stationary" if attempt == 0 else "vanished", mu)
         eq = trial(c_t)
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
+        if judged:
+            predicted, judged = max(predicted, -float(gradient @ (c_t - contraction))), eq.converged
         if gn:
             mu = options.damping.rejected(mu)
+    if judged and predicted <= roundoff:
+        return Outcome("below_roundoff", mu, predicted=predicted)
     return Outcome("no_decrease", mu)

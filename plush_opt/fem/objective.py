@@ -116,6 +116,17 @@ class Targets:
         r = self.residual(x)
         return 0.5 * float(r @ r)
 
+    def roundoff(self, x) -> float:
+        """How far from O(x) a float64 evaluation may land (length^2): each
+        coordinate of y_k - q_k carries eps (|y_k| + |q_k|) of round-off (the
+        points are held in absolute coordinates), to first order
+        sum_k w_k |y_k - q_k| . eps (|y_k| + |q_k|), and the sum of the
+        2 n_targets squares eps (2 n_targets + 1) O. Two values of O closer
+        than this cannot say which pose is nearer the targets."""
+        y = self.y(x)
+        d = self.weight[:, None] * np.abs(y - self.to) * (np.abs(y) + np.abs(self.to))
+        return float(np.finfo(np.float64).eps * (d.sum() + (2 * self.n_targets + 1) * self.value(x)))
+
     def gradient(self, x) -> np.ndarray:
         """dO/dx, flat (n_dofs,)."""
         x = np.asarray(x, dtype=np.float64).reshape(-1)

@@ -87,6 +87,12 @@ KRYLOV_CHECK, KRYLOV_CHECK_CUT = 5, 0.1
 # ... or once |H dx + g| is this fraction of |g|: the step then cuts the
 # residual about as far, and the kept-factor steps after it go on.
 KRYLOV_TOL = 1e-3
+# An inexact step that lands below the tolerance but leaves more than this
+# many times the residual its conjugate gradients predicted has met the
+# residual's round-off floor (that near the equilibrium its nonlinear error
+# is decades smaller): the steps stop there, where a further one would only
+# repeat that residual.
+ROUNDOFF_FLOOR_GAP = 2.0
 
 
 def energy_slack(model: Model, ev_energy: float, x: np.ndarray) -> float:
@@ -126,7 +132,7 @@ def _chord_pays(H, rate: float, norm: float, target: float, room: int, in_hand: 
 
 
 def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation, int]:
+                 options: EquilibriumOptions, start_inexact: bool = False) -> tuple[np.ndarray, Evaluation, int]:
     """Steps -F^-1 g with a kept positive definite ``factor`` F of a nearby
     Hessian, no factorisation: each is taken whole (never beyond
     ``Model.max_step``) only if it is admissible, does not raise the energy
@@ -141,35 +147,43 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     Hessian goes on with the tendons' low-rank terms set up afresh at the
     current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
-    ``KRYLOV_STEPS``).
+    ``KRYLOV_STEPS``): on the Hessian of this pose, or of the last pose of
+    these steps where one was evaluated in the local phase (near enough:
+    the step is tested as any other), its first solve the failed step's
+    own; with that Hessian in hand the next step is inexact too (a
+    kept-factor step right after an inexact one cuts the residual little),
+    as is the first where ``start_inexact`` says the caller's last step was one
+    (landing in the local phase). They stop where an inexact step lands
+    below the tolerance at the residual's round-off floor
+    (``ROUNDOFF_FLOOR_GAP``).
     Returns the pose, its evaluation (with the Hessian if any step was taken, else
     ``ev`` as given) and the number of steps. The certificate is untouched:
     the pose they reach is factored afresh."""
     steps, since, refreshed, krylov = 0, 0, 0, 0    # steps; with this factor; refreshes; inexact Newton
     ev1 = ev
     last = 0.0                             # the residual before the last step
+    local = _local_hessian(ev1, None)      # a Hessian of these steps' local phase
+    floor = False                          # an inexact step met the round-off floor
+    again = start_inexact                  # the next step inexact (on the local Hessian)
     while True:
         g = ev1.gradient
         norm = float(np.linalg.norm(g))
         target = CHORD_DEPTH * options.gtol * ev1.force_scale
-        if norm <= target:
+        if norm <= target or floor:
             break
-        dx, pays = None, since < CHORD_STEPS
-        if pays and since == 0 and ev1.hessian_form is not None:
-            dx = -factor.solve(g)
-            rate = float(np.linalg.norm(ev1.hessian_form @ dx - factor.H @ dx)) / norm
-            pays = _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
-        elif pays and since > 0:
-            pays = _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False)
+        dx, pays = (None, False) if again else _chord_dx(factor, ev1, norm, target, since, last)
         last = norm
-        taken = _chord_step(model, c, x, ev1, factor, norm, options, dx) if pays else None
+        taken = _kept_step(model, c, x, ev1, dx, norm, options) if pays else None
         if taken is None:
             rel = norm / ev1.force_scale
-            refresh = refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW
+            refresh = not again and refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW and \
+                isinstance(factor.H, LowRankHessian)         # (else nothing to refresh)
             inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
             if not (refresh or inexact):
                 break                   # (converged: its certificate next; or far from it)
-            ev1 = ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)
+            if ev1.hessian_form is None and (refresh or local is None):
+                ev1 = model.evaluate(x, c, order=2)
+                local = _local_hessian(ev1, local)
             # the tendons' stiffness changes fastest: the kept factor with
             # the tendon terms of this pose
             fresh = factor.with_low_rank_of(ev1.hessian_form) if refresh else None
@@ -177,10 +191,18 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
                 factor, refreshed, since = fresh, refreshed + 1, 0
                 continue
             # the rest of the Hessian moved too: an inexact Newton step
-            taken = krylov_step(model, c, x, ev1, factor, norm, options) if inexact else None
-            if taken is None:
+            # (the failed step's solve is its first: the same factor, the same g)
+            H = ev1.hessian_form if ev1.hessian_form is not None else local
+            stepped = _inexact_step(model, c, x, ev1, factor, norm, options, H, dx) if inexact else None
+            if stepped is None:
                 break
+            taken, floor, above = stepped
             krylov, since = krylov + 1, 0
+            # with the local Hessian in hand, the next step is inexact too:
+            # a kept-factor step right after one cuts the residual little
+            again = H is local and krylov < KRYLOV_STEPS and above
+        else:
+            again = False
         (x, ev1), steps, since = taken, steps + 1, since + 1
     if steps:
         log.debug("newton: %d step(s) with a kept factor (%d low-rank refresh(es), %d inexact Newton), "
@@ -189,26 +211,65 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     return x, ev, 0
 
 
-def _chord_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float, options: EquilibriumOptions,
-                dx: np.ndarray | None = None) -> tuple[np.ndarray, Evaluation] | None:
-    """One step of :func:`kept_factor_steps` from (``x``, ``ev``, residual norm
-    ``norm``; ``dx``: the step -F^-1 g if already solved for): the pose and
-    its evaluation (order 1), or None where the step fails its tests."""
-    dx = -factor.solve(ev.gradient) if dx is None else dx
-    return _kept_step(model, c, x, ev, dx, norm, options)
+def _chord_dx(factor: Factor, ev: Evaluation, norm: float, target: float, since: int, last: float):
+    """(the kept-factor step -F^-1 g at ``ev``, residual norm ``norm``,
+    or None; whether it pays): ``since`` steps taken with ``factor``, the
+    last from residual ``last`` (:func:`_chord_pays` on its rate; before the
+    first, on the rate predicted from the Hessian in hand, the step solved
+    for either way)."""
+    g = ev.gradient
+    if since >= CHORD_STEPS:
+        return None, False
+    if since == 0 and ev.hessian_form is not None:
+        dx = -factor.solve(g)
+        rate = float(np.linalg.norm(ev.hessian_form @ dx - factor.H @ dx)) / norm
+        return dx, _chord_pays(factor.H, rate, norm, target, CHORD_STEPS, True)
+    if since > 0 and not _chord_pays(factor.H, norm / last, norm, target, CHORD_STEPS - since, False):
+        return None, False
+    return -factor.solve(g), True
+
+
+def _inexact_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
+                  options: EquilibriumOptions, H, dx: np.ndarray | None):
+    """An inexact step of :func:`kept_factor_steps` on ``H`` (``dx``: the
+    failed kept-factor step's solve F^-1 (-g), or None): None, or ((pose,
+    evaluation of order 1), whether it landed below the tolerance at the
+    round-off floor (``ROUNDOFF_FLOOR_GAP``), whether it landed above the
+    tolerance)."""
+    taken = krylov_step(model, c, x, ev, factor, norm, options, H, dx, True)
+    if taken is None:
+        return None
+    (xk, ek), predicted = taken
+    landed = float(np.linalg.norm(ek.gradient))
+    below = landed <= options.gtol * ek.force_scale
+    return (xk, ek), below and landed > ROUNDOFF_FLOOR_GAP * predicted, not below
+
+
+def _local_hessian(ev: Evaluation, kept):
+    """``ev``'s Hessian where it has one at a relative residual of at most
+    ``FRESH_BELOW`` (the local phase: near enough the equilibrium's for an
+    inexact step's operator further on), else ``kept``."""
+    if ev.hessian_form is None or np.linalg.norm(ev.gradient) > FRESH_BELOW * ev.force_scale:
+        return kept
+    return ev.hessian_form
 
 
 def krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
-                 options: EquilibriumOptions) -> tuple[np.ndarray, Evaluation] | None:
-    """An inexact Newton step from (``x``, ``ev`` with its Hessian, residual
-    norm ``norm``): H dx = -g by conjugate gradients preconditioned with the
-    kept ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests
-    of a kept-factor step. None where CG meets a curvature that is not
-    positive (H is not positive definite along its search), does not
-    converge, or the step fails its tests."""
-    g, H = ev.gradient, ev.hessian_form
+                options: EquilibriumOptions, H=None, first: np.ndarray | None = None,
+                predicted: bool = False):
+    """An inexact Newton step from (``x``, ``ev``, residual norm ``norm``):
+    H dx = -g by conjugate gradients preconditioned with the kept
+    ``factor`` (``KRYLOV_ITERATIONS``, ``KRYLOV_TOL``), then the tests of a
+    kept-factor step. ``H``: ``ev``'s Hessian unless given (a nearby
+    pose's); ``first``: F^-1 (-g) where already solved for. None where CG
+    meets a curvature that is not positive (H is not positive definite
+    along its search), does not converge, or the step fails its tests;
+    else (pose, evaluation of order 1), with ``predicted`` as
+    ((pose, evaluation), |H dx + g| of the step)."""
+    g = ev.gradient
+    H = ev.hessian_form if H is None else H
     r = -g
-    z = factor.solve(r)
+    z = factor.solve(r) if first is None else first
     p, rz = z.copy(), float(r @ z)
     dx = np.zeros_like(g)
     for i in range(KRYLOV_ITERATIONS):
@@ -221,7 +282,8 @@ def krylov_step(model: Model, c, x, ev: Evaluation, factor: Factor, norm: float,
         r -= alpha * Hp
         left = float(np.linalg.norm(r))
         if left <= KRYLOV_TOL * norm:
-            return _kept_step(model, c, x, ev, dx, norm, options)
+            taken = _kept_step(model, c, x, ev, dx, norm, options)
+            return (taken, left) if predicted and taken is not None else taken
         if i + 1 == KRYLOV_CHECK and left > KRYLOV_CHECK_CUT * norm:
             return None
         z = factor.solve(r)
@@ -263,12 +325,15 @@ def inexact_first(model: Model, c, x, ev: Evaluation, factor: Factor, options: E
     """Before factoring at (``x``, ``ev``): an inexact Newton step with the
     last Newton step's ``factor`` (:func:`krylov_step`) where the relative
     residual is at most ``KRYLOV_BELOW`` (and above the tolerance), then the
-    kept-factor steps after it: (pose, evaluation with its Hessian) or None."""
+    kept-factor steps after it (from another inexact step where it landed
+    in the local phase): (pose, evaluation with its Hessian) or None."""
     norm = float(np.linalg.norm(ev.gradient))
     if KRYLOV_STEPS == 0 or not _inexact_pays(ev.gradient, norm / ev.force_scale, options):
         return None
     taken = krylov_step(model, c, x, ev, factor, norm, options)
     if taken is None:
         return None
-    xs, es, _ = kept_factor_steps(model, c, taken[0], taken[1], factor, options)
+    landed = float(np.linalg.norm(taken[1].gradient)) / taken[1].force_scale
+    xs, es, _ = kept_factor_steps(model, c, taken[0], taken[1], factor, options,
+                                  options.gtol < landed <= FRESH_BELOW)
     return xs, (es if es.hessian_form is not None else model.evaluate(xs, c, order=2))
