@@ -273,13 +273,11 @@ class Controller:
 
     def _step(self, last: Iterate) -> Iterate | None:
         """The next iterate by a line search from ``last``, or None (status set)."""
-        roundoff = self.targets.roundoff(last.x)
+        roundoff, history = self.targets.roundoff(last.x), self.plant.path_dependent
         found = line_search(self.xi, self.contraction, self.frozen, self.bounds, last.objective,
                             self.options, self._mu, lambda mu: self._direction(last, mu),
-                            self._trial, lambda eq: self.targets.value(eq.x),
-                            self.options.predicted_trials(self.plant.path_dependent),
-                            # (with history O is not smooth in c: no first-order prediction)
-                            None if self.plant.path_dependent else last.gradient, roundoff)
+                            self._trial, lambda eq: self.targets.value(eq.x), self.options.predicted_trials(history),
+                            None if history else last.gradient, roundoff)   # (history: O is not smooth in c)
         self._mu = found.mu
         if found.kind == "accepted":
             self._accept(found.xi, found.equilibrium, last)
@@ -311,9 +309,7 @@ class Controller:
     def _accept(self, xi_t, eq, last):
         grad, self._J, self._dxdc = self._gradient(eq, self.options.direction == "gauss-newton")
         if self.options.direction == "gradient":
-            # Barzilai-Borwein: s^T s / s^T y on xi
-            s = xi_t - self.xi
-            y = grad - last.gradient
+            s, y = xi_t - self.xi, grad - last.gradient     # Barzilai-Borwein: s^T s / s^T y on xi
             sy = float(s @ y)
             if sy > 0:
                 self._bb_step = float(s @ s) / sy
