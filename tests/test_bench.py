@@ -101,3 +101,13 @@ def test_bench_peers_rejects_what_it_cannot_compare(tmp_path):
     p = subprocess.run([sys.executable, "-m", "plush_opt", "bench", "--peers", "--sizes", "file",
                         "--out", str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert p.returncode == 2 and "--sizes" in p.stderr and "Traceback" not in p.stderr
+
+
+def test_bench_times_a_body_without_pins_whose_hessian_is_gauged():
+    """hexapod_stand (no pins, on a frictionless floor) at about 3,000
+    nodes: its Hessian is gauged on an assembly, though its model is a
+    low-rank one (the bench read the low-rank term of it and failed)."""
+    from plush_opt.apps.bench import bench_one
+    row = bench_one(ROOT / "problems" / "hexapod_stand.yaml", 3000, 1, lambda line: None, inverse_max_nodes=0)
+    assert row["forward_certified"] and row["hessian_form"] in ("low_rank", "assembled")
+    assert (row["low_rank_k"] is None) == (row["hessian_form"] == "assembled")
