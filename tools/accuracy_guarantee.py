@@ -189,6 +189,11 @@ def levels_solved(mesh_accuracy: dict) -> list[dict]:
     return list({(lv["element"], lv["max_area"], lv["refinements"]): lv for lv in rows}.values())
 
 
+def scene_label(path: Path, contraction_args: list[str]) -> str:
+    """A row's scene as the table names it: the file's name, and the given contractions."""
+    return path.name + ("" if not contraction_args else "@" + ",".join(contraction_args[1::2]))
+
+
 def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -> dict:
     """One row (the module's docstring, steps 1-4), in this process;
     ``partial(row, phase)``, if given, hears the row so far before each
@@ -199,8 +204,7 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     from plush_opt.fem.objective import Targets
     from plush_opt.io import load_scene
     from plush_opt.solve.accuracy import probe_points, transfer_pose
-    row = {"scene": path.name + ("" if not contraction_args else
-                                 "@" + ",".join(contraction_args[1::2])), "tol": tol}
+    row = {"scene": scene_label(path, contraction_args), "tol": tol}
     floor = count_floor_certified()
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "result.json"
@@ -314,7 +318,7 @@ def launch(job: tuple, timeout: float) -> dict:
         proc.kill()
         proc.communicate()
         part = to.with_suffix(".partial")
-        row = json.loads(part.read_text()) if part.exists() else {"scene": spec, "tol": tol}
+        row = json.loads(part.read_text()) if part.exists() else {"scene": scene_label(*parse_scene(spec)), "tol": tol}
         phase = row.pop("phase", "the --accuracy run")
         row.update(verdict="NO", note=f"not finished within {timeout:.0f} s: stopped in {phase}")
         if "wall_s" not in row:
