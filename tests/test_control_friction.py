@@ -23,7 +23,7 @@ import pytest
 
 import plush_opt
 from plush_opt.control.bounds import ClipBounds, ReparamBounds
-from plush_opt.control.gradient import _search_verdict
+from plush_opt.control.gradient import LINE_SEARCH_FAILED, _search_verdict
 from plush_opt.control.gradient_options import ControlOptions
 from plush_opt.control.kink import KinkRule, kink_verdict, probe_kink
 from plush_opt.control.step import Outcome, line_search
@@ -171,11 +171,12 @@ def test_a_predicted_trial_moves_a_winch_at_its_bound_as_the_model_said():
     assert c.predicted(np.array([24.0]), np.array([3.0]), 0.1)[0] == 25.0
 
 
-def test_a_step_that_vanishes_under_the_damping_is_not_called_stationary_with_friction():
+def test_a_step_that_vanishes_under_the_damping_is_not_called_stationary():
     """Every trial rejected: the damping grows until the step moves nothing.
-    That is a failed search ('vanished'), not a step that moves no winch;
-    a history-free plant keeps the status it had, a path-dependent one
-    reports the stall (and its stop is then tested at the kink)."""
+    That is a failed search ('vanished'), not a step that moves no winch:
+    a history-free plant reports a failed line search (it used to read
+    "every free winch is held at a bound" with no winch at a bound), a
+    path-dependent one the stall (and its stop is then tested at the kink)."""
     opts = ControlOptions()
     b = ReparamBounds([0.0], [25.0], opts.blend)
     xi = np.array([10.0])
@@ -190,7 +191,8 @@ def test_a_step_that_vanishes_under_the_damping_is_not_called_stationary_with_fr
     last = SimpleNamespace(active_bounds=(), contraction=np.array([10.0]), gradient=np.zeros(1), objective=1.0)
     free = SimpleNamespace(path_dependent=False, path_cause=None)
     friction = SimpleNamespace(path_dependent=True, path_cause="friction at via points")
-    assert _search_verdict(found, last, model, opts, free)[:2] == (True, "stationary")
+    converged, reason, status = _search_verdict(found, last, model, opts, free)
+    assert (converged, reason) == (False, "no_decrease") and status == LINE_SEARCH_FAILED
     converged, reason, status = _search_verdict(found, last, model, opts, friction)
     assert (converged, reason) == (False, "no_decrease") and status.startswith("stalled: no trial step lowered O")
     assert _search_verdict(Outcome("vanished", 1.0), last, model, opts, friction)[1] == "no_decrease"

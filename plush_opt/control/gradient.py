@@ -441,11 +441,10 @@ def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions,
     """The loop's (converged, reason, status) after a line search from
     ``last`` that accepted nothing (``found``: its outcome, :func:`.step.line_search`;
     ``roundoff``: O's round-off at ``last``). A step that vanished under
-    the damping says the same as one that moves no winch on a history-free
-    plant; on a path-dependent one it is a failed search (its stop is then
-    tested at the kink, :mod:`.kink`)."""
+    the damping is a failed search, not one that moves no winch (on a
+    path-dependent plant its stop is then tested at the kink, :mod:`.kink`)."""
     note = _bound_note(last, model, options.gtol)
-    if found.kind == "stationary" or (found.kind == "vanished" and not plant.path_dependent):
+    if found.kind == "stationary":
         return True, "stationary", "stationary: every free winch is held at a bound" + note
     if found.kind == "below_roundoff":
         return True, "stationary", (f"stationary to the objective's round-off: no step tried could lower O by "

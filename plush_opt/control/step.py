@@ -98,7 +98,7 @@ class Outcome:
     """What :func:`line_search` found: ``kind`` 'accepted' (``xi`` and
     ``equilibrium`` of the accepted trial), 'stationary' (the step moves no
     contraction), 'vanished' (after rejected trials the damped or halved
-    step moved no contraction), 'below_roundoff' (no trial lowered O, and
+    step moved no contraction: no decrease found), 'below_roundoff' (no trial lowered O, and
     none could lower it by more than its round-off: ``predicted``, the
     largest first-order decrease of the trials) or 'no_decrease' (no trial
     lowered O); ``mu`` the Levenberg-Marquardt damping after the search."""
@@ -133,6 +133,7 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     """
     gn = options.direction == "gauss-newton"
     predicted, judged = -np.inf, gradient is not None    # (judged: every trial certified, judged by O)
+    vanished = False
     for attempt in range(options.max_backtracks):
         step = direction(mu)
         if not gn:
@@ -140,7 +141,10 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
         xi_t, c_t = trial_point(bounds, xi, contraction, step, frozen,
                                 options.slope_floor if linear_trials else None)
         if np.array_equal(c_t, contraction):
-            return Outcome("stationary" if attempt == 0 else "vanished", mu)
+            if attempt == 0:
+                return Outcome("stationary", mu)
+            vanished = True
+            break
         eq = trial(c_t)
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
@@ -150,4 +154,4 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
             mu = options.damping.rejected(mu)
     if judged and predicted <= roundoff:
         return Outcome("below_roundoff", mu, predicted=predicted)
-    return Outcome("no_decrease", mu)
+    return Outcome("vanished" if vanished else "no_decrease", mu)
