@@ -90,6 +90,10 @@ GRADED = True
 #: A level counts as finer than the previous one only with this many times
 #: its nodes (explicit levels; family B is dropped below this).
 MIN_REFINEMENT = 1.3
+#: A level keeps its model (solved again at the returned contractions) up to
+#: this many nodes: small models are rebuilt at a cost like their solve's,
+#: while a 67,313-node P2 model holds about 260 MB.
+KEEP_MODEL_NODES = 20_000
 #: Element types of the sweep (explicit levels: swept in this order, P2
 #: first, its solve time bounding how far the P1 sweep goes; the default
 #: levels: in the order of plush_opt.solve.accuracy_sweep, the first
@@ -239,7 +243,8 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         ys.append(probe.y(eq.x))
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
-    return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys), model=model)
+    return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None)
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,

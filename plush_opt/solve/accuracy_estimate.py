@@ -61,7 +61,7 @@ class Level:
     confirmed: bool = False          # usable as an anchor of bounds (see estimate_errors)
     bound: float | None = None       # error bound the pick uses (see bound_errors)
     bound_via: int | None = None     # the level (index among those bounded together) it comes from
-    model: object = dataclasses.field(default=None, repr=False, compare=False)   # built once, solved again
+    model: object = dataclasses.field(default=None, repr=False, compare=False)   # kept to be solved again (or None)
 
     @property
     def max_area(self) -> float:
