@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from plush_opt import load
+from plush_opt.base.files import write_text_atomic
 from plush_opt.control.gradient_options import ControlOptions
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -62,7 +63,7 @@ def main():
         block = re.compile(r"(<!-- kink-table -->\n).*?(<!-- /kink-table -->)", re.S)
         if not block.search(text):
             raise SystemExit(f"{DOC}: no <!-- kink-table --> block")
-        DOC.write_text(block.sub(lambda m: m.group(1) + "\n".join(lines) + "\n" + m.group(2), text))
+        write_text_atomic(DOC, block.sub(lambda m: m.group(1) + "\n".join(lines) + "\n" + m.group(2), text))
 
 
 if __name__ == "__main__":
