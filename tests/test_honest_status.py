@@ -139,6 +139,22 @@ def test_ctrl_c_during_start_up_is_quiet(tmp_path, delay):
     assert len(err.strip().splitlines()) <= 1
 
 
+def test_ctrl_c_inside_a_c_module_import_is_quiet(monkeypatch, capsys):
+    """A Ctrl-C while a C module initialises reaches main() as an ImportError
+    raised from the KeyboardInterrupt: still exit 130 and one line."""
+    import plush_opt.apps.cli as cli
+
+    def interrupted_import():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+    monkeypatch.setattr(cli, "build_parser", interrupted_import)
+    assert cli.main(["solve", str(CANTILEVER)]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "plush-opt: interrupted (SIGINT)"
+
+
 def test_interrupted_demo_exits_130(tmp_path, monkeypatch, capsys):
     import plush_opt.apps.demo as demo
 

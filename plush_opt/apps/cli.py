@@ -96,6 +96,11 @@ def main(argv=None) -> int:
         print(f"plush-opt: interrupted ({name})", file=sys.stderr)
         return code
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
+        interrupt = _interrupt_behind(exc)
+        if interrupt is not None:    # e.g. an import cut short inside a C module's start-up
+            name, code = interrupt_status(interrupt)
+            print(f"plush-opt: interrupted ({name})", file=sys.stderr)
+            return code
         if args is None or args.debug:
             raise
         message, code = describe_error(exc)
@@ -104,6 +109,18 @@ def main(argv=None) -> int:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C (or TERM) an exception was raised from, if any: a C
+    module interrupted while it starts up re-raises it as an ImportError."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def _check_output_folders(args) -> None:
