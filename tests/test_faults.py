@@ -407,3 +407,16 @@ def test_the_driver_refuses_contractions_that_are_not_numbers(value):
     allowed = {n: (0.0, 10.0) for n in cal.winch_names}
     with pytest.raises(HardwareError):
         check_contractions({cal.winch_names[0]: value}, allowed, cal)
+
+
+def test_a_marked_block_is_rewritten_between_its_markers_and_a_missing_marker_is_named(tmp_path):
+    from plush_opt.base.files import replace_between, rewrite_block
+    doc = tmp_path / "d.md"
+    doc.write_text("head\n<!-- b -->\nold\nlines\n<!-- /b -->\ntail\n")
+    assert rewrite_block(doc, "<!-- b -->", "<!-- /b -->", "new") is True
+    assert doc.read_text() == "head\n<!-- b -->\nnew\n<!-- /b -->\ntail\n"
+    assert rewrite_block(doc, "<!-- b -->", "<!-- /b -->", "new") is False
+    with pytest.raises(ValueError, match=r"d\.md: no block '<!-- c -->'"):
+        rewrite_block(doc, "<!-- c -->", "<!-- /c -->", "x")
+    with pytest.raises(ValueError, match="here: no block"):
+        replace_between("<!-- b --> without its end", "<!-- b -->", "<!-- /b -->", "x", "here")

@@ -362,12 +362,11 @@ def table(rows: list[dict]) -> str:
 
 
 def write_doc(text: str) -> None:
-    from plush_opt.base.files import write_text_atomic
-    doc = DOC.read_text()
-    pattern = re.compile(r"(<!-- accuracy-guarantee -->\n)(?:.*?\n)?(<!-- /accuracy-guarantee -->)", re.S)
-    if not pattern.search(doc):
-        raise SystemExit(f"{DOC}: no block <!-- accuracy-guarantee --> ... <!-- /accuracy-guarantee -->")
-    write_text_atomic(DOC, pattern.sub(lambda m: m.group(1) + text + "\n" + m.group(2), doc))
+    from plush_opt.base.files import rewrite_block
+    try:
+        rewrite_block(DOC, "<!-- accuracy-guarantee -->", "<!-- /accuracy-guarantee -->", text)
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def main(argv=None) -> int:

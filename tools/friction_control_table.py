@@ -14,12 +14,11 @@ the model built beforehand); ``--write-doc`` puts its rows between
 from __future__ import annotations
 
 import argparse
-import re
 import time
 from pathlib import Path
 
 from plush_opt import load
-from plush_opt.base.files import write_text_atomic
+from plush_opt.base.files import rewrite_block
 from plush_opt.control.gradient_options import ControlOptions
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -59,11 +58,10 @@ def main():
     lines = [HEADER, "|---|---|---|---|"] + rows()
     print("\n".join(lines))
     if args.write_doc:
-        text = DOC.read_text()
-        block = re.compile(r"(<!-- kink-table -->\n).*?(<!-- /kink-table -->)", re.S)
-        if not block.search(text):
-            raise SystemExit(f"{DOC}: no <!-- kink-table --> block")
-        write_text_atomic(DOC, block.sub(lambda m: m.group(1) + "\n".join(lines) + "\n" + m.group(2), text))
+        try:
+            rewrite_block(DOC, "<!-- kink-table -->", "<!-- /kink-table -->", "\n".join(lines))
+        except ValueError as exc:
+            raise SystemExit(str(exc)) from None
 
 
 if __name__ == "__main__":

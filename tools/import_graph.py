@@ -201,21 +201,21 @@ def doc_map() -> str:
     for layer, prefix, path in units:
         used = ", ".join(_label(q, r) for _, q, r in units if q in uses[prefix]) or "nothing of plush_opt"
         rows.append(f"| {layer} | {_contents(prefix, path)} | {_promise(path)} | {used} |")
-    return "\n".join([BEGIN, "", "```mermaid", mermaid(), "```", "", *rows, "", END])
+    return "\n".join(["", "```mermaid", mermaid(), "```", "", *rows, ""])
 
 
 def doc_is_current() -> bool:
     text = DOC.read_text()
-    return BEGIN in text and END in text and doc_map() in text
+    return f"{BEGIN}\n{doc_map()}\n{END}" in text
 
 
 def write_doc() -> None:
-    text = DOC.read_text()
-    if BEGIN not in text or END not in text:
-        raise SystemExit(f"import_graph: {DOC} has no generated map (the markers {BEGIN!r} ... {END!r})")
-    head, rest = text.split(BEGIN, 1)
-    tail = rest.split(END, 1)[1]
-    DOC.write_text(head + doc_map() + tail)
+    sys.path.insert(0, str(PACKAGE.parent))
+    from plush_opt.base.files import rewrite_block
+    try:
+        rewrite_block(DOC, BEGIN, END, doc_map())
+    except ValueError as exc:
+        raise SystemExit(f"import_graph: {exc}") from None
 
 
 if __name__ == "__main__":

@@ -17,7 +17,6 @@ script's output; so is docs/img/calibration_hexapod_leg_pose5.png.
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import subprocess
 import sys
@@ -28,6 +27,7 @@ import numpy as np
 import yaml
 
 import plush_opt
+from plush_opt.base.files import replace_between, write_text_atomic
 from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.fit.parameters import scene_with
 from plush_opt.fit.synthetic import synthesize, true_values
@@ -88,8 +88,7 @@ def story(p, measurement_file: Path, tmp: Path) -> str:
                        float(np.linalg.norm(foot - q.targets.to[0])))
     e = _parameter(fit, "youngs_modulus")
     (c0, model0, real0), (c1, model1, real1) = posed["nominal"], posed["fitted"]
-    return f"""{BEGIN}
-On the file's model, the controller brings the foot as close to its target
+    return f"""On the file's model, the controller brings the foot as close to its target
 as the leg reaches ({model0:.1f} mm short) with the winch at {c0:.2f} mm. On the real leg
 that contraction puts the foot {real0:.1f} mm away from the target. The model is
 wrong, not the controller.
@@ -126,8 +125,7 @@ from the target, which is what the fitted model itself predicts ({model1:.1f} mm
 is slightly out of the real leg's reach): the rest of the {real0:.1f} mm was the
 model's error, and is gone. `tools/make_calibration_example.py` computes
 these numbers (the "real" leg being the synthetic truth) and writes this
-section; `tests/test_calibration_example.py` checks that it is current.
-{END}"""
+section; `tests/test_calibration_example.py` checks that it is current."""
 
 
 def _parameter(report: dict, name: str) -> dict:
@@ -139,10 +137,10 @@ def _parameter(report: dict, name: str) -> dict:
 
 
 def replace_block(text: str, block: str) -> str:
-    pattern = re.compile(re.escape(BEGIN) + ".*?" + re.escape(END), re.S)
-    if not pattern.search(text):
-        raise SystemExit(f"{DOC}: no generated block ({BEGIN} ... {END})")
-    return pattern.sub(lambda _: block, text)
+    try:
+        return replace_between(text, BEGIN, END, block, str(DOC))
+    except ValueError as exc:
+        raise SystemExit(str(exc)) from None
 
 
 def main(argv=None) -> int:
@@ -164,8 +162,8 @@ def main(argv=None) -> int:
             for path in stale:
                 print(f"stale: {path.relative_to(ROOT)} (run tools/make_calibration_example.py)")
             return 1 if stale else 0
-        OUT.write_text(text)
-        DOC.write_text(doc)
+        write_text_atomic(OUT, text)
+        write_text_atomic(DOC, doc)
         shutil.copy(tmp / "plots" / "pose_05.png", PICTURE)
         print(f"wrote {OUT.relative_to(ROOT)}, {DOC.relative_to(ROOT)}, {PICTURE.relative_to(ROOT)}")
     return 0

@@ -173,3 +173,27 @@ def write_text_atomic(path, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(text.encode("utf-8"))
     return Path(path)
+
+
+def replace_between(text: str, begin: str, end: str, body: str, where: str = "the text") -> str:
+    """``text`` with what lies between the first ``begin`` marker and the
+    ``end`` marker after it replaced by ``body`` (the markers kept, ``body``
+    on the lines between them: given without a newline at either end); a missing marker is an error naming
+    ``where`` and both markers."""
+    head, found, rest = text.partition(begin)
+    old, found_end, tail = rest.partition(end)
+    if not found or not found_end:
+        raise ValueError(f"{where}: no block {begin!r} ... {end!r}")
+    return f"{head}{begin}\n{body}\n{end}{tail}"
+
+
+def rewrite_block(path, begin: str, end: str, body: str) -> bool:
+    """Replace the block between ``begin`` and ``end`` in the text file
+    ``path`` by ``body`` (:func:`replace_between`), atomically and only if it
+    changed; whether it did."""
+    path = Path(path)
+    text = path.read_text()
+    new = replace_between(text, begin, end, body, str(path))
+    if new != text:
+        write_text_atomic(path, new)
+    return new != text
