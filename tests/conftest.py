@@ -1,5 +1,6 @@
 """Shared fixtures: where problem files live, and what the YAML reader did."""
 
+import signal
 from pathlib import Path
 
 import pytest
@@ -8,6 +9,13 @@ import yaml
 import plush_opt.io.yaml_reader as yaml_reader
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# A suite started in the background of a non-interactive shell (`make test &`)
+# inherits SIGINT ignored, and so would every command it starts: the Ctrl-C
+# tests need what a terminal gives (Python's KeyboardInterrupt here, the
+# default action in the commands they start).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture

@@ -203,7 +203,10 @@ def test_the_table_in_docs_control_is_the_codes():
     """docs/control.md's table of friction runs (tools/friction_control_table.py)
     quotes the code: exit, O (its six digits) and iterates of every run
     with the defaults (the 'before' cells: the same tool with the handling
-    of the kink switched off)."""
+    of the kink switched off). The iterates within ITERATES_MOVE: on a
+    path-dependent plant the machine's round-off moves a trial across a
+    test (14 iterates on one host where another took 13, O the same to its
+    six digits)."""
     import importlib.util
     spec = importlib.util.spec_from_file_location("table", ROOT / "tools" / "friction_control_table.py")
     table = importlib.util.module_from_spec(spec)
@@ -214,4 +217,9 @@ def test_the_table_in_docs_control_is_the_codes():
     def now(row):           # the run's (exit, O, iterates), CPU seconds left out
         return row.strip("| ").split(" | ")[-1].split(", ")[:3]
 
-    assert [now(r) for r in table.rows(before=False)] == [now(r) for r in shown]
+    got, doc = [now(r) for r in table.rows(before=False)], [now(r) for r in shown]
+    assert [g[:2] for g in got] == [d[:2] for d in doc]
+    assert all(abs(int(g[2]) - int(d[2])) <= ITERATES_MOVE for g, d in zip(got, doc)), (got, doc)
+
+
+ITERATES_MOVE = 2
