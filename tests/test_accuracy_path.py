@@ -127,3 +127,30 @@ def test_a_friction_path_solves_its_steps_to_the_callers_tolerance(friction_prob
     c = friction_problem.contraction_vector({"left": 12.0, "grip": 10.0})
     eq = friction_problem.plant.fork().equilibrium(c, options=EquilibriumOptions(gtol=1e-9, roundoff=1.0))
     assert eq.converged and asked and set(asked) == {(1e-9, 1.0)}
+
+
+def test_a_level_that_already_ends_the_path_is_not_replayed_again(friction_problem, monkeypatch):
+    """After the levels are extended along the returned path
+    (extend_along), the estimate made again at the same pose keeps their
+    replayed poses instead of replaying every level a second time."""
+    import plush_opt.solve.accuracy_path as accuracy_path
+    from plush_opt.fem.mesh import build_mesh
+    from plush_opt.solve.accuracy import Level, Resolution
+    from plush_opt.solve.accuracy_path import levels_along
+    p = friction_problem
+    c = p.contraction_vector({"left": 6.0, "grip": 5.0})
+    waypoints = np.array([0.5 * c, c])
+    points = np.array([t.at for t in p.scene.targets])
+    scene = p.scene.replace(element="P2")
+    levels = [Level("P2", Resolution(a, 0, a), build_mesh(scene, max_area=a), 0.0, 0.0, 0, [], np.empty((0, 0, 2)))
+              for a in (400.0, 200.0)]
+    first = levels_along(p.scene, levels, waypoints, c, points)
+    assert all(lv.along is not None and lv.poses[0] is not None for lv in first)
+
+    def no_replay(*args, **kwargs):
+        raise AssertionError("replayed again")
+    monkeypatch.setattr(accuracy_path, "replay", no_replay)
+    again = levels_along(p.scene, first, waypoints, c, points)
+    assert [np.array_equal(a.poses[0], b.poses[0]) for a, b in zip(first, again)] == [True, True]
+    with pytest.raises(AssertionError, match="replayed again"):     # another path is replayed
+        levels_along(p.scene, first, waypoints[:1], 0.5 * c, points)

@@ -62,6 +62,8 @@ class Level:
     bound: float | None = None       # error bound the pick uses (see bound_errors)
     bound_via: int | None = None     # the level (index among those bounded together) it comes from
     model: object = dataclasses.field(default=None, repr=False, compare=False)   # kept to be solved again (or None)
+    # the path its one pose ends (plush_opt.solve.accuracy_path.path_key), or None
+    along: bytes | None = dataclasses.field(default=None, repr=False, compare=False)
 
     @property
     def max_area(self) -> float:
@@ -197,4 +199,4 @@ def estimate_each_element(levels: list[Level]) -> list[Level]:
 def one_pose(lv: Level, pose, y) -> Level:
     """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, bound=None, bound_via=None)
+                               confirmed=False, bound=None, bound_via=None, along=None)

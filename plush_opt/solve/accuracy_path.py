@@ -62,17 +62,26 @@ def replay(plant: Plant, waypoints, contraction, options: EquilibriumOptions | N
     return plant.finish(eq, waypoints, options, origin=REPLAY_ORIGIN)
 
 
+def path_key(waypoints, contraction) -> bytes:
+    """What identifies a replayed path (:func:`replay`'s ``waypoints``, None
+    for a fresh path, and ``contraction``): a level whose pose ends the same
+    path is not replayed again."""
+    w = b"fresh" if waypoints is None else np.asarray(waypoints, dtype=np.float64).tobytes()
+    return w + b"|" + np.asarray(contraction, dtype=np.float64).tobytes()
+
+
 def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, options) -> Level:
     """``lv``'s mesh with the path replayed on it: a new :class:`Level`
-    (one pose, ``y`` (1, k, 2)); a :class:`SceneError` if its end is not
-    certified."""
+    (one pose, ``y`` (1, k, 2), ``along`` the path's :func:`path_key`); a
+    :class:`SceneError` if its end is not certified."""
     s = dataclasses.replace(scene, element=lv.element)
     model = lv.model if lv.model is not None else build_model(s, lv.mesh)
     eq = replay(make_plant(model), waypoints, contraction, options)
     if not eq.converged:
         raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
                          f"{lv.mesh.n_nodes} nodes does not reach a certified pose: {eq.status}")
-    return one_pose(lv, eq.x, Targets.at_points(lv.mesh, points, points).y(eq.x)[None])
+    return dataclasses.replace(one_pose(lv, eq.x, Targets.at_points(lv.mesh, points, points).y(eq.x)[None]),
+                               along=path_key(waypoints, contraction))
 
 
 def levels_along(scene: Scene, levels: list[Level], waypoints, contraction, points, answer=None,
@@ -82,13 +91,18 @@ def levels_along(scene: Scene, levels: list[Level], waypoints, contraction, poin
     ``contraction``), estimated there: new :class:`Level` objects in the same
     order, as :func:`~plush_opt.solve.accuracy_check.bounds_at` returns
     them. ``answer`` = (mesh, flat pose): the path's end on the mesh it was
-    solved on, taken as that level's pose (no replay). ``progress(line)``
-    hears of each level replayed."""
+    solved on, taken as that level's pose (no replay); a level that already
+    ends this path (:func:`extend_along` replayed it) is kept as it is.
+    ``progress(line)`` hears of each level replayed."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    key = path_key(waypoints, contraction)
     out = []
     for lv in levels:
         if answer is not None and answer[0] is lv.mesh:
             out.append(one_pose(lv, answer[1], Targets.at_points(lv.mesh, points, points).y(answer[1])[None]))
+            continue
+        if lv.along == key:          # (its estimates made afresh below)
+            out.append(dataclasses.replace(one_pose(lv, lv.poses[0], lv.y), along=key))
             continue
         t0 = time.perf_counter()
         out.append(_level_along(scene, lv, waypoints, contraction, points, options or LEVEL_OPTIONS))
