@@ -135,8 +135,9 @@ BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True)
 #: friction cone sticks with one factoriser and slips with another; both
 #: states pass the state check): --check takes their words and whole
 #: numbers exactly, their decimals within ROUNDOFF_RTOL and their counts of
-#: factorisations and evaluations within ROUNDOFF_COUNTS times each other (QDLDL and CHOLMOD: 358 and 580 evaluations, loop areas
-#: 3.8785 and 3.8778 on 2026-12-05).
+#: factorisations and evaluations within ROUNDOFF_COUNTS times each other
+#: (QDLDL and CHOLMOD: 358 and 580 evaluations, loop areas 3.8785 and
+#: 3.8778 on 2026-12-05).
 ROUNDOFF_BLOCKS = ("friction-sweep",)
 ROUNDOFF_RTOL, ROUNDOFF_COUNTS = 1e-3, 2.0
 _NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")

@@ -178,10 +178,10 @@ def write_text_atomic(path, text: str) -> Path:
 def replace_between(text: str, begin: str, end: str, body: str, where: str = "the text") -> str:
     """``text`` with what lies between the first ``begin`` marker and the
     ``end`` marker after it replaced by ``body`` (the markers kept, ``body``
-    on the lines between them: given without a newline at either end); a missing marker is an error naming
-    ``where`` and both markers."""
+    on the lines between them: given without a newline at either end); a
+    missing marker is a :class:`ValueError` naming ``where`` and both."""
     head, found, rest = text.partition(begin)
-    old, found_end, tail = rest.partition(end)
+    _, found_end, tail = rest.partition(end)
     if not found or not found_end:
         raise ValueError(f"{where}: no block {begin!r} ... {end!r}")
     return f"{head}{begin}\n{body}\n{end}{tail}"
