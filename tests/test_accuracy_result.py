@@ -139,3 +139,17 @@ def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
     assert doc["converged"] is False and "converged to the round-off floor" not in doc["status"]
     assert doc["accuracy"]["status"] == "explicit_mesh" and doc["accuracy"]["estimated_error"] is None
 
+
+
+def test_a_row_names_where_its_reference_moved_between_levels():
+    """A reference whose consecutive levels are more than TOL apart left one
+    state for another (gripper_object at 1: 10 mm between 17,017 and 67,313
+    nodes) or is far from converged: the row says where, whatever else."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    row = {"tol": 1.0, "exit": 0, "met": True, "error_points": 10.3, "ref_error": 0.067, "ratio": 1.3,
+           "ref_jumps": [[17017, 67313, 9.9]]}
+    verdict, note = guarantee.verdict(row)
+    assert verdict == "NO" and "error above TOL" in note
+    assert "the reference moved 9.9 between its levels of 17,017 and 67,313 nodes" in note
+    assert guarantee.verdict({**row, "error_points": 0.3, "ref_jumps": []}) == ("yes", "")

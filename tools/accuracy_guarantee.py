@@ -97,7 +97,12 @@ def parse_scene(spec: str) -> tuple[Path, list[str]]:
 
 def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float, waypoints=None):
     """The P2 reference at ``contraction``: (mesh, pose, own estimated error
-    or None, finest nodes). See the module's docstring, step 2. Where the
+    or None, its jumps). See the module's docstring, step 2. Its jumps:
+    (coarser nodes, finer nodes, distance at the points) of consecutive
+    levels more than ``tol`` apart, all at least as fine as the answer's:
+    there the reference left one state for another (several stable ones at
+    ``contraction``), or is far from converged; its own estimate rests on
+    its last levels alone. Where the
     pose depends on the path (friction), each level replays the returned
     path instead (``waypoints``: the control run's start and iterates; None:
     a forward solve's fresh path; plush_opt.solve.accuracy_path.replay)."""
@@ -116,6 +121,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     prev_mesh, prev_x, ys, diffs = mesh_returned, x_returned, [], []
     mesh = x = None
     own = None
+    jumps = []
     for r in range(8):
         m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
         if m.n_nodes > REF_MAX_NODES:
@@ -135,18 +141,21 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
             eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS)
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
+        prev_nodes = mesh.n_nodes if mesh is not None else None
         mesh, x = m, eq.x
         print(f"reference: P2 {m.n_nodes:,} nodes solved", file=sys.stderr, flush=True)
         ys.append(Targets.at_points(m, points, points).y(x))
         prev_mesh, prev_x = m, x
         if len(ys) >= 2:
             diffs.append(float(np.linalg.norm(ys[-1] - ys[-2], axis=-1).max()))
+            if diffs[-1] > tol:
+                jumps.append((prev_nodes, m.n_nodes, diffs[-1]))
         if len(diffs) >= 2 and diffs[-2] > 0:
             q = max(diffs[-1] / diffs[-2], floor_ratio)
             own = SAFETY * q * diffs[-1] / (1.0 - q) if q < MAX_RATIO else None
         if m.n_nodes >= REF_NODES_FACTOR * nodes_returned and own is not None and own <= REF_FRACTION * tol:
             break
-    return mesh, x, own
+    return mesh, x, own, jumps
 
 
 def plain_cost(scene, element: str, max_area: float, graded: bool, refinements: int, given, method: str):
@@ -251,7 +260,8 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     # friction: the reference replays the path the returned pose was reached by (its friction_path)
     waypoints = None if doc["method"] == "forward" or "friction_path" not in doc else \
         np.array([[row[n] for n in names] for row in doc["friction_path"]["contractions"]])
-    ref_mesh, x_ref, own = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints)
+    ref_mesh, x_ref, own, jumps = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints)
+    row["ref_jumps"] = [list(j) for j in jumps]
     points, _ = probe_points(scene)
     y = Targets.at_points(mesh, points, points).y(x)
     y_ref = Targets.at_points(ref_mesh, points, points).y(x_ref)
@@ -280,6 +290,9 @@ def verdict(row: dict) -> tuple[str, str]:
         why.append("within TOL only up to the reference's own error")
     if row.get("ratio") is not None and row["ratio"] > COST_FACTOR:
         why.append(f"cost above {COST_FACTOR:g}x")
+    for coarse, fine, distance in row.get("ref_jumps") or ():
+        why.append(f"the reference moved {distance:.3g} between its levels of {coarse:,} and {fine:,} nodes "
+                   "(another state?)")
     return ("yes" if not why else "NO"), "; ".join(why)
 
 
