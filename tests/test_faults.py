@@ -420,3 +420,10 @@ def test_a_marked_block_is_rewritten_between_its_markers_and_a_missing_marker_is
         rewrite_block(doc, "<!-- c -->", "<!-- /c -->", "x")
     with pytest.raises(ValueError, match="here: no block"):
         replace_between("<!-- b --> without its end", "<!-- b -->", "<!-- /b -->", "x", "here")
+
+
+def test_a_marked_blocks_body_reads_back_as_it_was_written():
+    from plush_opt.base.files import read_between, replace_between
+    for body in ("one line", "\nwith blank lines around\n", ""):
+        assert read_between(replace_between("a <b> x </b> z", "<b>", "</b>", body), "<b>", "</b>") == body
+    assert read_between("<b> without its end", "<b>", "</b>") is None

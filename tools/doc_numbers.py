@@ -15,9 +15,9 @@ with ``--only``.
 from __future__ import annotations
 
 import argparse
-import re
 import dataclasses
 import datetime
+import re
 import sys
 from pathlib import Path
 
@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 sys.path.insert(0, str(ROOT / "tools"))
 
-from plush_opt.base.files import replace_between, write_text_atomic  # noqa: E402
+from plush_opt.base.files import read_between, replace_between, write_text_atomic  # noqa: E402
 
 
 def api_tour() -> str:
@@ -170,10 +170,6 @@ def _markers(name: str) -> tuple[str, str]:
     return f"<!-- doc-numbers: {name} -->", f"<!-- /doc-numbers: {name} -->"
 
 
-def _between(text: str, begin: str, end: str) -> str:
-    return text.partition(begin)[2].partition(end)[0].strip("\n")
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 if a block is stale (cheap blocks only)")
@@ -192,7 +188,7 @@ def main(argv=None) -> int:
         text = make(pictures=not args.check) if name in PICTURES else make()
         for path in found:
             new = replace_between(docs[path], begin, end, text, str(path))
-            if args.check and name in ROUNDOFF_BLOCKS and _same_up_to_roundoff(_between(docs[path], begin, end), text):
+            if args.check and name in ROUNDOFF_BLOCKS and _same_up_to_roundoff(read_between(docs[path], begin, end), text):
                 continue
             if new != docs[path]:
                 stale.append(f"{path.relative_to(ROOT)}: {name}")

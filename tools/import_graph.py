@@ -205,13 +205,19 @@ def doc_map() -> str:
 
 
 def doc_is_current() -> bool:
-    text = DOC.read_text()
-    return f"{BEGIN}\n{doc_map()}\n{END}" in text
+    return _files().read_between(DOC.read_text(), BEGIN, END) == doc_map()
+
+
+def _files():
+    """plush_opt.base.files, imported when a doc is read or written (the
+    graph itself needs nothing of the package)."""
+    sys.path.insert(0, str(PACKAGE.parent))
+    from plush_opt.base import files
+    return files
 
 
 def write_doc() -> None:
-    sys.path.insert(0, str(PACKAGE.parent))
-    from plush_opt.base.files import rewrite_block
+    rewrite_block = _files().rewrite_block
     try:
         rewrite_block(DOC, BEGIN, END, doc_map())
     except ValueError as exc:

@@ -187,6 +187,17 @@ def replace_between(text: str, begin: str, end: str, body: str, where: str = "th
     return f"{head}{begin}\n{body}\n{end}{tail}"
 
 
+def read_between(text: str, begin: str, end: str) -> str | None:
+    """The ``body`` :func:`replace_between` puts between ``begin`` and
+    ``end`` (without the newlines around it), or None where a marker is
+    missing."""
+    _, found, rest = text.partition(begin)
+    inner, found_end, _ = rest.partition(end)
+    if not found or not found_end:
+        return None
+    return inner.removeprefix("\n").removesuffix("\n")
+
+
 def rewrite_block(path, begin: str, end: str, body: str) -> bool:
     """Replace the block between ``begin`` and ``end`` in the text file
     ``path`` by ``body`` (:func:`replace_between`), atomically and only if it
