@@ -153,3 +153,34 @@ def test_a_row_names_where_its_reference_moved_between_levels():
     assert verdict == "NO" and "error above TOL" in note
     assert "the reference moved 9.9 between its levels of 17,017 and 67,313 nodes" in note
     assert guarantee.verdict({**row, "error_points": 0.3, "ref_jumps": []}) == ("yes", "")
+
+
+def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
+    """Several stable states can hold at the returned contractions (the
+    gripper's ball); a reference level whose solve from the level before
+    ends more than TOL from it is solved again from the answer carried
+    over, and the one that stayed is kept; where both leave, the nearer is
+    kept (and the row reports its jump); one that stays is not solved again."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    import plush_opt.solve.accuracy as accuracy
+    solved = []
+
+    def fake_solve(model, contraction, x0, options):
+        solved.append(float(x0[0]))
+        return type("Eq", (), {"converged": True, "x": np.array([x0[0]])})()
+
+    monkeypatch.setattr(accuracy, "equilibrium_at", fake_solve)
+    monkeypatch.setattr(accuracy, "carried_start", lambda model, sources: np.array([sources[0][1][0]]))
+    model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})()})()
+    y_of = lambda x: np.array([[x[0], 0.0]])                     # noqa: E731  (the pose's one point)
+    previous, answer = ("prev", np.array([10.0])), ("answer", np.array([0.5]))
+    eq = guarantee.same_state(model, [1.0], [previous, answer], y_of, np.array([[0.0, 0.0]]), 1.0)
+    assert eq.x[0] == 0.5 and solved == [10.0, 0.5]
+    solved.clear()
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([3.0])), ("answer", np.array([2.0]))], y_of,
+                              np.array([[0.0, 0.0]]), 1.0)
+    assert eq.x[0] == 2.0 and solved == [3.0, 2.0]
+    solved.clear()
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), answer], y_of, np.array([[0.0, 0.0]]), 1.0)
+    assert eq.x[0] == 0.2 and solved == [0.2]
