@@ -170,3 +170,43 @@ def test_at_a_probe_contraction_an_answer_other_than_the_sweeps_pose_is_followed
     moved = best.poses[0] + 1e-3 * best.mesh.diameter
     bounds_at(scene, levels, c, c[0], points, start=(best.mesh, moved), progress=said.append, used=k)
     assert len(said) == len(levels) and all("at the returned contractions solved" in line for line in said)
+
+
+@dataclasses.dataclass
+class _Solved:
+    converged: bool
+    iterations: int
+    x: np.ndarray
+    residual_norm: float = 0.0
+
+
+def test_a_slow_level_whose_body_stays_goes_on_past_the_branch_limit(monkeypatch):
+    """After BRANCH_ITERATIONS Newton steps without the residual cut tenfold,
+    a level goes on where its median node has hardly moved from the start
+    (a fine level converging slowly, a few nodes at a contact settling:
+    gripper_object's 67,313 nodes at its 0.05 answer converged after 67),
+    and is left where the body has moved (Newton that has left the branch)."""
+    import plush_opt.solve.accuracy_carry as carry
+    from plush_opt.solve.accuracy_carry import BRANCH_DRIFT, solve_on_branch
+    n, diameter = 100, 100.0
+    calls = []
+
+    def fake(model, c, x, options):
+        calls.append(options.max_iterations)
+        if len(calls) > 1:
+            return _Solved(True, 7, x)
+        moved = np.zeros((n, 2))
+        moved[:, 0] = model.median_move
+        moved[:3, 0] = 3.0                     # a few nodes at a contact, far more
+        return _Solved(False, BRANCH_ITERATIONS, moved.ravel(), residual_norm=0.4)
+
+    monkeypatch.setattr(carry, "solve_equilibrium", fake)
+    evaluation = type("Ev", (), {"gradient": np.ones(1)})()
+    for median_move, goes_on in [(0.5 * BRANCH_DRIFT * diameter, True), (10 * BRANCH_DRIFT * diameter, False)]:
+        calls.clear()
+        model = type("Model", (), {"median_move": median_move, "mesh": type("M", (), {"diameter": diameter})(),
+                                   "evaluate": lambda self, x, c, order: evaluation})()
+        eq = solve_on_branch(model, np.zeros(1), np.zeros(2 * n), LEVEL_OPTIONS)
+        assert calls[0] == BRANCH_ITERATIONS and len(calls) == (2 if goes_on else 1)
+        assert eq.converged is goes_on
+        assert eq.iterations == (BRANCH_ITERATIONS + 7 if goes_on else BRANCH_ITERATIONS)
