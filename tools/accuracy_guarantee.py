@@ -164,9 +164,8 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float):
     """A reference level's equilibrium at ``contraction`` in the state of
     the level before (several stable states can hold an object at the same
     contractions, and Newton from a carried pose can walk from one to
-    another: gripper_object at 1, whose 67,313-node level left the answer's
-    state from the 17,017-node pose carried over, 10 mm away, and stayed in
-    it from the answer carried over, 0.85 from it). ``sources``: (mesh,
+    another: docs/notes/accuracy-measurements.md, gripper_object at
+    ``TOL`` 1). ``sources``: (mesh,
     flat pose) pairs, the level before first, then the answer; each is
     carried over admissibly (a P2 pose carried as it is can invert an
     element or cross a contact, and equilibrium_at would then start from

@@ -40,13 +40,11 @@ BRANCH_PROGRESS = 0.1
 
 #: ... or if the median node has moved at most this fraction of the mesh's
 #: diameter from the start: a fine level converging slowly from a coarser
-#: pose, a few nodes at a contact still settling (gripper_object's P2 level
-#: of 67,313 nodes at its 0.05 answer: after 60 steps 0.39 of its start's
-#: residual, the median node moved 0.012% of the diameter, the largest
-#: move 3.1 mm, the targets 0.034 from the answer; converged
-#: after 67 in all). Newton that has left the branch moves the body (the
-#: hexapod's P2 level of 889 nodes whose legs fold: the median node 0.98%
-#: of the diameter, the largest move 19 mm, in 60 steps).
+#: pose, a few nodes at a contact still settling (gripper_object's 67,313
+#: P2 nodes at its answer for TOL 0.05: the median node 0.012% of the
+#: diameter after 60 steps, converged after 67). Newton that has left the
+#: branch moves the body (the hexapod's folding legs above: about 1%).
+#: docs/notes/accuracy-measurements.md, 2026-12-06.
 BRANCH_DRIFT = 0.001
 
 
