@@ -140,7 +140,6 @@ def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
     assert doc["accuracy"]["status"] == "explicit_mesh" and doc["accuracy"]["estimated_error"] is None
 
 
-
 def test_a_row_names_where_its_reference_moved_between_levels():
     """A reference whose consecutive levels are more than TOL apart left one
     state for another (gripper_object at 1: 10 mm between 17,017 and 67,313

@@ -134,19 +134,20 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
             # stable state from the answer, which the finer levels would then follow
             continue
         model = build_model(s, m)
+        at = Targets.at_points(m, points, points)
         if path_dependent(scene):
             eq = replay(make_plant(model), waypoints, contraction)
         else:
-            y_prev = Targets.at_points(prev_mesh, points, points).y(prev_x)
+            # (the level before at the points: the last level's, or the answer's before the first)
+            y_prev = ys[-1] if ys else Targets.at_points(mesh_returned, points, points).y(x_returned)
             sources = [(prev_mesh, prev_x)] + ([(mesh_returned, x_returned)] if prev_mesh is not mesh_returned else [])
-            eq = same_state(model, contraction, sources, lambda x: Targets.at_points(m, points, points).y(x),
-                            y_prev, tol)
+            eq = same_state(model, contraction, sources, at.y, y_prev, tol)
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
         prev_nodes = mesh.n_nodes if mesh is not None else None
         mesh, x = m, eq.x
         print(f"reference: P2 {m.n_nodes:,} nodes solved", file=sys.stderr, flush=True)
-        ys.append(Targets.at_points(m, points, points).y(x))
+        ys.append(at.y(x))
         prev_mesh, prev_x = m, x
         if len(ys) >= 2:
             diffs.append(float(np.linalg.norm(ys[-1] - ys[-2], axis=-1).max()))
