@@ -318,6 +318,9 @@ def cmd_solve(args) -> int:
                 say(f"plush-opt: {line}", err=True)
             else:                               # not met: a warning, not a progress line
                 log.warning("%s", line)
+    if doc.get("self_crossing"):
+        log.warning("the returned pose crosses itself (%s): the scene has no contact.self, so the body may pass "
+                    "through itself; add `self: true` under `contact:` to forbid that", doc["self_crossing"])
     if args.trace and not history and doc["status"] != "start_not_certified":
         raise SceneError("--trace: only a control run whose iterates are certified equilibria "
                          "(the gradient loop, the reduced-space bilevel method) has an iterate history")

@@ -5,7 +5,9 @@ on their left; a P2 boundary edge is split at its midside node into two
 segments (docs/problem-format.md, "Contact"). Boundary nodes are the
 segments' end points; each carries the length weight w of its pairs (half
 the summed rest lengths of the segments at it), and knows its neighbours
-along the boundary (self-contact skips them).
+along the boundary (self-contact skips them). :func:`self_crossing` finds
+where a pose's boundary passes through itself (a scene without
+self-contact allows it; a level or a result that does is flagged).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import contact_geometry as geo
 from .mesh import Mesh
 
 
@@ -82,3 +85,18 @@ def build_boundary(mesh: Mesh) -> Boundary:
     return Boundary(nodes=nodes.astype(np.int64), segments=segments.astype(np.int64),
                     local=local.astype(np.int64), weight=weight, rest_length=rest_length,
                     near=near_arr)
+
+
+def self_crossing(boundary: Boundary, x: np.ndarray) -> str | None:
+    """Where the boundary of flat pose ``x`` crosses itself: the first two
+    crossing segments (neither sharing an end node) and the point, in
+    words; None where it does not."""
+    P = np.asarray(x, dtype=np.float64).reshape(-1, 2)[boundary.nodes]
+    A, B = P[boundary.local[:, 0]], P[boundary.local[:, 1]]
+    i, j = geo.crossing_pairs(A, B, shared=boundary.local)
+    if not len(i):
+        return None
+    s, t = boundary.segments[i[0]], boundary.segments[j[0]]
+    near = 0.25 * (A[i[0]] + B[i[0]] + A[j[0]] + B[j[0]])
+    return (f"boundary segments {int(s[0])}-{int(s[1])} and {int(t[0])}-{int(t[1])} cross "
+            f"near ({near[0]:.4g}, {near[1]:.4g})")

@@ -58,6 +58,7 @@ from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
 from ..base.geometry import body_area
+from ..fem.contact_boundary import build_boundary, self_crossing
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -254,7 +255,44 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None)
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=_crossings(scene, mesh, poses))
+
+
+def _crossings(scene: Scene, mesh: Mesh, poses) -> tuple:
+    """Per pose, where it crosses itself (:func:`~plush_opt.fem.contact_boundary.self_crossing`)
+    or None, in a scene whose body may pass through itself (no ``contact.self``); () otherwise."""
+    if scene.contact is not None and scene.contact.self_contact:
+        return ()
+    boundary = build_boundary(mesh)
+    return tuple(None if x is None else self_crossing(boundary, x) for x in poses)
+
+
+def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:
+    """Leave out of every level's estimates the contractions where some
+    level's pose crosses itself (a body folded through itself, which a
+    scene without self-contact allows: a fold has no length scale, so
+    its levels do not converge and say nothing of the mesh the other
+    contractions need), unless that is every contraction. ``left_out``
+    gets a row per contraction left out (its first crossing), and
+    ``progress`` hears of each once."""
+    first = {}
+    for lv in computed:
+        for j, where in enumerate(lv.crossing):
+            if where is not None and j not in first:
+                first[j] = (lv, where)
+    out = () if len(first) == len(cs) else tuple(sorted(first))
+    for lv in computed:
+        lv.left_out = out
+    for j in out:
+        if any(row["contraction_index"] == j for row in left_out):
+            continue
+        lv, where = first[j]
+        left_out.append({"contraction_index": j, "contraction": np.asarray(cs[j]).tolist(), "element": lv.element,
+                         "nodes": lv.mesh.n_nodes, "where": where})
+        if progress is not None:
+            progress(f"accuracy: at contraction {np.asarray(cs[j]).tolist()} the body crosses itself on the "
+                     f"{lv.element} level of {lv.mesh.n_nodes:,} nodes ({where}; the scene has no contact.self): "
+                     "that contraction is left out of the mesh choice")
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
@@ -340,6 +378,7 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             plan.extra_spent += level.t_solve
         plan.solved(chain, level)
         computed.append(level)
+        _leave_out_crossings(computed, cs, plan.left_out, progress)
         estimate_each_element(computed)
         best = _cheapest_meeting(computed, tol)
     plan.stopped = _stopped(plan, best, tol)
@@ -473,6 +512,7 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
     if plan is not None:
         report["not_solved"] = plan.not_solved()
         report["stopped"] = plan.stopped
+        report["left_out"] = plan.left_out
     report["summary"] = summary(report)
     report["point_coordinates"] = points.tolist()
     return best, computed, report
@@ -510,6 +550,10 @@ def summary(report: dict) -> str:
     """One line for the user: which element and mesh, the estimate, honestly."""
     if not report.get("levels"):
         return report.get("summary", "")
+    left = report.get("left_out") or []
+    aside = "" if not left else \
+        ("; left out of the mesh choice: contraction(s) " + ", ".join(str(r["contraction"]) for r in left)
+         + ", where the body crosses itself (the scene has no contact.self)")
     row = report["levels"][report["picked"]]
     refined = f" refined {report['refinements']}x" if report.get("refinements") else ""
     where = (f"{report['element']} elements, {report['nodes']} nodes (max_area {report['max_area']:.4g}"
@@ -521,8 +565,8 @@ def summary(report: dict) -> str:
             (f", its distance to the {report['levels'][via]['n_nodes']}-node "
              f"{report['levels'][via]['element']} level plus that level's estimate")
         return (f"{where}: estimated error of the {report['points']} {est:.3g} <= tolerance "
-                f"{report['tolerance']:.3g} (the cheapest level that meets it{how})")
+                f"{report['tolerance']:.3g} (the cheapest level that meets it{how}){aside}")
     bound = "no estimate (the levels do not converge)" if est is None else \
         f"estimated error {est:.3g} (bound from the level before it)"
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
-            f"{where}; {bound}")
+            f"{where}; {bound}{aside}")

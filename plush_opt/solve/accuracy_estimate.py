@@ -64,6 +64,10 @@ class Level:
     model: object = dataclasses.field(default=None, repr=False, compare=False)   # kept to be solved again (or None)
     # the path its one pose ends (plush_opt.solve.accuracy_path.path_key), or None
     along: bytes | None = dataclasses.field(default=None, repr=False, compare=False)
+    # per contraction, where its pose crosses itself (a scene without self-contact), or None; () unchecked
+    crossing: tuple = ()
+    # the contractions (rows of y) the estimates and bounds leave out (plush_opt.solve.accuracy.planned_sweep)
+    left_out: tuple = ()
 
     @property
     def max_area(self) -> float:
@@ -73,12 +77,17 @@ class Level:
         return self.bound is not None and self.bound <= tol
 
     @property
+    def compared(self) -> np.ndarray:
+        """``y`` without the contractions left out: what the estimates and bounds compare."""
+        return np.delete(self.y, list(self.left_out), axis=0) if self.left_out else self.y
+
+    @property
     def on_branch(self) -> bool:
         """Whether the level has its poses (``y`` finite): False for a level
         that has no equilibrium near the pose it was to follow (see
         :func:`~plush_opt.solve.accuracy_check.bounds_at`), which takes no
         part in the estimates and bounds."""
-        return bool(np.all(np.isfinite(self.y)))
+        return bool(np.all(np.isfinite(self.compared)))
 
     def row(self) -> dict:
         return {"element": self.element, "max_area": self.max_area,
@@ -157,7 +166,7 @@ def bound_errors(levels: list[Level]) -> None:
     for lv in levels:
         lv.bound = lv.bound_via = None
         for j, m in anchors if lv.on_branch else ():
-            b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.y - m.y, axis=-1))))
+            b = m.estimate + (0.0 if m is lv else float(np.max(np.linalg.norm(lv.compared - m.compared, axis=-1))))
             if lv.bound is None or b < lv.bound:
                 lv.bound, lv.bound_via = b, j
 
@@ -178,7 +187,7 @@ def estimate_levels(levels: list[Level]) -> None:
         group = group[off[-1] + 1:] if off else group
         if not group:
             continue
-        est = estimate_errors([lv.y for lv in group], [lv.mesh.n_nodes for lv in group],
+        est = estimate_errors([lv.compared for lv in group], [lv.mesh.n_nodes for lv in group],
                               group[0].element, nested=family is not None)
         for lv, e in zip(group, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
@@ -199,4 +208,4 @@ def estimate_each_element(levels: list[Level]) -> list[Level]:
 def one_pose(lv: Level, pose, y) -> Level:
     """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, bound=None, bound_via=None, along=None)
+                               confirmed=False, bound=None, bound_via=None, along=None, crossing=(), left_out=())

@@ -126,6 +126,7 @@ class Planner:
         self.extra_spent = 0.0
         self.stopped = ""             # why the sweep stopped (set by its driver)
         self.best_effort = False      # no chain could meet the tolerance: the first one solved to its end
+        self.left_out: list[dict] = []  # contractions left out of the estimates, and why (set by its driver)
 
     def solved(self, chain: Chain, level) -> None:
         chain.solved.append(level)

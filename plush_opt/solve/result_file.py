@@ -15,6 +15,7 @@ from .equilibrium import Equilibrium
 from .friction_solve import path_record, segment_table
 from ..base.errors import SceneError
 from ..fem import contact_report
+from ..fem.contact_boundary import build_boundary, self_crossing
 from ..fem.contact_friction import ContactFrictionTerm
 from ..fem.model import Model
 from ..fem.objective import Targets
@@ -92,6 +93,16 @@ def contact_block(model: Model, eq: Equilibrium) -> dict:
     return block
 
 
+def crossing_of(model: Model, x) -> str | None:
+    """Where pose ``x`` crosses itself, in words, in a scene whose body may
+    (no ``contact.self``: nothing keeps a fold from passing through the
+    body); None where it does not or may not."""
+    contact = model.scene.contact
+    if contact is not None and contact.self_contact:
+        return None
+    return self_crossing(build_boundary(model.mesh), x)
+
+
 def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
                 converged: bool, status: str, total_s: float, solve_s: float,
                 iterations: int, extra: dict | None = None) -> dict:
@@ -136,6 +147,9 @@ def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
         entry.update(seg, friction=float(t.friction))
     if model.contact is not None:
         doc["contact"] = contact_block(model, eq)
+    crossing = crossing_of(model, eq.x)
+    if crossing is not None:
+        doc["self_crossing"] = crossing
     record = path_record(eq, model.winch_names)
     if record is not None:
         doc["friction_path"] = record

@@ -1,0 +1,113 @@
+"""A body that folds through itself: found in a pose, and left out of the
+accuracy sweep's mesh choice (a fold has no length scale, so its levels
+do not converge and say nothing of the mesh the other contractions need)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from plush_opt.fem.contact_boundary import build_boundary, self_crossing
+from plush_opt.fem.mesh import build_mesh
+from plush_opt.io.problem_file import load_scene, scene_from_dict
+from plush_opt.solve.accuracy import Level, Resolution, _leave_out_crossings, choose_levels
+from plush_opt.solve.accuracy_estimate import estimate_levels
+
+from shipped import ROOT
+
+STRIP = {
+    "format": "plush-opt/1", "name": "strip",
+    "mesh": {"outline": [[0, 0], [10, 0], [10, 1], [0, 1]], "max_area": 0.2},
+    "material": {"model": "neo_hookean", "youngs_modulus": 0.05, "poisson_ratio": 0.3, "thickness": 1.0},
+    "winches": [{"name": "w", "bounds": [0.0, 1.0]}],
+    "pins": {"stiffness": 1000.0, "at": [[0, 0], [0, 1]]},
+    "tendons": {"stiffness": 1.0, "smoothing": 0.05, "list": [{"name": "t", "winch": "w", "path": [[1, 0.5], [9, 0.5]]}]},
+}
+
+
+def _strip(element):
+    doc = dict(STRIP, mesh=dict(STRIP["mesh"], element=element))
+    return build_mesh(scene_from_dict(doc, "strip.yaml"))
+
+
+@pytest.mark.parametrize("element", ["P1", "P2"])
+def test_a_strip_folded_back_through_itself_crosses_and_one_moved_rigidly_does_not(element):
+    mesh = _strip(element)
+    boundary = build_boundary(mesh)
+    X = mesh.X
+    assert self_crossing(boundary, X.ravel()) is None
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    assert self_crossing(boundary, (X @ turn.T + [3.0, -2.0]).ravel()) is None
+    # the right half laid back over the left half, 0.5 higher: its outline cuts the left half's
+    folded = X.copy()
+    right = X[:, 0] > 5.0
+    folded[right] = np.c_[10.0 - X[right, 0], X[right, 1] + 0.5]
+    where = self_crossing(boundary, folded.ravel())
+    assert where is not None and "cross near" in where
+
+
+def _level(ys, n, crossing=()):
+    res = Resolution(1.0, {100: 0, 400: 1, 1600: 2}[n], 1.0)
+    return Level("P2", res, SimpleNamespace(n_nodes=n), 0.0, 0.01 * n, 1, [None] * len(ys),
+                 np.array(ys, dtype=np.float64).reshape(len(ys), 1, 2), crossing=crossing)
+
+
+def test_a_contraction_where_a_level_crosses_itself_is_left_out_of_every_level_and_said_once():
+    # contraction 0 converges (1, 0.1, 0.01); contraction 1 jumps about (a fold)
+    levels = [_level([[0, 0], [0, 0]], 100, (None, None)),
+              _level([[1, 0], [3, 0]], 400, (None, "segments 1-2 and 7-8 cross near (0, 0)")),
+              _level([[1.1, 0], [0, 0]], 1600, (None, None))]
+    estimate_levels(levels)
+    assert levels[1].estimate == np.inf
+    said, rows = [], []
+    _leave_out_crossings(levels, np.array([[0.0], [0.5]]), rows, said.append)
+    _leave_out_crossings(levels, np.array([[0.0], [0.5]]), rows, said.append)
+    assert [lv.left_out for lv in levels] == [(1,)] * 3
+    assert [row["contraction"] for row in rows] == [[0.5]] and rows[0]["nodes"] == 400
+    assert len(said) == 1 and "[0.5]" in said[0] and "contact.self" in said[0]
+    estimate_levels(levels)
+    assert np.isfinite(levels[1].estimate) and levels[1].estimate < 0.2
+    assert levels[0].bound is not None and levels[0].bound > 1.0
+
+
+def test_where_every_contraction_crosses_itself_none_is_left_out():
+    levels = [_level([[0, 0]], 100, ("a fold",)), _level([[1, 0]], 400, (None,))]
+    rows = []
+    _leave_out_crossings(levels, np.array([[0.5]]), rows)
+    assert [lv.left_out for lv in levels] == [(), ()] and rows == []
+
+
+def test_the_standing_hexapod_sweep_leaves_out_the_one_legged_probes_where_a_leg_folds_through_itself():
+    scene = load_scene(ROOT / "problems" / "hexapod_stand.yaml")
+    best, computed, report = choose_levels(scene, 1.0)
+    assert sorted(row["contraction"] for row in report["left_out"]) == [[0.0, 10.0], [10.0, 0.0]]
+    assert all(lv.left_out == (1, 2) for lv in computed)
+    assert report["reached"] and report["estimated_error"] < 0.05
+    assert "crosses itself" in report["summary"]
+
+
+def test_a_result_whose_leg_folds_through_the_body_says_so(tmp_path):
+    import json
+
+    import yaml
+    from cli_helpers import cli
+    doc = yaml.safe_load((ROOT / "problems" / "hexapod_stand.yaml").read_text())
+    doc["mesh"]["element"] = "P2"
+    path = tmp_path / "stand.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    out = tmp_path / "r.json"
+    p = cli("solve", str(path), "--method", "forward", "-c", "a=14", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    assert "cross near" in json.loads(out.read_text())["self_crossing"]
+    assert "warning: the returned pose crosses itself" in p.stderr and "contact.self" in p.stderr
+    # with self-contact the same pose is not one the body may take: nothing to say of it
+    from plush_opt.fem.model import build_model
+    from plush_opt.solve.result_file import crossing_of
+    x = np.array(json.loads(out.read_text())["nodes"]).ravel()
+    doc["contact"]["self"] = True
+    path.write_text(yaml.safe_dump(doc))
+    scene = load_scene(path)
+    model = build_model(scene, build_mesh(scene))
+    assert not model.admissible(x) and crossing_of(model, x) is None
