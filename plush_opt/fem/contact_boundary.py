@@ -100,3 +100,13 @@ def self_crossing(boundary: Boundary, x: np.ndarray) -> str | None:
     near = 0.25 * (A[i[0]] + B[i[0]] + A[j[0]] + B[j[0]])
     return (f"boundary segments {int(s[0])}-{int(s[1])} and {int(t[0])}-{int(t[1])} cross "
             f"near ({near[0]:.4g}, {near[1]:.4g})")
+
+
+def crossings(scene, mesh: Mesh, poses) -> tuple:
+    """Per flat pose of ``mesh`` in ``poses`` (None: no pose), where it
+    crosses itself (:func:`self_crossing`) or None, in a scene whose body
+    may pass through itself (no ``contact.self``); () in one whose may not."""
+    if scene.contact is not None and scene.contact.self_contact:
+        return ()
+    boundary = build_boundary(mesh)
+    return tuple(None if x is None else self_crossing(boundary, x) for x in poses)

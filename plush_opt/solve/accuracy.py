@@ -58,7 +58,7 @@ from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
 from ..base.geometry import body_area
-from ..fem.contact_boundary import build_boundary, self_crossing
+from ..fem.contact_boundary import crossings
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
 from ..fem.objective import Targets
@@ -255,16 +255,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=_crossings(scene, mesh, poses))
-
-
-def _crossings(scene: Scene, mesh: Mesh, poses) -> tuple:
-    """Per pose, where it crosses itself (:func:`~plush_opt.fem.contact_boundary.self_crossing`)
-    or None, in a scene whose body may pass through itself (no ``contact.self``); () otherwise."""
-    if scene.contact is not None and scene.contact.self_contact:
-        return ()
-    boundary = build_boundary(mesh)
-    return tuple(None if x is None else self_crossing(boundary, x) for x in poses)
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(scene, mesh, poses))
 
 
 def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:

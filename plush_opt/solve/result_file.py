@@ -15,7 +15,7 @@ from .equilibrium import Equilibrium
 from .friction_solve import path_record, segment_table
 from ..base.errors import SceneError
 from ..fem import contact_report
-from ..fem.contact_boundary import build_boundary, self_crossing
+from ..fem.contact_boundary import crossings
 from ..fem.contact_friction import ContactFrictionTerm
 from ..fem.model import Model
 from ..fem.objective import Targets
@@ -95,12 +95,8 @@ def contact_block(model: Model, eq: Equilibrium) -> dict:
 
 def crossing_of(model: Model, x) -> str | None:
     """Where pose ``x`` crosses itself, in words, in a scene whose body may
-    (no ``contact.self``: nothing keeps a fold from passing through the
-    body); None where it does not or may not."""
-    contact = model.scene.contact
-    if contact is not None and contact.self_contact:
-        return None
-    return self_crossing(build_boundary(model.mesh), x)
+    (no ``contact.self``); None where it does not or may not."""
+    return next(iter(crossings(model.scene, model.mesh, [x])), None)
 
 
 def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
