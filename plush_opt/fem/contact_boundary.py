@@ -102,11 +102,13 @@ def self_crossing(boundary: Boundary, x: np.ndarray) -> str | None:
             f"near ({near[0]:.4g}, {near[1]:.4g})")
 
 
-def crossings(scene, mesh: Mesh, poses) -> tuple:
-    """Per flat pose of ``mesh`` in ``poses`` (None: no pose), where it
+def crossings(model, poses) -> tuple:
+    """Per flat pose of ``model`` in ``poses`` (None: no pose), where it
     crosses itself (:func:`self_crossing`) or None, in a scene whose body
-    may pass through itself (no ``contact.self``); () in one whose may not."""
-    if scene.contact is not None and scene.contact.self_contact:
+    may pass through itself (no ``contact.self``); () in one whose may not.
+    The contact term's boundary is used where the model has one."""
+    contact = model.contact
+    if contact is not None and contact.self_contact:
         return ()
-    boundary = build_boundary(mesh)
+    boundary = contact.boundary if contact is not None else build_boundary(model.mesh)
     return tuple(None if x is None else self_crossing(boundary, x) for x in poses)

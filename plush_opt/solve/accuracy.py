@@ -255,7 +255,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(scene, mesh, poses))
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses))
 
 
 def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:

@@ -96,7 +96,7 @@ def contact_block(model: Model, eq: Equilibrium) -> dict:
 def crossing_of(model: Model, x) -> str | None:
     """Where pose ``x`` crosses itself, in words, in a scene whose body may
     (no ``contact.self``); None where it does not or may not."""
-    return next(iter(crossings(model.scene, model.mesh, [x])), None)
+    return next(iter(crossings(model, [x])), None)
 
 
 def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,
