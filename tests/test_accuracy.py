@@ -6,12 +6,13 @@ import json
 import math
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from plush_opt.solve.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution, bound_errors,
-                                choose_mesh, default_levels, estimate_errors, probe_contractions, sweep,
+                                choose_mesh, default_levels, estimate_errors, estimate_levels, probe_contractions, sweep,
                                 transfer_pose)
 from plush_opt.apps.cantilever import beam_deflection
 from plush_opt.solve.equilibrium import EquilibriumOptions
@@ -122,6 +123,36 @@ def test_a_level_without_its_own_estimate_is_bounded_through_a_confirmed_one():
     alone = [_level([0.0, 0.0], 0.1), _level([0.0, 0.1], math.inf)]
     bound_errors(alone)
     assert all(lv.bound is None and not lv.meets(1e9) for lv in alone)
+
+
+def _nested(family, nodes, heights):
+    return [Level("P2", Resolution(1.0, k, family), SimpleNamespace(n_nodes=n, n_elems=n // 2), 0.0, 0.0, 0, [],
+                  np.array([[[0.0, h]]])) for k, (n, h) in enumerate(zip(nodes, heights))]
+
+
+def test_an_estimate_is_withdrawn_where_finer_nested_levels_grow_again():
+    # gripper_object at 0.25: family A steps 2.0 then 0.118 (its estimate at
+    # 4,349 nodes from the theory ratio), family B grows 0.063 -> 0.093 at
+    # 8,977 nodes and finer
+    a = _nested(1.0, [1135, 4349, 17017], [0.0, 2.0, 2.118])
+    b = _nested(2.0, [2317, 8977, 35329], [2.05, 2.113, 2.206])
+    estimate_levels(a + b)
+    assert a[1].estimate == pytest.approx(SAFETY * 0.118 / (1 - (4349 / 17017) ** 1.5))
+    assert a[1].withdrawn and not a[1].confirmed
+    assert b[1].estimate == math.inf and b[1].bound is None     # nothing left to bound the answer through
+    assert a[1].row()["withdrawn"] is True
+    # where B keeps shrinking, A's estimate stands (B's own is tighter)
+    b = _nested(2.0, [2317, 8977, 35329], [2.05, 2.113, 2.133])
+    estimate_levels(a + b)
+    assert a[1].confirmed and not a[1].withdrawn and b[1].bound_via == 4
+    # a growth far below the estimate (round-off) says nothing
+    b = _nested(2.0, [2317, 8977, 35329], [2.1, 2.100001, 2.100003])
+    estimate_levels(a + b)
+    assert a[1].confirmed and not a[1].withdrawn
+    # nor does one coarser than the estimated level
+    b = _nested(2.0, [800, 3000, 12000], [2.05, 2.113, 2.206])
+    estimate_levels(a[:2] + b[:2] + a[2:] + b[2:])
+    assert not a[1].withdrawn
 
 
 @pytest.mark.slow

@@ -442,7 +442,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
         ``bound_via`` (the index in ``levels`` of the level whose estimate
         the picked level's bound rests on, see :func:`bound_errors`),
         ``levels`` (per level computed: element, max_area, n_nodes,
-        t_solve_s, difference_to_next, ratio, estimated_error, confirmed,
+        t_solve_s, difference_to_next, ratio, estimated_error, confirmed, withdrawn,
         error_bound, bound_via), ``points``,
         ``contractions``, ``summary``.
 

@@ -9,6 +9,7 @@ sweep that solves them is :mod:`plush_opt.solve.accuracy`.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from typing import NamedTuple
 
@@ -17,6 +18,8 @@ import numpy as np
 from ..fem.elements import ELEMENTS
 from ..fem.mesh import Mesh
 
+log = logging.getLogger("plush_opt.solve.accuracy")     # the sweep's channel
+
 #: Best convergence order (in the mesh size h) of point displacements
 #: expected of each element (h^(k+1) for degree k): the estimate never
 #: assumes faster convergence than this, whatever two levels happened to show.
@@ -24,6 +27,13 @@ EXPECTED_ORDER = {e.name: e.degree + 1.0 for e in ELEMENTS}
 #: Differences shrinking by less than this per level are not converging
 #: (pre-asymptotic, or a point load's logarithmic growth): no estimate.
 MAX_RATIO = 0.8
+#: A nested level's estimate is withdrawn (not an anchor of bounds) where a
+#: nested level of the same element with at least its nodes moved to its
+#: next level by more than it moved from its previous one, and by at least
+#: this share of the estimate: differences that grow again at that size say
+#: the levels are not yet asymptotic there, whatever the coarser ratio showed
+#: (a smaller growth, at round-off or far below the estimate, says nothing).
+GROWTH_SHARE = 0.25
 #: The geometric tail times this: on unstructured, non-nested meshes the
 #: differences of consecutive levels scatter about their trend; Roache's
 #: grid convergence index uses 1.25 with three or more grids (3 for two).
@@ -59,6 +69,7 @@ class Level:
     ratio: float | None = None
     estimate: float | None = None    # error bound of y (None: not enough levels; inf: not converging)
     confirmed: bool = False          # usable as an anchor of bounds (see estimate_errors)
+    withdrawn: bool = False          # confirmed, then withdrawn: finer levels grow (GROWTH_SHARE)
     bound: float | None = None       # error bound the pick uses (see bound_errors)
     bound_via: int | None = None     # the level (index among those bounded together) it comes from
     model: object = dataclasses.field(default=None, repr=False, compare=False)   # kept to be solved again (or None)
@@ -97,6 +108,7 @@ class Level:
                 "newton_iterations": self.newton_iterations,
                 "difference_to_next": self.difference_to_next, "ratio": self.ratio,
                 "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed,
+                "withdrawn": self.withdrawn,
                 "error_bound": _json_number(self.bound), "bound_via": self.bound_via}
 
 
@@ -177,10 +189,13 @@ def estimate_levels(levels: list[Level]) -> None:
     bounds (:func:`bound_errors`). Levels not on the branch
     (:attr:`Level.on_branch`) get no estimate, and neither do the levels of
     their family coarser than them: the differences are taken over the
-    unbroken run of finer levels only (a gap would pass for a step)."""
+    unbroken run of finer levels only (a gap would pass for a step).
+    A nested level's estimate is withdrawn where nested levels of at least
+    its nodes grow again (:data:`GROWTH_SHARE`)."""
     for lv in levels:
         lv.difference_to_next = lv.ratio = lv.estimate = None
-        lv.confirmed = False
+        lv.confirmed = lv.withdrawn = False
+    grown = []                       # (nodes, difference) of nested levels whose difference grew
     for family in dict.fromkeys(lv.resolution.family for lv in levels):
         group = [lv for lv in levels if lv.resolution.family == family]
         off = [i for i, lv in enumerate(group) if not lv.on_branch]
@@ -192,6 +207,17 @@ def estimate_levels(levels: list[Level]) -> None:
         for lv, e in zip(group, est):
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
             lv.confirmed = e["confirmed"]
+        if family is not None:
+            grown += [(lv.mesh.n_nodes, b) for lv, a, b in zip(group[1:], [e["difference"] for e in est],
+                                                               [e["difference"] for e in est[1:]])
+                      if a is not None and b is not None and b > a]
+    for lv in levels:
+        grew = [(n, d) for n, d in grown if n >= lv.mesh.n_nodes and d >= GROWTH_SHARE * (lv.estimate or 0.0)]
+        if lv.confirmed and lv.resolution.family is not None and grew:
+            lv.confirmed, lv.withdrawn = False, True
+            log.debug("accuracy: the estimate %.3g of the %s level of %d nodes is withdrawn: the level of %d nodes "
+                     "moved %.3g to its next, more than to its previous", lv.estimate, lv.element, lv.mesh.n_nodes,
+                     *grew[0])
     bound_errors(levels)
 
 
@@ -208,4 +234,4 @@ def estimate_each_element(levels: list[Level]) -> list[Level]:
 def one_pose(lv: Level, pose, y) -> Level:
     """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, bound=None, bound_via=None, along=None, crossing=(), left_out=())
+                               confirmed=False, withdrawn=False, bound=None, bound_via=None, along=None, crossing=(), left_out=())
