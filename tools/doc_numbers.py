@@ -127,8 +127,16 @@ def accuracy_pick() -> str:
             f"accuracy-pick` on {date}; the table below is dated history of earlier code.")
 
 
+def obstacle_vertex() -> str:
+    """An obstacle vertex's barrier sum against a boundary cut ever finer
+    (tools/obstacle_vertex_pairs.py, its default arguments)."""
+    import obstacle_vertex_pairs as ovp
+    return "\n".join(ovp.arithmetic(ovp.GAP, ovp.SIZES))
+
+
 BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True),
-          "friction-loops": (friction_loops, True), "accuracy-pick": (accuracy_pick, False)}
+          "friction-loops": (friction_loops, True), "accuracy-pick": (accuracy_pick, False),
+          "obstacle-vertex": (obstacle_vertex, True)}
 
 
 #: Blocks whose numbers round-off moves (a via point within stick_tol of its
