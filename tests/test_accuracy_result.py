@@ -154,6 +154,17 @@ def test_a_row_names_where_its_reference_moved_between_levels():
     assert guarantee.verdict({**row, "error_points": 0.3, "ref_jumps": []}) == ("yes", "")
 
 
+def test_a_stopped_row_says_what_it_already_knew():
+    """A row stopped in its reference (its time ran out) still names what
+    rules it out already: gripper_object at 0.25 ended exit 3, not met."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    row = {"tol": 0.25, "exit": 3, "met": False, "ratio": 1.9}
+    assert guarantee.known_before_the_reference(row) == ["exit 3", "not met at the returned contractions"]
+    assert guarantee.known_before_the_reference({**row, "exit": 0, "met": True, "ratio": 6.0}) == ["cost above 5x"]
+    assert guarantee.known_before_the_reference({"tol": 1.0}) == []
+
+
 def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
     """Several stable states can hold at the returned contractions (the
     gripper's ball); a reference level whose solve from the level before

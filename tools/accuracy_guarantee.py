@@ -307,6 +307,17 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     return row
 
 
+def known_before_the_reference(row: dict) -> list[str]:
+    """What already rules a row out before its reference is solved (its
+    exit code, no claim, its cost): said first where the row is stopped."""
+    why = [f"exit {row['exit']}"] if row.get("exit") not in (None, 0) else []
+    if row.get("met") is False:
+        why.append("not met at the returned contractions")
+    if row.get("ratio") is not None and row["ratio"] > COST_FACTOR:
+        why.append(f"cost above {COST_FACTOR:g}x")
+    return why
+
+
 def verdict(row: dict) -> tuple[str, str]:
     """"yes" when every part of the guarantee holds (exit 0, met, within TOL
     of the reference, cost within COST_FACTOR), else "NO" and why."""
@@ -367,7 +378,8 @@ def launch(job: tuple, timeout: float) -> dict:
         part = to.with_suffix(".partial")
         row = json.loads(part.read_text()) if part.exists() else {"scene": scene_label(*parse_scene(spec)), "tol": tol}
         phase = row.pop("phase", "the --accuracy run")
-        row.update(verdict="NO", note=f"not finished within {timeout:.0f} s: stopped in {phase}")
+        row.update(verdict="NO", note="; ".join(known_before_the_reference(row)
+                                                 + [f"not finished within {timeout:.0f} s: stopped in {phase}"]))
         if "wall_s" not in row:
             row["wall_s"] = time.perf_counter() - t0
         from plush_opt.base.files import write_json_atomic
@@ -451,7 +463,7 @@ def main(argv=None) -> int:
             {"scene": spec, "tol": tol, "verdict": "NO", "note": "not run" if args.no_run else
              "the row failed (no row file)"}
         part = to.with_suffix(".partial")
-        if row["note"].startswith("not finished") and part.exists():    # what the stopped row knew
+        if "not finished within" in row["note"] and part.exists():    # what the stopped row knew
             known = json.loads(part.read_text())
             row = {**known, **{k: row[k] for k in ("verdict", "wall_s") if k in row},
                    "note": f"{row['note'].split(':')[0]}: stopped in {known.pop('phase')}"}
