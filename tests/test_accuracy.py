@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from plush_opt.solve.accuracy import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution, bound_errors,
-                                choose_mesh, default_levels, estimate_errors, estimate_levels, probe_contractions, sweep,
-                                transfer_pose)
+                                choose_mesh, default_levels, estimate_errors, estimate_levels, probe_contractions,
+                                sweep, transfer_pose)
 from plush_opt.apps.cantilever import beam_deflection
 from plush_opt.solve.equilibrium import EquilibriumOptions
 from plush_opt.base.errors import SceneError

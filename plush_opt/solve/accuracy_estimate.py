@@ -211,9 +211,9 @@ def estimate_levels(levels: list[Level]) -> None:
             grown += [(lv.mesh.n_nodes, b) for lv, a, b in zip(group[1:], [e["difference"] for e in est],
                                                                [e["difference"] for e in est[1:]])
                       if a is not None and b is not None and b > a]
-    for lv in levels:
-        grew = [(n, d) for n, d in grown if n >= lv.mesh.n_nodes and d >= GROWTH_SHARE * (lv.estimate or 0.0)]
-        if lv.confirmed and lv.resolution.family is not None and grew:
+    for lv in (lv for lv in levels if lv.confirmed and lv.resolution.family is not None):
+        grew = [(n, d) for n, d in grown if n >= lv.mesh.n_nodes and d >= GROWTH_SHARE * lv.estimate]
+        if grew:
             lv.confirmed, lv.withdrawn = False, True
             log.debug("accuracy: the estimate %.3g of the %s level of %d nodes is withdrawn: the level of %d nodes "
                      "moved %.3g to its next, more than to its previous", lv.estimate, lv.element, lv.mesh.n_nodes,
@@ -234,4 +234,5 @@ def estimate_each_element(levels: list[Level]) -> list[Level]:
 def one_pose(lv: Level, pose, y) -> Level:
     """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
-                               confirmed=False, withdrawn=False, bound=None, bound_via=None, along=None, crossing=(), left_out=())
+                               confirmed=False, withdrawn=False, bound=None, bound_via=None, along=None, crossing=(),
+                               left_out=())
