@@ -208,8 +208,8 @@ def estimate_levels(levels: list[Level]) -> None:
             lv.difference_to_next, lv.ratio, lv.estimate = e["difference"], e["ratio"], e["estimate"]
             lv.confirmed = e["confirmed"]
         if family is not None:
-            grown += [(lv.mesh.n_nodes, b) for lv, a, b in zip(group[1:], [e["difference"] for e in est],
-                                                               [e["difference"] for e in est[1:]])
+            d = [e["difference"] for e in est]        # d[k]: level k to k + 1; None for the last
+            grown += [(lv.mesh.n_nodes, b) for lv, a, b in zip(group[1:], d, d[1:])
                       if a is not None and b is not None and b > a]
     for lv in (lv for lv in levels if lv.confirmed and lv.resolution.family is not None):
         grew = [(n, d) for n, d in grown if n >= lv.mesh.n_nodes and d >= GROWTH_SHARE * lv.estimate]
