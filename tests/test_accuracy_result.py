@@ -194,3 +194,45 @@ def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer
     solved.clear()
     eq = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), answer], y_of, np.array([[0.0, 0.0]]), 1.0)
     assert eq.x[0] == 0.2 and solved == [0.2]
+
+
+def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypatch):
+    """Where the pose depends on the path each reference level replays it
+    from the start (no level carries another's pose): the levels coarser
+    than the answer count towards the reference's own estimate, so one
+    level about 4x the answer's suffices (gripper_friction at 0.05 needed a
+    second, 16x, before); a coarser level that does not converge is left
+    out, and a jump between coarser levels is not the reference's."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    import plush_opt.fem.mesh as mesh_module
+    import plush_opt.fem.model as model_module
+    import plush_opt.fem.objective as objective
+    import plush_opt.solve.accuracy_path as accuracy_path
+    import plush_opt.solve.plant as plant
+    scene = load_scene(ROOT / "problems" / "gripper_friction.yaml")
+    # level r: 1,000 x 4^r nodes; its pose's one point at 2 + 0.1 x 4^-r (its first level 3 away)
+    nodes = lambda r: 1000 * 4 ** r                                   # noqa: E731
+    at = lambda r: 5.0 if r == 0 else 2.0 + 0.1 * 0.25 ** r           # noqa: E731
+    replayed, failing = [], set()
+
+    def fake_replay(level, waypoints, contraction):
+        replayed.append(level)
+        return type("Eq", (), {"converged": level not in failing, "x": np.array([at(level)]), "status": "-"})()
+
+    monkeypatch.setattr(mesh_module, "build_mesh", lambda s, max_area, graded, refinements, announce:
+                        type("Mesh", (), {"n_nodes": nodes(refinements), "r": refinements})())
+    monkeypatch.setattr(model_module, "build_model", lambda s, m: m.r)
+    monkeypatch.setattr(plant, "make_plant", lambda model: model)
+    monkeypatch.setattr(accuracy_path, "replay", fake_replay)
+    monkeypatch.setattr(objective.Targets, "at_points",
+                        staticmethod(lambda m, p, q: type("At", (), {"y": staticmethod(
+                            lambda x: np.array([[x[0], 0.0]]))})()))
+    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
+    assert replayed == [0, 1, 2, 3] and mesh.n_nodes == nodes(3)
+    assert own is not None and own <= 0.1 * 0.05 and jumps == []
+    # the 4,000-node level left out: the estimate needs the levels after the answer's
+    replayed.clear()
+    failing.add(1)
+    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
+    assert replayed == [0, 1, 2, 3, 4] and mesh.n_nodes == nodes(4) and own <= 0.1 * 0.05

@@ -28,7 +28,11 @@ For each scene and tolerance (one row, run in its own process, at most
    error (the tail after it, at its observed rate) is at most REF_FRACTION x
    TOL, or until REF_MAX_NODES. Where the pose depends on the path
    (friction), each level replays the path the returned pose was reached
-   by (its ``friction_path``) instead.
+   by (its ``friction_path``) instead, from the start: no level carries
+   another's pose, so the levels coarser than the answer count towards the
+   reference's own estimate too (the answer's own level, the one before it
+   and the one after it estimate the last; a jump is still only one
+   between levels at least as fine as the answer).
 3. The returned pose's error against it: the largest distance of the
    compared points (the targets, else the tendon stoppers and the scene's
    points, as docs/accuracy.md defines them; what the guarantee covers), and
@@ -108,7 +112,8 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     ``contraction``), or is far from converged; its own estimate rests on
     its last levels alone. Where the
     pose depends on the path (friction), each level replays the returned
-    path instead (``waypoints``: the control run's start and iterates; None:
+    path instead, from the start, the levels coarser than the answer
+    included (``waypoints``: the control run's start and iterates; None:
     a forward solve's fresh path; plush_opt.solve.accuracy_path.replay)."""
     from plush_opt.solve.accuracy_path import replay
     from plush_opt.solve.plant import make_plant, path_dependent
@@ -125,23 +130,31 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     mesh = x = None
     own = None
     jumps = []
+    replayed = path_dependent(scene)
     for r in range(8):
         m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
         if m.n_nodes > REF_MAX_NODES:
             break
-        if m.n_nodes < nodes_returned:
+        if m.n_nodes < nodes_returned and not replayed:
             # coarser than the returned mesh: near a fold such a level can settle in another
-            # stable state from the answer, which the finer levels would then follow
+            # stable state from the answer, which the finer levels would then follow (a replayed
+            # path starts each level afresh: its coarser levels count towards the own estimate)
             continue
         model = build_model(s, m)
         at = Targets.at_points(m, points, points)
-        if path_dependent(scene):
+        if replayed:
             eq = replay(make_plant(model), waypoints, contraction)
         else:
             # (the level before at the points: the last level's, or the answer's before the first)
             y_prev = ys[-1] if ys else Targets.at_points(mesh_returned, points, points).y(x_returned)
             sources = [(prev_mesh, prev_x)] + ([(mesh_returned, x_returned)] if prev_mesh is not mesh_returned else [])
             eq = same_state(model, contraction, sources, at.y, y_prev, tol)
+        if not eq.converged and m.n_nodes < nodes_returned:
+            # (a coarser level only adds to the own estimate: without it, the levels from the answer's)
+            print(f"reference: P2 {m.n_nodes:,} nodes not converged ({eq.status}): left out",
+                  file=sys.stderr, flush=True)
+            ys, diffs = [], []
+            continue
         if not eq.converged:
             raise SceneError(f"reference: no certified P2 equilibrium on {m.n_nodes} nodes: {eq.status}")
         prev_nodes = mesh.n_nodes if mesh is not None else None
@@ -151,7 +164,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
         prev_mesh, prev_x = m, x
         if len(ys) >= 2:
             diffs.append(float(np.linalg.norm(ys[-1] - ys[-2], axis=-1).max()))
-            if diffs[-1] > tol:
+            if diffs[-1] > tol and prev_nodes >= nodes_returned:
                 jumps.append((prev_nodes, m.n_nodes, diffs[-1]))
         if len(diffs) >= 2 and diffs[-2] > 0:
             q = max(diffs[-1] / diffs[-2], floor_ratio)
