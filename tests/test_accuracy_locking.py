@@ -95,3 +95,46 @@ def test_the_summary_says_what_the_p2_check_found():
     assert at_result_summary(missed, 1.0) == ("at the returned contractions: tolerance 1 NOT met: no estimate on "
                                               "P1 elements, 127 nodes; no P2 level with an estimate to check it "
                                               "against")
+
+
+def _level(element, nodes, y, estimate=None, meets=False, t_solve=1.0, bound_via=None):
+    """A level as solved at one returned contraction: what choosing the next level reads."""
+    from types import SimpleNamespace
+    return SimpleNamespace(element=element, mesh=SimpleNamespace(n_nodes=nodes), y=np.array([[[y, 0.0]]]),
+                           estimate=estimate, confirmed=estimate is not None, on_branch=True, t_solve=t_solve,
+                           bound_via=bound_via, meets=lambda tol, m=meets: m)
+
+
+def _next_level(at, estimate):
+    """``AccurateSolve._next_level`` on the levels ``at`` (the first the answer's), with the
+    sweep going on recorded instead of solved: (level index or None, P1 refuted, sweep went on)."""
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    acc = object.__new__(AccurateSolve)
+    acc.tol, acc.refuted, acc.path_dependent, acc.levels, acc.progress = 1.0, False, False, at, lambda line: None
+    extended = []
+    acc._extend = lambda levels, contraction: extended.append(acc.refuted)
+    found = {"at": at, "lost": None, "p2": None, "cross": None, "waypoints": None,
+             "round": {"estimated_error": estimate}}
+    k, _, went_on, _ = acc._next_level(found, {"upper": 8.0}, None)
+    return (None if went_on else k), acc.refuted, extended
+
+
+def test_a_p1_level_the_p2_levels_there_refute_is_not_solved_again_on():
+    """The crescent at 1 went back from its P2 answer (20,517 nodes, estimated
+    2.69 there) to P1 1,512 nodes, whose levels agree with each other at those
+    contractions (locking) and 2.5 from the P2 levels: a round spent on a
+    level the P2 levels did not support. A P1 level is solved again on only
+    where the P2 levels solved there support it (its bound through them, as
+    the claim's cross-check); else P2 levels alone go on."""
+    answer = _level("P2", 20517, 2.5, estimate=2.69, t_solve=1.1)
+    p1 = _level("P1", 1512, 0.0, estimate=0.3, meets=True, t_solve=0.02)
+    assert _next_level([answer, p1], 2.69) == (None, True, [True])
+    # a P2 level meeting the tolerance through P2 alone is taken instead; one bounded through P1 is not
+    p2 = _level("P2", 79625, 2.4, estimate=0.2, meets=True, t_solve=5.6)
+    assert _next_level([answer, p1, p2], 2.69) == (2, True, [])
+    through_p1 = _level("P2", 79625, 2.4, estimate=None, meets=True, t_solve=5.6, bound_via=1)
+    assert _next_level([answer, p1, through_p1], 2.69) == (None, True, [True])
+    # P2 levels that agree with the P1 level (or have no estimate there) leave it as it was
+    near = _level("P2", 79625, 0.2, estimate=0.3, meets=True, t_solve=5.6)
+    assert _next_level([answer, p1, near], 2.69) == (1, False, [])
+    assert _next_level([_level("P2", 20517, 2.5, t_solve=1.1), p1], None) == (1, False, [])

@@ -176,11 +176,32 @@ class AccurateSolve:
             # again on the P2 level the sweep picks at its probes, from where the first solve started
             return _cheapest_of(self.levels, (CHECK_ELEMENT,), self.tol), dict(start or {}), False, why
         k = cheapest_meeting(at, self.tol)
+        if k is not None and at[k].element != CHECK_ELEMENT:
+            k = self._supported(at, k)
         if k is None and self.path_dependent:     # finer levels, the path replayed on each
             return self._extend_along(at, found["waypoints"], list(here.values())), here, True, why
         if k is None:                # no level solved so far meets it there: the sweep goes on, there too
             return self._extend(at, list(here.values())), here, True, why
         return k, here, False, why
+
+    def _supported(self, at, k: int) -> int | None:
+        """``k``, a level of another element than P2 that meets the tolerance
+        among the levels ``at`` (solved at the returned contractions) by its
+        own levels' estimate, where the P2 levels solved there support it
+        (its bound through them, as in :meth:`_cross_check`, within the
+        tolerance, or none has a confirmed estimate there); else the P1
+        levels are not trusted from then on (``refuted``), and the cheapest
+        P2 level meeting it there through P2 levels alone is returned, or None."""
+        bound, via = bound_through(at[k], [lv for lv in at if lv.element == CHECK_ELEMENT and lv.on_branch])
+        if bound is None or bound <= self.tol:
+            return k
+        self.refuted = True
+        self.progress(f"accuracy: the {at[k].element} level of {at[k].mesh.n_nodes:,} nodes meets {self.tol:g} "
+                      f"there by its own levels, but its bound through the {CHECK_ELEMENT} level of "
+                      f"{via.mesh.n_nodes:,} nodes (estimate {via.estimate:.3g}) is {bound:.3g}: "
+                      f"{at[k].element} is not trusted here, the {CHECK_ELEMENT} levels go on")
+        alone = [lv if lv.bound_via is None or at[lv.bound_via].element == CHECK_ELEMENT else None for lv in at]
+        return _cheapest_of(alone, (CHECK_ELEMENT,), self.tol)
 
     def _cross_check(self, at, contraction) -> tuple[dict, tuple | None]:
         """The level in use meets the tolerance at ``contraction`` (``at``:
