@@ -120,21 +120,24 @@ def _next_level(at, estimate):
 
 
 def test_a_p1_level_the_p2_levels_there_refute_is_not_solved_again_on():
-    """The crescent at 1 went back from its P2 answer (20,517 nodes, estimated
-    2.69 there) to P1 1,512 nodes, whose levels agree with each other at those
-    contractions (locking) and 2.5 from the P2 levels: a round spent on a
-    level the P2 levels did not support. A P1 level is solved again on only
-    where the P2 levels solved there support it (its bound through them, as
-    the claim's cross-check); else P2 levels alone go on."""
-    answer = _level("P2", 20517, 2.5, estimate=2.69, t_solve=1.1)
+    """The crescent at 1 went back from its P2 answer (20,517 nodes, 2.74
+    there through a P1 level's estimate) to P1 1,512 nodes, whose levels
+    agree with each other at those contractions (locking) while the P2
+    levels there, of up to 79,625 nodes and none with an estimate yet, are
+    2.3 away: a round spent on a level the P2 levels did not support. A P1
+    level is solved again on only where the finest P2 level solved there is
+    within TOL of it (plus that level's estimate); else P2 levels alone go
+    on."""
+    answer = _level("P2", 20517, 2.5, t_solve=1.1)
     p1 = _level("P1", 1512, 0.0, estimate=0.3, meets=True, t_solve=0.02)
-    assert _next_level([answer, p1], 2.69) == (None, True, [True])
+    finest = _level("P2", 79625, 2.3, t_solve=5.6)
+    assert _next_level([answer, p1, finest], 2.74) == (None, True, [True])
     # a P2 level meeting the tolerance through P2 alone is taken instead; one bounded through P1 is not
-    p2 = _level("P2", 79625, 2.4, estimate=0.2, meets=True, t_solve=5.6)
-    assert _next_level([answer, p1, p2], 2.69) == (2, True, [])
-    through_p1 = _level("P2", 79625, 2.4, estimate=None, meets=True, t_solve=5.6, bound_via=1)
-    assert _next_level([answer, p1, through_p1], 2.69) == (None, True, [True])
-    # P2 levels that agree with the P1 level (or have no estimate there) leave it as it was
-    near = _level("P2", 79625, 0.2, estimate=0.3, meets=True, t_solve=5.6)
-    assert _next_level([answer, p1, near], 2.69) == (1, False, [])
-    assert _next_level([_level("P2", 20517, 2.5, t_solve=1.1), p1], None) == (1, False, [])
+    meeting = _level("P2", 79625, 2.3, estimate=0.2, meets=True, t_solve=5.6)
+    assert _next_level([answer, p1, meeting], 2.74) == (2, True, [])
+    through_p1 = _level("P2", 79625, 2.3, meets=True, t_solve=5.6, bound_via=1)
+    assert _next_level([answer, p1, through_p1], 2.74) == (None, True, [True])
+    # the finest P2 level within TOL (plus its estimate), or no P2 level there: as it was
+    assert _next_level([answer, p1, _level("P2", 79625, 1.2, estimate=0.3, t_solve=5.6)], 2.74) == (1, False, [])
+    assert _next_level([answer, p1, _level("P2", 79625, 0.9, t_solve=5.6)], 2.74) == (1, False, [])
+    assert _next_level([_level("P1", 613, 3.0, t_solve=0.01), p1], 3.0) == (1, False, [])
