@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 
 import numpy as np
 
@@ -177,39 +176,11 @@ class AccurateSolve:
             # again on the P2 level the sweep picks at its probes, from where the first solve started
             return _cheapest_of(self.levels, (CHECK_ELEMENT,), self.tol), dict(start or {}), False, why
         k = cheapest_meeting(at, self.tol)
-        if k is not None and at[k].element != CHECK_ELEMENT:
-            k = self._supported(at, k)
         if k is None and self.path_dependent:     # finer levels, the path replayed on each
             return self._extend_along(at, found["waypoints"], list(here.values())), here, True, why
         if k is None:                # no level solved so far meets it there: the sweep goes on, there too
             return self._extend(at, list(here.values())), here, True, why
         return k, here, False, why
-
-    def _supported(self, at, k: int) -> int | None:
-        """``k``, a level of another element than P2 that meets the tolerance
-        among the levels ``at`` (solved at the returned contractions) by its
-        own levels' estimate, where the finest P2 level solved there is
-        within the tolerance of it, plus that level's estimate where it has
-        one (P1 levels can agree with each other far from the converged
-        answer; a P2 level, finer and free of locking, is the best account of
-        it there), or no P2 level is solved there; else the P1 levels are not
-        trusted from then on (``refuted``), and the cheapest P2 level meeting
-        the tolerance there through P2 levels alone is returned, or None."""
-        p2 = [lv for lv in at if lv.element == CHECK_ELEMENT and lv.on_branch]
-        if not p2:
-            return k
-        finest = max(p2, key=lambda lv: lv.mesh.n_nodes)
-        distance = float(np.max(np.linalg.norm(at[k].y[-1] - finest.y[-1], axis=-1)))
-        own = finest.estimate if finest.estimate is not None and math.isfinite(finest.estimate) else 0.0
-        if distance <= self.tol + own:
-            return k
-        self.refuted = True
-        self.progress(f"accuracy: the {at[k].element} level of {at[k].mesh.n_nodes:,} nodes meets {self.tol:g} "
-                      f"there by its own levels, but is {distance:.3g} from the {CHECK_ELEMENT} level of "
-                      f"{finest.mesh.n_nodes:,} nodes" + (f" (its estimate {own:.3g})" if own else "")
-                      + f": {at[k].element} is not trusted here, the {CHECK_ELEMENT} levels go on")
-        alone = [lv if lv.bound_via is None or at[lv.bound_via].element == CHECK_ELEMENT else None for lv in at]
-        return _cheapest_of(alone, (CHECK_ELEMENT,), self.tol)
 
     def _cross_check(self, at, contraction) -> tuple[dict, tuple | None]:
         """The level in use meets the tolerance at ``contraction`` (``at``:
