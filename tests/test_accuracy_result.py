@@ -236,3 +236,40 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     failing.add(1)
     mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
     assert replayed == [0, 1, 2, 3, 4] and mesh.n_nodes == nodes(4) and own <= 0.1 * 0.05
+
+
+def test_the_same_level_after_the_sweep_went_on_is_estimated_again_in_its_place():
+    """Where no level meets TOL at the returned contractions the sweep goes
+    on there and its levels replace the ones before; if it picks the level
+    in use again, the estimate is made again on them without a new solve.
+    gripper_object at 0.25 (2026-12-06: P2 8,977, then P1 2,305 nodes) then
+    looked the level up by its place among the twelve levels before, not
+    among the sweep's eight, and ended in an internal error."""
+    from types import SimpleNamespace
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    level = lambda element, nodes: SimpleNamespace(element=element, resolution=nodes)   # noqa: E731
+    acc = object.__new__(AccurateSolve)
+    acc.tol, acc.progress = 0.25, lambda line: None
+    acc.levels = [level("P1" if i % 2 else "P2", 100 * (i + 1)) for i in range(12)]
+    acc.levels[10] = level("P1", 2305)
+    acc.index = 10
+    used = []
+
+    def estimate_at(p, eq, method, history):
+        used.append(acc.levels[acc.index])
+        met = len(used) == 2
+        return {"used": acc.levels[acc.index],
+                "round": {"contraction": {"left": 4.3}, "element": "P1", "nodes": 2305,
+                          "estimated_error": 0.2 if met else None, "met": met, "levels": []}}
+
+    def next_level(found, here, start):          # the sweep went on there: eight levels, the same one picked
+        acc.levels = [level("P2", 1135), level("P1", 2305)] + [level("P2", 4000 * i) for i in range(1, 7)]
+        return 1, here, True, "is no estimate > 0.25 there"
+
+    acc._estimate_at, acc._next_level = estimate_at, next_level
+    p = SimpleNamespace(winch_names=["left"])
+    eq = SimpleNamespace(converged=True, contraction=np.array([4.3]))
+    _, _, doc, _ = acc.check((p, eq, {"accuracy": {}, "mesh_accuracy": {}}, ()), lambda *a: pytest.fail("solved again"))
+    assert [(lv.element, lv.resolution) for lv in used] == [("P1", 2305), ("P1", 2305)]
+    at = doc["accuracy"]["at_result"]
+    assert at["met"] is True and at["resolves"] == 0 and at["estimated_error"] == 0.2

@@ -95,6 +95,7 @@ class AccurateSolve:
             used = found["used"]
             if (self.levels[k].element, self.levels[k].resolution) == (used.element, used.resolution):
                 if extended:          # the same level: estimate again on the sweep's levels, no new solve
+                    self.index = k    # (its place among them: the sweep's levels replaced the ones before)
                     continue
                 break
             resolves += 1
