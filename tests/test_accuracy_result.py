@@ -163,6 +163,11 @@ def test_a_stopped_row_says_what_it_already_knew():
     assert guarantee.known_before_the_reference(row) == ["exit 3", "not met at the returned contractions"]
     assert guarantee.known_before_the_reference({**row, "exit": 0, "met": True, "ratio": 6.0}) == ["cost above 5x"]
     assert guarantee.known_before_the_reference({"tol": 1.0}) == []
+    # ... and how far its reference got (hexapod_stand at 1: stopped on its fourth level)
+    so_far = {"ref_levels": [[1587, None], [6101, 0.23], [23913, 0.117]]}
+    assert guarantee.reference_so_far(so_far) == \
+        " (its P2 levels solved: 1,587, 6,101 (0.23 from the one before), 23,913 (0.117 from the one before))"
+    assert guarantee.reference_so_far(row) == ""
 
 
 def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
@@ -228,8 +233,12 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     monkeypatch.setattr(objective.Targets, "at_points",
                         staticmethod(lambda m, p, q: type("At", (), {"y": staticmethod(
                             lambda x: np.array([[x[0], 0.0]]))})()))
-    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
+    heard = []
+    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [],
+                                              lambda n, d: heard.append((n, d)))
     assert replayed == [0, 1, 2, 3] and mesh.n_nodes == nodes(3)
+    assert [n for n, _ in heard] == [nodes(r) for r in range(4)] and heard[0][1] is None
+    assert heard[-1][1] == pytest.approx(at(2) - at(3))
     assert own is not None and own <= 0.1 * 0.05 and jumps == []
     # the 4,000-node level left out: the estimate needs the levels after the answer's
     replayed.clear()

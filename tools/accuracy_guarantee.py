@@ -103,7 +103,8 @@ def parse_scene(spec: str) -> tuple[Path, list[str]]:
 
 # -- one row, in its own process -------------------------------------------------------------------
 
-def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float, waypoints=None):
+def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float, waypoints=None,
+              heard=None):
     """The P2 reference at ``contraction``: (mesh, pose, own estimated error
     or None, its jumps). See the module's docstring, step 2. Its jumps:
     (coarser nodes, finer nodes, distance at the points) of consecutive
@@ -114,7 +115,9 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     pose depends on the path (friction), each level replays the returned
     path instead, from the start, the levels coarser than the answer
     included (``waypoints``: the control run's start and iterates; None:
-    a forward solve's fresh path; plush_opt.solve.accuracy_path.replay)."""
+    a forward solve's fresh path; plush_opt.solve.accuracy_path.replay).
+    ``heard(nodes, distance)``, if given, hears of each level solved (the
+    distance at the points to the level before it, or None)."""
     from plush_opt.solve.accuracy_path import replay
     from plush_opt.solve.plant import make_plant, path_dependent
     from plush_opt.fem.mesh import build_mesh
@@ -166,6 +169,8 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
             diffs.append(float(np.linalg.norm(ys[-1] - ys[-2], axis=-1).max()))
             if diffs[-1] > tol and prev_nodes >= nodes_returned:
                 jumps.append((prev_nodes, m.n_nodes, diffs[-1]))
+        if heard is not None:
+            heard(m.n_nodes, diffs[-1] if len(ys) >= 2 else None)
         if len(diffs) >= 2 and diffs[-2] > 0:
             q = max(diffs[-1] / diffs[-2], floor_ratio)
             own = SAFETY * q * diffs[-1] / (1.0 - q) if q < MAX_RATIO else None
@@ -307,7 +312,13 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     # friction: the reference replays the path the returned pose was reached by (its friction_path)
     waypoints = None if doc["method"] == "forward" or "friction_path" not in doc else \
         np.array([[row[n] for n in names] for row in doc["friction_path"]["contractions"]])
-    ref_mesh, x_ref, own, jumps = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints)
+    row["ref_levels"] = []
+
+    def heard(nodes, distance):            # (a row stopped in its reference says how far it got)
+        row["ref_levels"].append([nodes, distance])
+        partial(row, "the reference")
+
+    ref_mesh, x_ref, own, jumps = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints, heard)
     row["ref_jumps"] = [list(j) for j in jumps]
     points, _ = probe_points(scene)
     y = Targets.at_points(mesh, points, points).y(x)
@@ -318,6 +329,16 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     row["ref_nodes"], row["ref_error"] = ref_mesh.n_nodes, own
     row["verdict"], row["note"] = verdict(row)
     return row
+
+
+def reference_so_far(row: dict) -> str:
+    """The reference levels a stopped row had solved, in words ("" for none):
+    their P2 nodes and each one's distance at the points to the one before."""
+    levels = row.get("ref_levels") or []
+    if not levels:
+        return ""
+    said = [f"{n:,}" + ("" if d is None else f" ({d:.3g} from the one before)") for n, d in levels]
+    return " (its P2 levels solved: " + ", ".join(said) + ")"
 
 
 def known_before_the_reference(row: dict) -> list[str]:
@@ -392,7 +413,8 @@ def launch(job: tuple, timeout: float) -> dict:
         row = json.loads(part.read_text()) if part.exists() else {"scene": scene_label(*parse_scene(spec)), "tol": tol}
         phase = row.pop("phase", "the --accuracy run")
         row.update(verdict="NO", note="; ".join(known_before_the_reference(row)
-                                                 + [f"not finished within {timeout:.0f} s: stopped in {phase}"]))
+                                                 + [f"not finished within {timeout:.0f} s: stopped in {phase}"
+                                                    + reference_so_far(row)]))
         if "wall_s" not in row:
             row["wall_s"] = time.perf_counter() - t0
         from plush_opt.base.files import write_json_atomic
