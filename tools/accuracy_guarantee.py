@@ -448,8 +448,8 @@ def table(rows: list[dict]) -> str:
         cost = "-" if r.get("cpu_plain_s") is None else (
             f"{r['cpu_accuracy_s']:.1f} / {r['cpu_plain_s']:.2f} + {r['cpu_levels_s']:.2f} ({r['n_levels']})")
         holds = r["verdict"] + ("" if not r.get("note") else f": {r['note']}")
-        out.append(f"| {Path(r['scene']).name.replace(' @', '@')} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | {fmt(r.get('met'))} | "
-                   f"{fmt(r.get('estimate'))} | {mesh} | {fmt(r.get('error_points'))} | "
+        out.append(f"| {Path(r['scene']).name.replace(' @', '@')} | {fmt(r['tol'], 'g')} | {fmt(r.get('exit'))} | "
+                   f"{fmt(r.get('met'))} | {fmt(r.get('estimate'))} | {mesh} | {fmt(r.get('error_points'))} | "
                    f"{fmt(r.get('error_nodes'))} | {ref} | {cost} | {fmt(r.get('ratio'), '.2f')} | "
                    f"{fmt(r.get('floor_certified'))} | {holds} |")
     return "\n".join(out)
