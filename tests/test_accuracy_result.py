@@ -130,7 +130,8 @@ def test_an_explicit_mesh_under_accuracy_keeps_its_stall_a_stall(tmp_path):
     round-off floor (the sliver's stall stays not converged, exit 3; it
     once ended in an internal error)."""
     out = tmp_path / "r.json"
-    p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(ROOT / "problems" / "hard" / "sliver_explicit.yaml"),
+    sliver = ROOT / "problems" / "hard" / "sliver_explicit.yaml"
+    p = subprocess.run([sys.executable, "-m", "plush_opt", "solve", str(sliver),
                         "--method", "forward", "--accuracy", "1", "--out", str(out)],
                        capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert p.returncode == 3, p.stderr
