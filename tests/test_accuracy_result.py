@@ -171,6 +171,25 @@ def test_a_stopped_row_says_what_it_already_knew():
     assert guarantee.reference_so_far(row) == ""
 
 
+def test_the_table_of_a_stopped_row_keeps_its_whole_note(tmp_path):
+    """The table of the rows in a folder (``--no-run``) shows a stopped
+    row's note as its file has it: the levels its reference had solved
+    too (the table once rebuilt the note from its partial file, up to the
+    first colon)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    spec = "problems/gripper_object.yaml"
+    to = guarantee.row_file(tmp_path, spec, 0.05)
+    note = ("not met at the returned contractions; not finished within 2400 s: stopped in the reference "
+            "(its P2 levels solved: 17,017, 67,313 (0.0326 from the one before))")
+    row = {"scene": "gripper_object.yaml", "tol": 0.05, "exit": 0, "met": False, "verdict": "NO", "note": note}
+    to.write_text(json.dumps(row))
+    to.with_suffix(".partial").write_text(json.dumps({**row, "phase": "the reference"}))
+    out = tmp_path / "table.md"
+    assert guarantee.main([spec, "--tols", "0.05", "--work", str(tmp_path), "--no-run", "--out", str(out)]) == 1
+    assert out.read_text().splitlines()[-1].endswith(f"| NO: {note} |")
+
+
 def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
     """Several stable states can hold at the returned contractions (the
     gripper's ball); a reference level whose solve from the level before
