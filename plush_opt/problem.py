@@ -216,7 +216,7 @@ def load(path, *, max_area: float | None = None, accuracy: float | None = None) 
     path : the problem file (YAML, ``format: plush-opt/1``).
     max_area : mesh finer or coarser than the file asks (optional).
     accuracy : choose the element (P1, P2) and mesh whose target points
-        are good to this length at the least solve time (optional; see
+        are good to this length at the least cost of a solve (optional; see
         docs/accuracy.md). ``Problem.mesh_report`` says what was chosen and
         whether the tolerance was met.
     """

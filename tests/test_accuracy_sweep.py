@@ -13,7 +13,7 @@ from plush_opt.solve.accuracy_sweep import EXTRA_BUDGET, Chain, CostModel, Plann
 
 
 def level(element, n, t, estimate=None, ratio=None):
-    return SimpleNamespace(element=element, mesh=SimpleNamespace(n_nodes=n), t_solve=t, estimate=estimate,
+    return SimpleNamespace(element=element, mesh=SimpleNamespace(n_nodes=n), cost=t, estimate=estimate,
                            ratio=ratio)
 
 
@@ -63,7 +63,7 @@ def test_after_a_level_meets_only_cheaper_levels_are_solved_within_the_budget():
     assert plan.pick(best) is None                  # the P2 chain's first level, predicted 0.4 s: not faster
     best = level("P1", 3200, 1.6)
     assert plan.pick(best) is p2                    # 800 P2 nodes: predicted 0.4 s < 1.6 s
-    plan.extra_spent = EXTRA_BUDGET * best.t_solve
+    plan.extra_spent = EXTRA_BUDGET * best.cost
     assert plan.pick(best) is None                  # the budget is spent
 
 

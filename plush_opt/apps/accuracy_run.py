@@ -133,7 +133,7 @@ class AccurateSolve:
         at, waypoints = self._levels_at(p, eq, method, history)
         used = at[self.index]
         # (bounds_at solves the levels cheapest first and none after one that is lost)
-        lost = min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.t_solve, default=None)
+        lost = min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.cost, default=None)
         met, estimate = lost is None and used.meets(self.tol), None if lost is not None else _number(used.bound)
         cross = p2 = None
         via = used if used.bound_via is None else at[used.bound_via]
@@ -269,7 +269,7 @@ class AccurateSolve:
     def _beyond(self, lost) -> int | None:
         """The level to solve again on when the level ``lost`` (as solved at
         a returned contraction) has no equilibrium near the answer: the one
-        with the least solve time among ``lost`` and the levels finer than
+        of least cost among ``lost`` and the levels finer than
         it that meets the tolerance at the probe contractions (P2 alone after
         a refuted P1 claim), or None."""
         elements = (CHECK_ELEMENT,) if self.refuted else ELEMENT_ORDER
@@ -299,10 +299,10 @@ class AccurateSolve:
 
 def _cheapest_of(levels, elements, tol: float) -> int | None:
     """The index of the level (None entries skipped) of one of ``elements``
-    with the least solve time whose bound (at the contractions it was
+    of least cost (:attr:`Level.cost`) whose bound (at the contractions it was
     estimated at) is within ``tol``, or None."""
     meeting = [i for i, lv in enumerate(levels) if lv is not None and lv.element in elements and lv.meets(tol)]
-    return min(meeting, key=lambda i: levels[i].t_solve) if meeting else None
+    return min(meeting, key=lambda i: levels[i].cost) if meeting else None
 
 
 def repick(report: dict, levels, k: int) -> dict:
@@ -314,7 +314,7 @@ def repick(report: dict, levels, k: int) -> dict:
     reached = lv.meets(report["tolerance"])
     out = dict(report)
     out.update(element=lv.element, nodes=lv.mesh.n_nodes, max_area=lv.max_area,
-               refinements=lv.resolution.refinements, n_elems=lv.mesh.n_elems, t_solve_s=lv.t_solve,
+               refinements=lv.resolution.refinements, n_elems=lv.mesh.n_elems, t_solve_s=lv.t_solve, work_s=lv.work,
                picked=k, bound_via=lv.bound_via if reached else None, estimated_error=_number(lv.bound),
                reached=reached, status="met" if reached else "tolerance_not_met")
     out["summary"] = summary(out)

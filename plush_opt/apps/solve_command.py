@@ -61,9 +61,10 @@ def add_solve_parser(sub) -> None:
     p.add_argument("--accuracy", type=float, default=None, metavar="TOL",
                    help="choose the element (P1, P2) and mesh whose estimated error of the "
                    "positions of the targets (or tendon stoppers) is below TOL (length units) at the "
-                   "least solve time, then estimate it again at the returned contractions and solve "
-                   "again on a finer mesh if TOL is not met there: the result's accuracy.at_result "
-                   "says what holds for the returned pose; warns where TOL is not met")
+                   "least cost of a solve (counted, the same on every run), then estimate it again at "
+                   "the returned contractions and solve again on a finer mesh if TOL is not met there: "
+                   "the result's accuracy.at_result says what holds for the returned pose; warns where "
+                   "TOL is not met")
     p.add_argument("--max-iterations", type=int, default=None, help="control iterations at most")
     p.add_argument("--max-time", type=float, default=None, help="control seconds at most")
     p.add_argument("--ipopt-print-level", type=int, default=None, metavar="N", choices=range(13),

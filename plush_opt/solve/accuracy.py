@@ -64,6 +64,7 @@ from ..fem.model import Model, build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
 from .plant import make_plant, path_dependent
+from .work import counted
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ MIN_REFINEMENT = 1.3
 #: while a 67,313-node P2 model holds about 260 MB.
 KEEP_MODEL_NODES = 20_000
 #: Element types of the sweep (explicit levels: swept in this order, P2
-#: first, its solve time bounding how far the P1 sweep goes; the default
+#: first, its cost bounding how far the P1 sweep goes; the default
 #: levels: in the order of plush_opt.solve.accuracy_sweep, the first
 #: element the fallback when nothing meets the tolerance).
 ELEMENT_ORDER = ("P2", "P1")
@@ -228,9 +229,10 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         model.factorizer.factor(model.evaluate(model.X, timed, order=2).hessian_form)
     except NotPositiveDefinite:   # (analysed all the same)
         pass
-    t0 = time.process_time()          # CPU seconds: the cost, whatever else runs on the machine
-    cold = solve_equilibrium(model, timed, None, options) if plant is None else \
-        plant.equilibrium(timed, options=options)
+    t0 = time.process_time()          # CPU seconds, whatever else runs on the machine (reported);
+    with counted(model) as work:      # the cost the choices compare: counted, the same on every run
+        cold = solve_equilibrium(model, timed, None, options) if plant is None else \
+            plant.equilibrium(timed, options=options)
     t_solve = time.process_time() - t0
     poses, ys = [], []
     for j, c in enumerate(cs):
@@ -255,7 +257,8 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses))
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses),
+                 work=work.seconds)
 
 
 def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:
@@ -289,8 +292,9 @@ def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progre
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
            time_limit: float = math.inf, solved: dict | None = None, progress=None) -> list[Level]:
     """Levels of one element, coarse to fine, until one meets ``tol``, the
-    levels run out, or a level's solve is slower than ``time_limit`` (the
-    best other candidate's: no finer level of this element can beat it).
+    levels run out, or a level's solve costs more than ``time_limit`` (the
+    best other candidate's :attr:`Level.cost`: no finer level of this
+    element can beat it).
     ``levels`` are :class:`Resolution` (or plain max_area values: an
     explicit sequence of independent meshes). ``solved`` maps (element,
     resolution) to levels solved before at the same contractions and
@@ -313,16 +317,16 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
                          f"contraction(s) in {time.perf_counter() - t0:.1f} s")
         done.append(level)
         estimate_levels(done)
-        if any(lv.meets(tol) for lv in done) or done[-1].t_solve > time_limit:
+        if any(lv.meets(tol) for lv in done) or done[-1].cost > time_limit:
             break
     return done
 
 
 def _cheapest_meeting(levels: list[Level], tol: float) -> Level | None:
-    """The level with the least solve time whose bound is within ``tol`` (bounds set first)."""
+    """The level of least cost (:attr:`Level.cost`) whose bound is within ``tol`` (bounds set first)."""
     bound_errors(levels)
     meeting = [lv for lv in levels if lv.meets(tol)]
-    return min(meeting, key=lambda lv: lv.t_solve) if meeting else None
+    return min(meeting, key=lambda lv: lv.cost) if meeting else None
 
 
 def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solved: dict | None = None,
@@ -362,11 +366,12 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             solved[(element, res)] = level
             if progress is not None:
                 progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
-                         f"contraction(s) in {time.perf_counter() - t0:.1f} s (one solve {level.t_solve:.2f} CPU s"
-                         + ("" if predicted is None else f", predicted {predicted:.2f}") + ")"
+                         f"contraction(s) in {time.perf_counter() - t0:.1f} s (one solve {level.t_solve:.2f} CPU s, "
+                         f"counted {level.cost:.2f} s" + ("" if predicted is None else f", predicted {predicted:.2f}")
+                         + ")"
                          + ("" if level.on_branch else ": no equilibrium near the branch it follows, left out"))
         if best is not None:
-            plan.extra_spent += level.t_solve
+            plan.extra_spent += level.cost
         plan.solved(chain, level)
         computed.append(level)
         _leave_out_crossings(computed, cs, plan.left_out, progress)
@@ -386,7 +391,7 @@ def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
     """Why the planned sweep stopped, in words."""
     if best is not None:
         return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
-                f"level left is predicted to solve faster within {EXTRA_BUDGET:g} x its solve time")
+                f"level left is predicted to cost less within {EXTRA_BUDGET:g} x its cost")
     first = plan.chains[0]
     return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
             f"met): the {first.element} levels of its first family solved to the finest, "
@@ -412,7 +417,7 @@ def choose_mesh(scene: Scene, tol: float, levels=None, contractions=None, points
                 options: EquilibriumOptions | None = None,
                 elements=ELEMENT_ORDER, solved: dict | None = None) -> tuple[Mesh, dict]:
     """The element and mesh that predict the pose to within ``tol`` at the
-    least solve time.
+    least cost of a solve (:attr:`Level.cost`).
 
     Parameters
     ----------
@@ -485,7 +490,7 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
     else:
         for element in elements:
             computed += sweep(scene, element, levels, cs, points, tol, options,
-                              math.inf if best is None else best.t_solve, solved, progress)
+                              math.inf if best is None else best.cost, solved, progress)
             best = _cheapest_meeting(computed, tol)
     reached = best is not None
     if not reached:
@@ -495,7 +500,7 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
         "element": best.element, "nodes": best.mesh.n_nodes, "reached": reached,
         "status": "met" if reached else "tolerance_not_met", "max_area": best.max_area,
         "graded": GRADED, "refinements": best.resolution.refinements,
-        "n_elems": best.mesh.n_elems, "t_solve_s": best.t_solve,
+        "n_elems": best.mesh.n_elems, "t_solve_s": best.t_solve, "work_s": best.work,
         "picked": computed.index(best), "bound_via": best.bound_via if reached else None,
         "points": kind, "n_points": int(len(points)),
         "contractions": cs.tolist(), "levels": [lv.row() for lv in computed],

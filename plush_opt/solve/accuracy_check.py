@@ -56,7 +56,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     contraction itself the sweep's poses are used (nothing solved) unless
     ``start`` is another pose than the sweep's on its mesh there. ``used``
     (an index in ``levels``: the level the answer is on): the levels are
-    solved cheapest first (``t_solve``), and once a level :func:`finer`
+    solved cheapest first (:attr:`Level.cost`), and once a level :func:`finer`
     than it is not on the branch, the answer's branch is one of the
     coarser levels alone, and the dearer levels are not solved (off the
     branch too).
@@ -76,7 +76,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     if swept:
         return estimate_each_element([one_pose(lv, lv.poses[near], lv.y[near:near + 1]) for lv in levels])
     out = [None] * len(levels)
-    for i in sorted(range(len(levels)), key=lambda i: levels[i].t_solve):
+    for i in sorted(range(len(levels)), key=lambda i: levels[i].cost):
         lv = levels[i]
         if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
             out[i] = one_pose(lv, None, np.full((1, len(points), 2), np.nan))
@@ -147,10 +147,10 @@ def follow(model, contraction, sources, options: EquilibriumOptions | None = Non
 
 
 def cheapest_meeting(levels: list[Level], tol: float) -> int | None:
-    """The index of the level with the least solve time whose bound is
-    within ``tol``, or None."""
+    """The index of the level of least cost (:attr:`Level.cost`) whose
+    bound is within ``tol``, or None."""
     meeting = [i for i, lv in enumerate(levels) if lv.meets(tol)]
-    return min(meeting, key=lambda i: levels[i].t_solve) if meeting else None
+    return min(meeting, key=lambda i: levels[i].cost) if meeting else None
 
 
 #: The element whose levels check a P1 answer: P1 triangles lock in the

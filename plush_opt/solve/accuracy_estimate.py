@@ -55,7 +55,9 @@ class Resolution(NamedTuple):
 class Level:
     """One mesh level of one element type: its mesh, cost and predictions
     (``t_mesh`` wall seconds; ``t_solve`` CPU seconds of one Newton solve
-    from rest at the scene's own contractions, after the factorisation's symbolic analysis)."""
+    from rest at the scene's own contractions, after the factorisation's
+    symbolic analysis; ``work`` the same solve's counted work,
+    :mod:`plush_opt.solve.work`)."""
 
     element: str
     resolution: Resolution
@@ -79,6 +81,13 @@ class Level:
     crossing: tuple = ()
     # the contractions (rows of y) the estimates and bounds leave out (plush_opt.solve.accuracy.planned_sweep)
     left_out: tuple = ()
+    work: float | None = None
+
+    @property
+    def cost(self) -> float:
+        """What choosing between levels compares: the counted ``work`` (the
+        same on every run), else the measured ``t_solve``."""
+        return self.t_solve if self.work is None else self.work
 
     @property
     def max_area(self) -> float:
@@ -105,7 +114,7 @@ class Level:
                 "refinements": self.resolution.refinements, "nested": self.resolution.family is not None,
                 "n_nodes": self.mesh.n_nodes,
                 "n_elems": self.mesh.n_elems, "t_mesh_s": self.t_mesh, "t_solve_s": self.t_solve,
-                "newton_iterations": self.newton_iterations,
+                "work_s": self.work, "newton_iterations": self.newton_iterations,
                 "difference_to_next": self.difference_to_next, "ratio": self.ratio,
                 "estimated_error": _json_number(self.estimate), "confirmed": self.confirmed,
                 "withdrawn": self.withdrawn,

@@ -31,6 +31,7 @@ from .accuracy import GRADED, LEVEL_OPTIONS, Level, default_levels, estimate_eac
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
+from .work import counted
 
 #: where a replayed pose says it came from (the result's ``friction_path.from``)
 REPLAY_ORIGIN = "the returned path replayed on another mesh level (--accuracy)"
@@ -130,11 +131,13 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         t0 = time.perf_counter()
         mesh = build_mesh(s, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=False)
         t_mesh = time.perf_counter() - t0
-        plant = make_plant(build_model(s, mesh))
+        model = build_model(s, mesh)
+        plant = make_plant(model)
         t1 = time.process_time()
-        cold = plant.equilibrium(scene.contraction, options=options)
+        with counted(model) as work:
+            cold = plant.equilibrium(scene.contraction, options=options)
         t_solve = time.process_time() - t1
-        lv = Level(element, res, mesh, t_mesh, t_solve, cold.iterations, [], np.empty((0, 0, 2)))
+        lv = Level(element, res, mesh, t_mesh, t_solve, cold.iterations, [], np.empty((0, 0, 2)), work=work.seconds)
         levels.append(_level_along(scene, lv, waypoints, contraction, points, options))
         if progress is not None:
             progress(f"accuracy: {element} level of {mesh.n_nodes:,} nodes added: the returned path replayed "
@@ -142,5 +145,5 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         levels.sort(key=lambda lv: (lv.element, lv.mesh.n_nodes))
         meeting = [i for i, lv in enumerate(estimate_each_element(levels)) if lv.meets(tol)]
         if meeting:
-            return levels, min(meeting, key=lambda i: levels[i].t_solve)
+            return levels, min(meeting, key=lambda i: levels[i].cost)
     return levels, None

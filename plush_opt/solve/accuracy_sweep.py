@@ -18,18 +18,22 @@ is solved, and:
   and ratio (optimistically, its first estimate, where there is none yet;
   never, where the element's finest estimate says its levels do not converge);
 * **the sweep stops** as soon as a level meets the tolerance, except that
-  levels predicted to solve faster than that level are still solved (a
+  levels predicted to cost less than that level are still solved (a
   cheaper pick, bounded through the estimate that met it), for at most
-  :data:`EXTRA_BUDGET` times its solve time in all;
+  :data:`EXTRA_BUDGET` times its cost in all;
 * a chain whose next level would exceed the default sweep (its finest
   level) is finished, and when no chain can still meet the tolerance the
   first chain (the first element's family A) is solved to its end, the
   budget of a tolerance that is not met, and the sweep stops there.
 
-The solve time of a level is predicted as ``t = a n^p`` in its node count
+The cost of a level's solve is predicted as ``t = a n^p`` in its node count
 ``n`` (a refined level has 4x its parent's nodes, known before it is
 meshed), ``a`` and ``p`` fitted to the levels of its element solved so far
-(:class:`CostModel`).
+(:class:`CostModel`). A solved level's cost is its counted work
+(:attr:`~plush_opt.solve.accuracy_estimate.Level.cost`, in typical CPU
+seconds: :mod:`plush_opt.solve.work`), not its measured time, so the same
+command solves the same levels and picks the same one on every run, however
+loaded the machine.
 """
 
 from __future__ import annotations
@@ -44,23 +48,24 @@ import numpy as np
 COST_EXPONENT = 1.3
 #: The fitted exponent is kept within these (a noisy fit of two small levels).
 COST_EXPONENT_RANGE = (1.0, 2.0)
-#: After a level meets the tolerance, levels predicted to solve faster than
+#: After a level meets the tolerance, levels predicted to cost less than
 #: it may still be solved (a cheaper pick), for at most this many times its
-#: solve time in all.
+#: cost in all.
 EXTRA_BUDGET = 2.0
 #: Nodes of a uniformly refined level per node of the one before it.
 REFINEMENT_GROWTH = 4.0
 
 
 class CostModel:
-    """Predicted one-solve times (seconds) of levels, fitted per element
-    type to the levels solved so far: ``t = a n^p``."""
+    """Predicted one-solve costs (typical CPU seconds, :attr:`Level.cost`)
+    of levels, fitted per element type to the levels solved so far:
+    ``t = a n^p``."""
 
     def __init__(self):
         self.samples: dict[str, list[tuple[int, float]]] = {}
 
-    def add(self, element: str, n_nodes: int, t_solve: float) -> None:
-        self.samples.setdefault(element, []).append((int(n_nodes), max(float(t_solve), 1e-6)))
+    def add(self, element: str, n_nodes: int, cost: float) -> None:
+        self.samples.setdefault(element, []).append((int(n_nodes), max(float(cost), 1e-6)))
 
     def exponent(self, element: str) -> float:
         """The fitted p of ``element`` (COST_EXPONENT before two levels of
@@ -130,7 +135,7 @@ class Planner:
 
     def solved(self, chain: Chain, level) -> None:
         chain.solved.append(level)
-        self.cost.add(level.element, level.mesh.n_nodes, level.t_solve)
+        self.cost.add(level.element, level.mesh.n_nodes, level.cost)
 
     def _trend(self, element: str):
         """(nodes, estimate, ratio) of the finest level of ``element`` with a
@@ -199,10 +204,10 @@ class Planner:
             # element's family A) to its finest level, the budget of a tolerance not met
             self.best_effort = True
             return None if self.chains[0].done else self.chains[0]
-        budget = EXTRA_BUDGET * best.t_solve - self.extra_spent
+        budget = EXTRA_BUDGET * best.cost - self.extra_spent
         options = [(self.cost.predict(ch.element, ch.predicted_nodes(len(ch.solved))), i)
                    for i, ch in enumerate(open_)]
-        options = [o for o in options if o[0] < best.t_solve and o[0] <= budget]
+        options = [o for o in options if o[0] < best.cost and o[0] <= budget]
         return open_[min(options)[1]] if options else None
 
     def not_solved(self) -> list[dict]:
