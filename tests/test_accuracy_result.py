@@ -80,6 +80,36 @@ def test_the_summary_at_the_result_says_whether_it_is_met():
                                               "on P2 elements, 832 nodes (solved again on it 2x)")
 
 
+def test_a_level_chosen_at_the_returned_contractions_is_not_called_the_finest(caplog):
+    """gripper_object at 0.25: the answer was solved again on P1 2,305 nodes,
+    met there (0.213), while that level's estimate at the probes is 0.464.
+    Its line said "NOT met within the mesh levels: using the finest" (it is
+    not the finest) and came as a warning next to the line that says the
+    answer meets the tolerance."""
+    from types import SimpleNamespace
+    from plush_opt.apps.accuracy_run import repick
+    from plush_opt.apps.solve_command import say_accuracy
+    rows = [{"t_solve_s": 0.8, "n_nodes": 8977, "element": "P2"}, {"t_solve_s": 0.1, "n_nodes": 2305, "element": "P1"}]
+    report = {"tolerance": 0.25, "picked": 0, "reached": True, "levels": rows, "points": "targets",
+              "element": "P2", "nodes": 8977, "max_area": 40.0, "refinements": 1, "estimated_error": 0.2}
+    level = SimpleNamespace(element="P1", mesh=SimpleNamespace(n_nodes=2305, n_elems=4400), max_area=61.81,
+                            resolution=SimpleNamespace(refinements=1), t_solve=0.1, work=0.05, bound_via=None,
+                            bound=0.464, meets=lambda tol: 0.464 <= tol)
+    out = repick(report, [None, level], 1)
+    assert out["reached"] is False and out["solved_again"] is True
+    assert "NOT met" not in out["summary"] and "finest" not in out["summary"]
+    assert out["summary"] == ("P1 elements, 2305 nodes (max_area 61.81 refined 1x, one solve 0.100 s), the level "
+                              "chosen at the returned contractions; at the probe contractions: estimated error "
+                              "0.464 against tolerance 0.25")
+    at = {"met": True, "summary": "at the returned contractions: estimated error 0.213 <= tolerance 0.25"}
+    with caplog.at_level("WARNING"):
+        say_accuracy({**out, "at_result": at})
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+    with caplog.at_level("WARNING"):
+        say_accuracy({**out, "at_result": {**at, "met": False}})
+    assert [r.getMessage() for r in caplog.records if r.levelname == "WARNING"] == [at["summary"]]
+
+
 @pytest.mark.slow        # a sweep of mesh levels
 def test_at_a_probe_contraction_the_sweeps_poses_are_reused_and_the_bounds_agree(monkeypatch):
     """The sweep has one probe contraction on the cantilever: the estimate

@@ -307,16 +307,18 @@ def _cheapest_of(levels, elements, tol: float) -> int | None:
 
 def repick(report: dict, levels, k: int) -> dict:
     """The sweep's ``report`` with level ``k`` of ``levels`` in use (its
-    ``estimated_error`` the bound of that level at the probe contractions)."""
+    ``estimated_error`` the bound of that level at the probe contractions;
+    ``solved_again``: chosen at the returned contractions, not the probes)."""
     if k == report["picked"]:
         return report
     lv = levels[k]
     reached = lv.meets(report["tolerance"])
     out = dict(report)
     out.update(element=lv.element, nodes=lv.mesh.n_nodes, max_area=lv.max_area,
-               refinements=lv.resolution.refinements, n_elems=lv.mesh.n_elems, t_solve_s=lv.t_solve, work_s=lv.work,
-               picked=k, bound_via=lv.bound_via if reached else None, estimated_error=_number(lv.bound),
-               reached=reached, status="met" if reached else "tolerance_not_met")
+               refinements=lv.resolution.refinements, n_elems=lv.mesh.n_elems, t_solve_s=lv.t_solve,
+               work_s=lv.work, picked=k, bound_via=lv.bound_via if reached else None,
+               estimated_error=_number(lv.bound), reached=reached, solved_again=True,
+               status="met" if reached else "tolerance_not_met")
     out["summary"] = summary(out)
     return out
 

@@ -298,6 +298,22 @@ def write_interrupted(out, exc: KeyboardInterrupt) -> None:
         write_json_atomic(out, doc)
 
 
+def say_accuracy(acc: dict) -> None:
+    """The sweep's pick, then what holds at the returned pose (``at_result``),
+    one line each; a tolerance not met is a warning, not a progress line.
+    Where the result has its own line, that line decides: the sweep's
+    estimate is then the probes', not the answer's."""
+    at = acc.get("at_result")
+    lines = [(acc["reached"] or at is not None, acc["summary"])]
+    if at is not None:
+        lines.append((at["met"], at["summary"]))
+    for ok, line in lines:
+        if ok:
+            say(f"plush-opt: {line}", err=True)
+        else:
+            log.warning("%s", line)
+
+
 def cmd_solve(args) -> int:
     from ..base.files import write_json_atomic
     check_tension_max(args.tension_max)
@@ -310,15 +326,7 @@ def cmd_solve(args) -> int:
         write_interrupted(args.out, exc)
         raise
     if "accuracy" in doc:
-        acc = doc["accuracy"]
-        lines = [(acc["reached"], acc["summary"])]          # the sweep's pick, then the returned pose
-        if "at_result" in acc:
-            lines.append((acc["at_result"]["met"], acc["at_result"]["summary"]))
-        for ok, line in lines:
-            if ok:
-                say(f"plush-opt: {line}", err=True)
-            else:                               # not met: a warning, not a progress line
-                log.warning("%s", line)
+        say_accuracy(doc["accuracy"])
     if doc.get("self_crossing"):
         log.warning("the returned pose crosses itself (%s): the scene has no contact.self, so the body may pass "
                     "through itself; add `self: true` under `contact:` to forbid that", doc["self_crossing"])

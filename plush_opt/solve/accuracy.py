@@ -562,6 +562,12 @@ def summary(report: dict) -> str:
              f"{report['levels'][via]['element']} level plus that level's estimate")
         return (f"{where}: estimated error of the {report['points']} {est:.3g} <= tolerance "
                 f"{report['tolerance']:.3g} (the cheapest level that meets it{how}){aside}")
+    if report.get("solved_again"):
+        # the level the answer was solved again on, chosen at the returned contractions: the
+        # probes' estimate is not what holds for the answer (its own line says that)
+        there = "no estimate" if est is None else f"estimated error {est:.3g}"
+        return (f"{where}, the level chosen at the returned contractions; at the probe contractions: "
+                f"{there} against tolerance {report['tolerance']:.3g}{aside}")
     bound = "no estimate (the levels do not converge)" if est is None else \
         f"estimated error {est:.3g} (bound from the level before it)"
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
