@@ -62,3 +62,19 @@ def test_the_sweep_solves_and_picks_the_same_levels_whatever_the_clock_says(monk
     first, second = sweep_under(1), sweep_under(2)
     assert first == second
     assert len(first[0]) >= 3
+
+
+def test_a_level_solved_by_ipopt_is_priced_by_its_measured_time():
+    """IPOPT's own evaluations do not go through Model.evaluate: its count
+    would say next to nothing, so such a level's cost is its measured time."""
+    import dataclasses
+    scene = load_scene(ROOT / "problems" / "cantilever.yaml")
+    res = accuracy.default_levels(scene, "P1")[0]
+    points, _ = accuracy.probe_points(scene)
+    cs = np.asarray(scene.contraction, dtype=np.float64)[None]
+    p1 = dataclasses.replace(scene, element="P1")
+    newton = accuracy._solve_level(p1, res, cs, points, None, accuracy.LEVEL_OPTIONS)
+    assert newton.work is not None and newton.work > 0 and newton.cost == newton.work
+    ipopt = accuracy._solve_level(p1, res, cs, points, None,
+                                  dataclasses.replace(accuracy.LEVEL_OPTIONS, backend="ipopt"))
+    assert ipopt.work is None and ipopt.cost == ipopt.t_solve

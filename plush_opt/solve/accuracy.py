@@ -258,7 +258,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
                  model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses),
-                 work=work.seconds)
+                 work=work.seconds if options.backend == "newton" else None)   # (IPOPT's own work is not counted)
 
 
 def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:

@@ -59,7 +59,9 @@ def _factored_nnz(H) -> int:
 @contextlib.contextmanager
 def counted(model):
     """Count the factorisations and evaluations of ``model`` while the
-    block runs: ``with counted(model) as work: ...``, then ``work.seconds``."""
+    block runs: ``with counted(model) as work: ...``, then ``work.seconds``.
+    What goes through :meth:`Model.evaluate` and the model's factoriser is
+    counted: all of a Newton solve's work, not IPOPT's own evaluations."""
     work = Work()
     evaluate, factor = model.evaluate, model.factorizer.factor
 
