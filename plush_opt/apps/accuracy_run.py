@@ -175,7 +175,7 @@ class AccurateSolve:
         if found["cross"] is not None and self.refuted:
             # no P2 pose near the P1 answer: its branch is one only P1's locking has; control
             # again on the P2 level the sweep picks at its probes, from where the first solve started
-            return _cheapest_of(self.levels, (CHECK_ELEMENT,), self.tol), dict(start or {}), False, why
+            return cheapest_meeting(self.levels, self.tol, (CHECK_ELEMENT,)), dict(start or {}), False, why
         k = cheapest_meeting(at, self.tol)
         if k is None and self.path_dependent:     # finer levels, the path replayed on each
             return self._extend_along(at, found["waypoints"], list(here.values())), here, True, why
@@ -275,7 +275,7 @@ class AccurateSolve:
         elements = (CHECK_ELEMENT,) if self.refuted else ELEMENT_ORDER
         ok = [i for i, lv in enumerate(self.levels) if (lv.element, lv.resolution) == (lost.element, lost.resolution)
               or finer(lv, lost)]
-        return _cheapest_of([lv if i in ok else None for i, lv in enumerate(self.levels)], elements, self.tol)
+        return cheapest_meeting([lv if i in ok else None for i, lv in enumerate(self.levels)], self.tol, elements)
 
     def _extend(self, at, contraction) -> int | None:
         """No level of the sweep meets the tolerance at ``contraction``
@@ -296,14 +296,6 @@ class AccurateSolve:
         best, self.levels, self.report = choose_levels(self.scene, self.tol, contractions=c, solved=kept,
                                                        elements=elements, progress=self.progress, follow=True)
         return self.levels.index(best) if self.report["reached"] else None
-
-def _cheapest_of(levels, elements, tol: float) -> int | None:
-    """The index of the level (None entries skipped) of one of ``elements``
-    of least cost (:attr:`Level.cost`) whose bound (at the contractions it was
-    estimated at) is within ``tol``, or None."""
-    meeting = [i for i, lv in enumerate(levels) if lv is not None and lv.element in elements and lv.meets(tol)]
-    return min(meeting, key=lambda i: levels[i].cost) if meeting else None
-
 
 def repick(report: dict, levels, k: int) -> dict:
     """The sweep's ``report`` with level ``k`` of ``levels`` in use (its

@@ -48,8 +48,8 @@ import numpy as np
 
 # the estimate's names are also this module's (callers import them from here)
 from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
-                                _json_number, bound_errors, estimate_each_element, estimate_errors,
-                                estimate_levels, one_pose)
+                                _json_number, bound_errors, cheapest_meeting, estimate_each_element,
+                                estimate_errors, estimate_levels, one_pose)
 from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
 # carrying poses between levels (callers import these from here too)
 from .accuracy_carry import (BRANCH_ITERATIONS, BRANCH_PROGRESS, branch_options, carried_start,  # noqa: F401
@@ -229,11 +229,10 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         model.factorizer.factor(model.evaluate(model.X, timed, order=2).hessian_form)
     except NotPositiveDefinite:   # (analysed all the same)
         pass
-    t0 = time.process_time()          # CPU seconds, whatever else runs on the machine (reported);
     with counted(model) as work:      # the cost the choices compare: counted, the same on every run
         cold = solve_equilibrium(model, timed, None, options) if plant is None else \
             plant.equilibrium(timed, options=options)
-    t_solve = time.process_time() - t0
+    t_solve = work.cpu_s              # (reported: it varies with what else runs on the machine)
     poses, ys = [], []
     for j, c in enumerate(cs):
         x0 = transfer_pose(prev.mesh, prev.poses[j], mesh) if prev is not None and plant is None else None
@@ -325,8 +324,8 @@ def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
 def _cheapest_meeting(levels: list[Level], tol: float) -> Level | None:
     """The level of least cost (:attr:`Level.cost`) whose bound is within ``tol`` (bounds set first)."""
     bound_errors(levels)
-    meeting = [lv for lv in levels if lv.meets(tol)]
-    return min(meeting, key=lambda lv: lv.cost) if meeting else None
+    k = cheapest_meeting(levels, tol)
+    return None if k is None else levels[k]
 
 
 def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solved: dict | None = None,

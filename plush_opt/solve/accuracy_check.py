@@ -27,8 +27,8 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
-                       estimate_each_element, one_pose, solve_on_branch)
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start,  # noqa: F401
+                       cheapest_meeting, equilibrium_at, estimate_each_element, one_pose, solve_on_branch)
 from .equilibrium import EquilibriumOptions
 
 
@@ -144,13 +144,6 @@ def follow(model, contraction, sources, options: EquilibriumOptions | None = Non
     if x0 is None:
         return None
     return solve_on_branch(model, contraction, x0, options or LEVEL_OPTIONS)
-
-
-def cheapest_meeting(levels: list[Level], tol: float) -> int | None:
-    """The index of the level of least cost (:attr:`Level.cost`) whose
-    bound is within ``tol``, or None."""
-    meeting = [i for i, lv in enumerate(levels) if lv.meets(tol)]
-    return min(meeting, key=lambda i: levels[i].cost) if meeting else None
 
 
 #: The element whose levels check a P1 answer: P1 triangles lock in the

@@ -240,6 +240,15 @@ def estimate_each_element(levels: list[Level]) -> list[Level]:
     return levels
 
 
+def cheapest_meeting(levels: list, tol: float, elements=None) -> int | None:
+    """The index of the level of least cost (:attr:`Level.cost`) whose bound
+    is within ``tol`` (of ``elements`` alone where given; None entries
+    skipped), or None."""
+    meeting = [i for i, lv in enumerate(levels) if lv is not None and lv.meets(tol)
+               and (elements is None or lv.element in elements)]
+    return min(meeting, key=lambda i: levels[i].cost) if meeting else None
+
+
 def one_pose(lv: Level, pose, y) -> Level:
     """``lv`` with one pose (None off the branch) and its ``y``, estimates cleared."""
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,

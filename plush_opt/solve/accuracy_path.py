@@ -27,7 +27,8 @@ from ..fem.mesh import build_mesh
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import GRADED, LEVEL_OPTIONS, Level, default_levels, estimate_each_element, one_pose
+from .accuracy import (GRADED, LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
+                       one_pose)
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
@@ -133,17 +134,16 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         t_mesh = time.perf_counter() - t0
         model = build_model(s, mesh)
         plant = make_plant(model)
-        t1 = time.process_time()
         with counted(model) as work:
             cold = plant.equilibrium(scene.contraction, options=options)
-        t_solve = time.process_time() - t1
-        lv = Level(element, res, mesh, t_mesh, t_solve, cold.iterations, [], np.empty((0, 0, 2)), work=work.seconds)
+        lv = Level(element, res, mesh, t_mesh, work.cpu_s, cold.iterations, [], np.empty((0, 0, 2)),
+                   work=work.seconds)
         levels.append(_level_along(scene, lv, waypoints, contraction, points, options))
         if progress is not None:
             progress(f"accuracy: {element} level of {mesh.n_nodes:,} nodes added: the returned path replayed "
                      f"in {time.perf_counter() - t0:.1f} s")
         levels.sort(key=lambda lv: (lv.element, lv.mesh.n_nodes))
-        meeting = [i for i, lv in enumerate(estimate_each_element(levels)) if lv.meets(tol)]
-        if meeting:
-            return levels, min(meeting, key=lambda i: levels[i].cost)
+        k = cheapest_meeting(estimate_each_element(levels), tol)
+        if k is not None:
+            return levels, k
     return levels, None

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import time
 
 from ..base.linalg import LowRankHessian
 
@@ -36,11 +37,13 @@ OPERATION_S = 0.3e-3
 @dataclasses.dataclass
 class Work:
     """What a solve did: factorisations (their matrices' entries) and
-    evaluations with and without the Hessian."""
+    evaluations with and without the Hessian; and the CPU seconds it took
+    (reported beside the count, whatever else ran on the machine)."""
 
     factored: list = dataclasses.field(default_factory=list)    # nnz of each matrix factored
     hessians: int = 0
     gradients: int = 0
+    cpu_s: float = dataclasses.field(default=0.0, compare=False)
 
     @property
     def seconds(self) -> float:
@@ -59,7 +62,8 @@ def _factored_nnz(H) -> int:
 @contextlib.contextmanager
 def counted(model):
     """Count the factorisations and evaluations of ``model`` while the
-    block runs: ``with counted(model) as work: ...``, then ``work.seconds``.
+    block runs: ``with counted(model) as work: ...``, then ``work.seconds``
+    (and the block's CPU seconds, ``work.cpu_s``).
     What goes through :meth:`Model.evaluate` and the model's factoriser is
     counted: all of a Newton solve's work, not IPOPT's own evaluations."""
     work = Work()
@@ -80,9 +84,11 @@ def counted(model):
     before = [(obj, name, obj.__dict__.get(name)) for obj, name in ((model, "evaluate"),
                                                                    (model.factorizer, "factor"))]
     model.evaluate, model.factorizer.factor = counted_evaluate, counted_factor
+    t0 = time.process_time()
     try:
         yield work
     finally:
+        work.cpu_s = time.process_time() - t0
         for obj, name, own in before:
             if own is None:
                 delattr(obj, name)
