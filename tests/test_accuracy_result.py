@@ -33,9 +33,10 @@ def _fine_p2(scene, contraction, points, max_area, refinements):
 
 @pytest.mark.slow
 def test_the_leg_at_tolerance_1_is_within_it_of_a_fine_p2_solve_at_its_answer(tmp_path):
-    """The sweep (P1 levels first, the cheapest way to an estimate) picks an
-    832-node P1 mesh (the 490-node level is predicted to cost more than it
-    and is not solved); the run estimates again at the contraction control
+    """The sweep (P1 levels first, the cheapest way to an estimate) picks a
+    490-node P1 mesh (after the 832-node level meets 1, the 490-node one,
+    priced between the 226- and 832-node levels, is cheaper and meets it
+    too); the run estimates again at the contraction control
     finds, where it meets 1 as well (no second solve; the path where it
     does not: tests/test_accuracy_sweep.py), and the returned pose is
     within 1 of a fine P2 solve there."""
@@ -54,7 +55,7 @@ def test_the_leg_at_tolerance_1_is_within_it_of_a_fine_p2_solve_at_its_answer(tm
     assert at["summary"] in p.stderr and "warning" not in p.stderr
     # progress by default: each level as it is solved, why the sweep stopped, the check
     assert "plush-opt: accuracy: P1 level of 226 nodes solved at 2 contraction(s)" in p.stderr
-    assert "plush-opt: accuracy: stopped: the P1 level of 832 nodes meets 1" in p.stderr
+    assert "plush-opt: accuracy: stopped: the P1 level of 490 nodes meets 1" in p.stderr
     assert "plush-opt: accuracy: estimating the error at the returned contractions on the" in p.stderr
     # the sweep stopped well before the old order's first estimate (P2 levels up to 12,469 nodes)
     assert max(row["n_nodes"] for row in doc["mesh_accuracy"]["levels"]) < 12_469 / 3

@@ -31,6 +31,24 @@ def test_the_cost_model_fits_the_exponent_of_the_levels_solved():
     assert cost.predict("P1", 4000) == pytest.approx(8.0)
 
 
+def test_a_level_between_two_solved_ones_is_priced_between_them():
+    """Small levels carry fixed costs (t = 0.05 + 1e-6 n^1.5 here): a level
+    between two solved ones is interpolated, not extrapolated from the
+    largest (which made the leg's 490-node level dearer than its 832-node
+    one), and beyond them the nearest one prices it."""
+    cost = CostModel()
+    for n in (226, 832, 3187):
+        cost.add("P1", n, 0.05 + 1e-6 * n ** 1.5)
+    assert cost.predict("P1", 832) == pytest.approx(0.05 + 1e-6 * 832 ** 1.5)
+    assert cost.predict("P1", 226) < cost.predict("P1", 490) < cost.predict("P1", 832)
+    p = cost.exponent("P1")
+    assert cost.predict("P1", 12748) == pytest.approx((0.05 + 1e-6 * 3187 ** 1.5) * 4 ** p)
+    assert cost.predict("P1", 100) == pytest.approx((0.05 + 1e-6 * 226 ** 1.5) * (100 / 226) ** p)
+    # two levels of one size (two families) count as their mean in log t
+    cost.add("P1", 832, 0.5)
+    assert cost.predict("P1", 832) == pytest.approx(math.sqrt(0.5 * (0.05 + 1e-6 * 832 ** 1.5)))
+
+
 def test_a_chain_whose_first_estimate_is_cheaper_goes_first():
     p2, p1 = chain("P2", 800), chain("P1", 200)
     plan = Planner([p2, p1], tol=1.0)

@@ -26,10 +26,11 @@ is solved, and:
   first chain (the first element's family A) is solved to its end, the
   budget of a tolerance that is not met, and the sweep stops there.
 
-The cost of a level's solve is predicted as ``t = a n^p`` in its node count
-``n`` (a refined level has 4x its parent's nodes, known before it is
-meshed), ``a`` and ``p`` fitted to the levels of its element solved so far
-(:class:`CostModel`). A solved level's cost is its counted work
+The cost of a level's solve is predicted from its node count ``n`` (a
+refined level has 4x its parent's nodes, known before it is meshed) and
+the levels of its element solved so far (:class:`CostModel`): between two
+of them interpolated in log n and log t, beyond them ``t = a n^p`` from
+the nearest, ``p`` fitted to them all. A solved level's cost is its counted work
 (:attr:`~plush_opt.solve.accuracy_estimate.Level.cost`, in typical CPU
 seconds: :mod:`plush_opt.solve.work`), not its measured time, so the same
 command solves the same levels and picks the same one on every run, however
@@ -83,13 +84,29 @@ class CostModel:
 
     def predict(self, element: str, n_nodes: float) -> float:
         """Seconds for one solve of a level of ``element`` with ``n_nodes``:
-        from that element's largest level solved, else any element's, else
-        ``n^COST_EXPONENT`` microseconds (only the order matters then)."""
+        between two of that element's levels solved, interpolated in log n
+        and log t (a small level's fixed costs show); beyond them, from the
+        nearest by the fitted exponent; with none of that element, from any
+        element's levels; with none at all ``n^COST_EXPONENT`` microseconds
+        (only the order matters then)."""
         s = self.samples.get(element) or [x for v in self.samples.values() for x in v]
         if not s:
             return 1e-6 * float(n_nodes) ** COST_EXPONENT
-        n_ref, t_ref = max(s)
-        return t_ref * (float(n_nodes) / n_ref) ** self._fit(s)
+        n, t = _log_samples(s)
+        x = math.log(float(n_nodes))
+        if n[0] <= x <= n[-1]:
+            return math.exp(float(np.interp(x, n, t)))
+        i = 0 if x < n[0] else -1
+        return math.exp(t[i] + self._fit(s) * (x - n[i]))
+
+
+def _log_samples(s) -> tuple[np.ndarray, np.ndarray]:
+    """(log n, log t) of cost samples, by n; samples of the same n averaged."""
+    n = np.array([a for a, _ in s], dtype=np.float64)
+    t = np.log(np.array([b for _, b in s], dtype=np.float64))
+    sizes, where = np.unique(n, return_inverse=True)
+    mean = np.bincount(where, weights=t) / np.bincount(where)
+    return np.log(sizes), mean
 
 
 @dataclasses.dataclass
