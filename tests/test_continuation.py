@@ -3,13 +3,15 @@ contraction and says so; the residual's round-off floor certifies a pose
 whose Newton solve stalled on it, and nothing else."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from plush_opt import load
-from plush_opt.solve.equilibrium import EquilibriumOptions, roundoff_floor, solve_equilibrium
+from plush_opt.solve import equilibrium
+from plush_opt.solve.equilibrium import HANDOVER_WINDOW, EquilibriumOptions, roundoff_floor, solve_equilibrium
 from cli_helpers import cli
 from shipped import built
 
@@ -29,7 +31,9 @@ def test_the_thin_strip_fails_from_rest_and_continuation_finds_its_pose(strip):
     assert eq.converged and eq.positive_definite
     assert eq.relative_residual <= 1e-10
     assert eq.continuation_steps >= 4
-    assert "by continuation in the contraction" in eq.status and "iteration limit" in eq.status
+    # Newton from rest hands over as soon as it stops making progress, not at its limit
+    assert "by continuation in the contraction" in eq.status
+    assert f"no progress after {2 * HANDOVER_WINDOW} iterations" in eq.status
     assert np.array_equal(eq.contraction, [30.0])
     # the same pose as a careful continuation by hand (1 mm steps from rest)
     x = None
@@ -46,6 +50,24 @@ def test_a_continuation_that_fails_is_never_called_converged(strip):
     assert not eq.converged
     assert "continuation in the contraction from [0.0] failed" in eq.status
     assert eq.status.startswith("iteration limit (5) reached")
+
+
+def test_where_continuation_fails_after_a_handover_newton_resumes(monkeypatch):
+    """The hand-over costs time, never an equilibrium: Newton from rest on
+    the buckling strip halves its best residual only after 40 iterations
+    (it converges at 61); with a window of 20 it hands over there, and where
+    continuation fails too it resumes and ends where it would have."""
+    _, _, model, _ = built("hard/buckling")
+    c = np.array(model.upper)
+    plain = solve_equilibrium(model, c)
+    assert plain.converged and plain.iterations > 40
+    monkeypatch.setattr(equilibrium, "HANDOVER_WINDOW", 20)
+    monkeypatch.setattr(equilibrium, "continuation",
+                        lambda model, failed, *a: replace(failed, status=f"{failed.status}; continuation failed"))
+    eq = solve_equilibrium(model, c, options=EquilibriumOptions(continuation=4))
+    assert eq.converged and eq.iterations == plain.iterations
+    assert "resumed after 40 iterations (no progress after 40 iterations" in eq.status
+    assert np.abs(eq.x - plain.x).max() <= 1e-9
 
 
 def test_a_solve_that_converges_directly_is_unchanged_by_the_option():

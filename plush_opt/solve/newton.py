@@ -145,9 +145,36 @@ def _stalled_status(history: list[float], options: EquilibriumOptions) -> str:
 def _stalled(history: list[float], options: EquilibriumOptions) -> bool:
     """No progress over the last ``stall_window`` relative residuals of
     ``history`` near the tolerance (see :class:`EquilibriumOptions`)."""
-    w = options.stall_window
-    return (history[-1] < options.stall_residual and len(history) > 2 * w
-            and min(history[-w:]) > options.stall_gain * min(history[:-w]))
+    return history[-1] < options.stall_residual and _no_progress(history, options.stall_window, options)
+
+
+def _stop_without_progress(history: list[float], definite: bool, handover: int, options: EquilibriumOptions,
+                           it: int) -> str:
+    """The status Newton stops with after the relative residuals
+    ``history`` (``definite``: the Hessian at the last is positive
+    definite), or "": a stall near the tolerance (round-off, a sliver
+    element or an ill-conditioned H, sets a floor above gtol), or no
+    progress at all where another method can take over (``handover``)."""
+    if definite and _stalled(history, options):
+        return _stalled_status(history, options)
+    if handover and _no_progress(history, handover, options):
+        return _handover_status(history, handover, it)
+    return ""
+
+
+def _no_progress(history: list[float], window: int, options: EquilibriumOptions) -> bool:
+    """More than 2 ``window`` relative residuals in ``history``, and the
+    best of the last ``window`` not below ``stall_gain`` times the best before."""
+    return len(history) > 2 * window and min(history[-window:]) > options.stall_gain * min(history[:-window])
+
+
+#: The status of a solve handed over (``solve_newton``'s ``handover``) begins so.
+NO_PROGRESS = "no progress"
+
+
+def _handover_status(history: list[float], window: int, it: int) -> str:
+    return (f"{NO_PROGRESS} after {it} iterations: the best residual ({min(history):.1e} of the "
+            f"force scale) not halved in the last {window}")
 
 
 def _line_search(model: Model, c, x, ev: Evaluation, dx, options: EquilibriumOptions,
@@ -321,12 +348,13 @@ def _why_not(model: Model, c, x, converged: bool, status: str) -> str:
     return model.unbalanced(x, c) or status
 
 
-def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor | None = None) -> Equilibrium:
+def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor | None = None, handover: int = 0):
     """Newton from the pose ``x`` (n_dofs,) at ``c`` (n_winches,): the
     certified :class:`Equilibrium` where it converges, else an honest
     status (iteration limit, stall, saddle, left the branch, line search).
-    ``chord``: a positive definite factor of a nearby Hessian (the last
-    certified equilibrium's) for the first steps (module docstring)."""
+    ``chord``: a positive definite factor of a nearby Hessian for the first
+    steps (module docstring). ``handover`` > 0: stop where the best residual
+    has not halved in this many iterations (status :data:`NO_PROGRESS`)."""
     t0 = time.perf_counter()
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible:
@@ -373,9 +401,8 @@ def solve_newton(model: Model, c, x, options: EquilibriumOptions, chord: Factor 
         if it >= options.max_iterations:
             break
         best.append(np.linalg.norm(g) / ev.force_scale)
-        if factor is not None and _stalled(best, options):
-            # round-off (a sliver element, an ill-conditioned H) sets a floor above gtol
-            status = _stalled_status(best, options)
+        if stop := _stop_without_progress(best, factor is not None, handover, options, it):
+            status = stop
             break
         if factor is None and not options.regularise and not options.escape_saddles:
             status = _left_branch(it)      # (no symmetric-branch check to make first)
