@@ -133,3 +133,25 @@ def test_where_no_level_meets_at_the_returned_contraction_the_sweep_goes_on_ther
     assert resolved == [] and doc["accuracy"]["at_result"]["resolves"] == 0
     assert doc["accuracy"]["at_result"]["met"] is True
     assert doc["accuracy"]["at_result"]["estimated_error"] <= 0.002
+
+
+@pytest.mark.slow        # three sweeps of the leg's levels
+def test_the_legs_sweep_table_in_the_docs_is_what_the_sweep_solves():
+    """docs/accuracy.md's table of what a sweep solves on the hexapod leg
+    (tools/accuracy_sweep_cost.py): its levels, in order, and its pick
+    and bound are the sweep's (counted work: the same on every run); only
+    the CPU column is a measurement."""
+    from plush_opt.io import load_scene
+    from plush_opt.solve.accuracy import choose_levels
+    root = Path(__file__).parent.parent
+    doc = (root / "docs" / "accuracy.md").read_text()
+    table = doc[doc.index("| TOL | levels solved, in order"):]
+    rows = [line.split("|")[1:-1] for line in table.splitlines()[2:5]]
+    scene = load_scene(root / "problems" / "hexapod_leg.yaml")
+    for tol, order, total, largest, picked, bound, _ in rows:
+        _, levels, report = choose_levels(scene, float(tol))
+        nodes = [lv.mesh.n_nodes for lv in levels]
+        assert order.strip() == ", ".join(f"{lv.element} {lv.mesh.n_nodes:,}" for lv in levels), tol
+        assert (total.strip(), largest.strip()) == (f"{sum(nodes):,}", f"{max(nodes):,}")
+        assert picked.strip() == f"{report['element']} {report['nodes']:,}"
+        assert bound.strip() == f"{report['estimated_error']:.3g}"

@@ -47,7 +47,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     lines = [f"Made by `python tools/accuracy_sweep_cost.py {' '.join(str(p) for p in args.problems)} "
              f"--tols {' '.join(f'{t:g}' for t in args.tols)}` on {datetime.date.today().isoformat()}.", "",
-             "| problem | TOL | levels solved, in order | nodes in all | largest | picked | bound | | "
+             "| problem | TOL | levels solved, in order | nodes in all | largest | picked | bound | tolerance | "
              "sweep CPU s | one solve on the pick, CPU s |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for path in args.problems:
