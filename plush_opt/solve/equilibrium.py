@@ -53,7 +53,8 @@ CONTINUATION_GROWTH = 1.5
 #: its best residual has not halved in this many iterations (at any
 #: residual): a start that far off wanders, while every problem file's
 #: solve from rest that converges halves it within 30 (at most 61
-#: iterations in all). Where continuation fails too, Newton resumes.
+#: iterations in all: tools/newton_from_rest.py). Where continuation
+#: fails too, Newton resumes.
 HANDOVER_WINDOW = 30
 
 
