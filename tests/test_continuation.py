@@ -156,3 +156,16 @@ def test_start_continuation_is_checked():
         ControlOptions(start_continuation=-1)
     with pytest.raises(ValueError, match="start_continuation"):
         BilevelOptions(start_continuation=1.5)
+
+
+def test_the_survey_tool_applies_the_solvers_handover_rule():
+    """tools/newton_from_rest.py (the survey behind HANDOVER_WINDOW) says
+    the window fires on the thin strip where the solver hands over."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).parent.parent / "tools"))
+    import newton_from_rest
+    assert newton_from_rest.fires([1.0] * 61, 30) == 60 and newton_from_rest.fires([1.0] * 60, 30) is None
+    assert newton_from_rest.fires([0.5 ** k for k in range(100)], 30) is None
+    rows = [[c.strip() for c in r.split("|")[1:-1]]
+            for r in newton_from_rest.rows(DATA / "thin_strip.yaml", [HANDOVER_WINDOW])]
+    assert [(r[3], r[4], r[-1]) for r in rows] == [("500", "no", str(2 * HANDOVER_WINDOW))] * 3

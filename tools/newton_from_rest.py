@@ -8,8 +8,8 @@ to continuation (plush_opt.solve.equilibrium.HANDOVER_WINDOW).
 Each file is solved at a quarter, half and all of each winch's range (an
 unbounded winch: 20 mm), from rest, without continuation. A window w fires
 once more than 2 w relative residuals are in and the best of the last w is
-not below half the best before (the rule of ``solve_newton``'s
-``handover``); "-" where it never fires. A window that fires on a solve
+not below half the best before (``solve_newton``'s ``handover``, the
+solver's own test); "-" where it never fires. A window that fires on a solve
 that converges costs that solve time (continuation first, then Newton
 resumes), never its equilibrium.
 """
@@ -28,16 +28,18 @@ import numpy as np
 from plush_opt import load
 from plush_opt.base.errors import PlushError
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from plush_opt.solve.newton import _no_progress as no_progress
 
 ROOT = Path(__file__).resolve().parent.parent
 RESIDUAL = re.compile(r"^newton \d+: residual ([0-9.e+-]+)")
 
 
-def fires(residuals: list[float], window: int, gain: float = 0.5) -> int | None:
-    """The iteration count at which ``window`` would hand over, or None."""
-    for k in range(2 * window + 1, len(residuals) + 1):
-        h = residuals[:k]
-        if min(h[-window:]) > gain * min(h[:-window]):
+def fires(residuals: list[float], window: int) -> int | None:
+    """The iteration count at which ``window`` would hand over (the
+    solver's own rule on the residuals before each step), or None."""
+    options = EquilibriumOptions()
+    for k in range(1, len(residuals) + 1):
+        if no_progress(residuals[:k], window, options):
             return k - 1
     return None
 
