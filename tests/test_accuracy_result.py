@@ -222,6 +222,27 @@ def test_the_table_of_a_stopped_row_keeps_its_whole_note(tmp_path):
     assert out.read_text().splitlines()[-1].endswith(f"| NO: {note} |")
 
 
+def test_a_row_whose_process_fails_keeps_its_reason(tmp_path, monkeypatch):
+    """A row's process that ends without its row file (the crescent at 0.05
+    once, killed for its memory) leaves its error output beside the row,
+    and the table names its last line, not only that no row file exists."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    crash = tmp_path / "crash.py"           # a row process that dies before its row file
+    crash.write_text("import sys\nsys.stderr.write('Traceback (most recent call last):\\nMemoryError\\n')\n"
+                     "sys.exit(1)\n")
+    monkeypatch.setattr(guarantee, "__file__", str(crash))
+    spec = "problems/cantilever.yaml"
+    to = guarantee.row_file(tmp_path, spec, 1.0)
+    row = guarantee.launch((spec, 1.0, to), timeout=60)
+    assert row == {"scene": spec, "tol": 1.0, "verdict": "NO",
+                   "note": f"the row failed: MemoryError (its output: {to.stem}.failed)"}
+    assert not to.exists() and "Traceback" in guarantee.failed_file(to).read_text()
+    out = tmp_path / "table.md"
+    assert guarantee.main([spec, "--tols", "1", "--work", str(tmp_path), "--no-run", "--out", str(out)]) == 1
+    assert out.read_text().splitlines()[-1].endswith(f"| NO: {row['note']} |")
+
+
 def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
     """Several stable states can hold at the returned contractions (the
     gripper's ball); a reference level whose solve from the level before

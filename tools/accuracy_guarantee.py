@@ -421,9 +421,24 @@ def launch(job: tuple, timeout: float) -> dict:
         write_json_atomic(to, row)
         return row
     if proc.returncode != 0 or not to.exists():
-        last = (err.strip().splitlines() or ["no output"])[-1]
-        return {"scene": spec, "tol": tol, "verdict": "NO", "note": f"the row failed: {last}"}
+        from plush_opt.base.files import write_text_atomic
+        write_text_atomic(failed_file(to), err)
+        return failed_row(spec, tol, to)
     return json.loads(to.read_text())
+
+
+def failed_file(to: Path) -> Path:
+    """Where a row whose process failed keeps its error output."""
+    return to.with_suffix(".failed")
+
+
+def failed_row(spec: str, tol: float, to: Path) -> dict:
+    """The row of a process that ended without its row file: NO, and the
+    last line of its error output (kept in :func:`failed_file`)."""
+    err = failed_file(to).read_text() if failed_file(to).exists() else ""
+    last = (err.strip().splitlines() or ["no output"])[-1]
+    return {"scene": spec, "tol": tol, "verdict": "NO",
+            "note": f"the row failed: {last} (its output: {failed_file(to).name})"}
 
 
 def fmt(v, spec=".3g") -> str:
@@ -494,9 +509,13 @@ def main(argv=None) -> int:
         batch.raise_if_interrupted()
     rows = []
     for spec, tol, to in sorted(jobs, key=lambda j: (args.scenes.index(j[0]), -j[1])):
-        row = json.loads(to.read_text()) if to.exists() else \
-            {"scene": spec, "tol": tol, "verdict": "NO", "note": "not run" if args.no_run else
-             "the row failed (no row file)"}
+        if to.exists():
+            row = json.loads(to.read_text())
+        elif failed_file(to).exists():
+            row = failed_row(spec, tol, to)
+        else:
+            row = {"scene": spec, "tol": tol, "verdict": "NO", "note": "not run" if args.no_run else
+                   "the row failed (no row file)"}
         rows.append(row)            # (a stopped row's file has what it knew: launch)
     date = datetime.date.today().isoformat()
     scenes = "" if args.scenes == DEFAULT_SCENES else " " + " ".join(args.scenes)
