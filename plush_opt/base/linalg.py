@@ -337,6 +337,16 @@ def assembled(H) -> sp.csc_matrix:
     return H.assemble() if isinstance(H, LowRankHessian) else H
 
 
+def abs_product(H, v: np.ndarray) -> np.ndarray:
+    """|H| v with entrywise absolute values, for v >= 0: exact for a sparse
+    H; for a :class:`LowRankHessian` the bound |body| v + |Q|^T |M| |Q| v,
+    which never assembles its dense blocks (on a fine mesh with finite
+    attachments they hold billions of entries)."""
+    if isinstance(H, LowRankHessian):
+        return abs(H.body) @ v + abs(H.QT) @ (np.abs(H.M) @ (abs(H.Q) @ v))
+    return abs(H) @ v
+
+
 class _CholmodHalves:
     """The two triangular halves of a CHOLMOD factor A = P^T L D L^T P
     (a supernodal LL^T: D = I): ``forward(B)`` = L^-1 P B (B dense or

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..base.errors import SolverError
 from ..base.reprs import compact_repr
-from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..base.linalg import Factor, NotPositiveDefinite, abs_product, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
@@ -280,7 +280,9 @@ def roundoff_floor(model: Model, x, contraction) -> float:
     * ``sum_j |H_ij| |x_j|``: each coordinate is known to eps |x_j| (the
       pose is stored in absolute coordinates), and a change of x by that
       moves the gradient by H times it; summed with absolute values (no
-      cancellation assumed), so the part is an upper bound of that effect;
+      cancellation assumed, and a low-rank Hessian's sparse and tendon
+      parts each on their own: never assembled), so the part is an upper
+      bound of that effect;
     * ``sum_terms |g_term,i|``: the terms' gradients (elastic, pins,
       tendons, gravity) are added, each to eps of its own size, and large
       opposite forces (a taut tendon against the body) cancel in the sum.
@@ -291,9 +293,9 @@ def roundoff_floor(model: Model, x, contraction) -> float:
     x = np.asarray(x, dtype=np.float64).reshape(-1)
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     ev = model.evaluate(x, c, order=2)
-    if not ev.admissible or ev.hessian is None:
+    if not ev.admissible or ev.hessian_form is None:
         return 0.0
-    per_dof = abs(ev.hessian) @ np.abs(x)
+    per_dof = abs_product(ev.hessian_form, np.abs(x))
     for term in model.terms:
         part = term.evaluate(x, c, 1)
         if part.gradient is not None:
