@@ -324,6 +324,11 @@ class LowRankHessian:
     def diagonal(self) -> np.ndarray:
         return self.body.diagonal() + np.asarray(self.QT.multiply(self.QT @ self.M).sum(axis=1)).ravel()
 
+    def abs_product(self, v: np.ndarray) -> np.ndarray:
+        """A bound of |H| v (entrywise |.|, v >= 0): |body| v + |Q|^T |M| |Q| v,
+        never assembling the dense tendon blocks."""
+        return abs(self.body) @ v + abs(self.QT) @ (np.abs(self.M) @ (abs(self.Q) @ v))
+
     def assemble(self) -> sp.csc_matrix:
         """The whole matrix, sparse (dense over the tendons' nodes), exactly
         symmetric (the products leave round-off asymmetry; a factorisation
@@ -335,16 +340,6 @@ class LowRankHessian:
 def assembled(H) -> sp.csc_matrix:
     """H as one sparse matrix (a :class:`LowRankHessian` assembled)."""
     return H.assemble() if isinstance(H, LowRankHessian) else H
-
-
-def abs_product(H, v: np.ndarray) -> np.ndarray:
-    """|H| v with entrywise absolute values, for v >= 0: exact for a sparse
-    H; for a :class:`LowRankHessian` the bound |body| v + |Q|^T |M| |Q| v,
-    which never assembles its dense blocks (on a fine mesh with finite
-    attachments they hold billions of entries)."""
-    if isinstance(H, LowRankHessian):
-        return abs(H.body) @ v + abs(H.QT) @ (np.abs(H.M) @ (abs(H.Q) @ v))
-    return abs(H) @ v
 
 
 class _CholmodHalves:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..base.errors import SolverError
 from ..base.reprs import compact_repr
-from ..base.linalg import Factor, NotPositiveDefinite, abs_product, smallest_eigenpair
+from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
@@ -295,7 +295,8 @@ def roundoff_floor(model: Model, x, contraction) -> float:
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible or ev.hessian_form is None:
         return 0.0
-    per_dof = abs_product(ev.hessian_form, np.abs(x))
+    H = ev.hessian_form
+    per_dof = H.abs_product(np.abs(x)) if isinstance(H, LowRankHessian) else abs(H) @ np.abs(x)
     for term in model.terms:
         part = term.evaluate(x, c, 1)
         if part.gradient is not None:
