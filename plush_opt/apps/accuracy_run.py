@@ -21,9 +21,8 @@ import numpy as np
 from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
-from ..solve.accuracy import ELEMENT_ORDER, Resolution, choose_levels, default_levels, summary
-from ..solve.accuracy_check import (CHECK_ELEMENT, bound_through, bounds_at, cheapest_meeting, finer,
-                                   seed_level)
+from ..solve.accuracy import ELEMENT_ORDER, Resolution, cheapest_meeting, choose_levels, default_levels, summary
+from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, seed_level
 from ..solve.accuracy_path import extend_along, levels_along
 from ..solve.plant import path_dependent
 

@@ -27,8 +27,8 @@ from ..base.errors import SceneError
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start,  # noqa: F401
-                       cheapest_meeting, equilibrium_at, estimate_each_element, one_pose, solve_on_branch)
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
+                       estimate_each_element, one_pose, solve_on_branch)
 from .equilibrium import EquilibriumOptions
 
 
