@@ -294,19 +294,75 @@ def test_low_rank_factor_refuses_an_indefinite_or_singular_update(backend, mode)
         Factorizer(backend, mode).factor(singular)
 
 
+def _never_assembled(monkeypatch):
+    def refuse(self):
+        raise AssertionError("a low-rank Hessian was assembled")
+    monkeypatch.setattr(linalg.LowRankHessian, "assemble", refuse)
+
+
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
-def test_low_rank_with_an_indefinite_body_is_decided_on_the_whole(backend, mode):
+def test_low_rank_with_an_indefinite_body_is_decided_on_the_whole(backend, mode, monkeypatch):
     """A body that is not positive definite on its own, held by a stiff
     positive update (a tendon holding a body that would buckle alone): H is
-    definite and factored assembled; a regularising shift is refused
-    instead (a larger shift is all the caller needs)."""
+    definite, decided and solved on its augmented matrix, never assembled;
+    a regularising shift is refused instead (a larger shift is all the
+    caller needs)."""
     n = 40
     body = sp.diags(np.r_[-1.0, np.ones(n - 1)], 0, format="csc")
     e0 = np.zeros(n)
     e0[0] = 1.0
     H = linalg.LowRankHessian(body, sp.csr_matrix(e0[None, :]), np.array([[5.0]]))
+    _never_assembled(monkeypatch)
     f = Factorizer(backend, mode).factor(H)
     b = np.arange(1.0, n + 1)
     assert np.allclose(f.solve(b), b / np.r_[4.0, np.ones(n - 1)], rtol=1e-14)
     with pytest.raises(NotPositiveDefinite):
         Factorizer(backend, mode).factor(H, shift=0.5)
+
+
+def _buckling(n=600, hold=(6.0, 6.0, 6.0), seed=3):
+    """A body that buckles alone at three places (a 1D Laplacian with three
+    soft nodes), each held by a tendon-like positive term spread over 6
+    nodes (``hold``: their stiffnesses), plus segment-like 2 x 2 couplings of either sign, and
+    the same Hessian assembled (dense, for the reference)."""
+    rng = np.random.default_rng(seed)
+    diag = np.full(n, 2.5)
+    diag[[100, 300, 500]] = 0.2
+    body = sp.diags([-1.0, diag, -1.0], [-1, 0, 1], shape=(n, n), format="csc")
+    rows = []
+    for at in (100, 300, 500, 200, 210):
+        q = np.zeros(n)
+        q[at - 3:at + 3] = rng.uniform(0.5, 1.0, 6)
+        rows.append(q / np.linalg.norm(q))
+    M = np.zeros((5, 5))
+    M[:3, :3] = np.diag(hold)
+    B = rng.standard_normal((2, 2))
+    M[3:, 3:] = 0.3 * (B + B.T)
+    H = linalg.LowRankHessian(body, sp.csr_matrix(np.array(rows)), M)
+    return H, body.toarray() + np.array(rows).T @ M @ np.array(rows)
+
+
+@pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
+def test_a_buckling_body_held_by_its_tendons_is_certified_without_assembly(backend, mode, monkeypatch):
+    """The body alone has three negative eigenvalues; its tendons hold it:
+    H is positive definite, its solves and smallest eigenvalue match the
+    dense matrix's, and nothing is assembled. Held too weakly, H is
+    refused, and ``smallest_eigenpair`` finds its negative eigenvalue
+    (through the augmented matrix, also unassembled)."""
+    from plush_opt.base.indefinite import smallest_eigenpair
+    H, dense = _buckling()
+    assert np.sum(np.linalg.eigvalsh(H.body.toarray()) < 0) == 3 and np.linalg.eigvalsh(dense)[0] > 0
+    _never_assembled(monkeypatch)
+    f = Factorizer(backend, mode).factor(H)
+    b = np.random.default_rng(4).standard_normal(H.shape[0])
+    x = f.solve(b)
+    assert np.linalg.norm(dense @ x - b) <= 1e-12 * np.linalg.norm(b)
+    assert f.min_eigenvalue() == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-8)
+    weak, weak_dense = _buckling(hold=(6.0, 0.05, 6.0))
+    lam = np.linalg.eigvalsh(weak_dense)
+    assert lam[0] < 0 < lam[1]
+    with pytest.raises(NotPositiveDefinite, match="1 negative"):
+        Factorizer(backend, mode).factor(weak)
+    value, vector = smallest_eigenpair(weak)
+    assert value == pytest.approx(lam[0], rel=1e-8)
+    assert np.linalg.norm(weak_dense @ vector - value * vector) <= 1e-8 * abs(value)

@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from plush_opt.base.linalg import NotPositiveDefinite
 from plush_opt.fem import elements
 from plush_opt.fem import tendon_law
 from plush_opt.io import scene_from_dict
@@ -389,6 +390,46 @@ def test_equilibria_agree_across_hessian_forms(large_discs):
     ref = solve_equilibrium(model, c)
     assert ref.converged
     for form in ("rank_one", "split", "standin"):
+        eq = solve_equilibrium(large_discs[form], c)
+        assert eq.converged and eq.positive_definite, form
+        assert np.abs(eq.x - ref.x).max() <= 1e-9 * np.abs(ref.x).max(), form
+        assert eq.min_eigenvalue == pytest.approx(ref.min_eigenvalue, rel=1e-6), form
+
+
+class _BodyRefused:
+    """A body factorizer that calls every unshifted body not positive
+    definite: the low-rank factor then decides H on its augmented matrix."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    @property
+    def mode_used(self):
+        return self.inner.mode_used
+
+    def factor(self, H, shift=0.0, definite=True):
+        if shift == 0.0:
+            raise NotPositiveDefinite("refused by the test")
+        return self.inner.factor(H, shift, definite)
+
+
+@pytest.mark.slow
+def test_equilibria_agree_when_the_body_alone_is_not_definite(large_discs, monkeypatch):
+    """Where the sparse part alone is not positive definite (a body held
+    by its tendons), Newton factors, certifies and finds the smallest
+    eigenvalue on the augmented matrix, never assembling H: the same
+    equilibrium as the assembled form."""
+    from plush_opt.base import linalg
+    from plush_opt.solve.equilibrium import solve_equilibrium
+    model = large_discs["assembled"]
+    c = model.lower + 0.6 * (model.upper - model.lower)
+    ref = solve_equilibrium(model, c)
+    part = linalg.Factorizer._part
+    monkeypatch.setattr(linalg.Factorizer, "_part",
+                        lambda self, name, mode=None: (_BodyRefused(part(self, name, mode)) if name == "body"
+                                                       else part(self, name, mode)))
+    monkeypatch.setattr(linalg.LowRankHessian, "assemble", lambda self: pytest.fail("H assembled"))
+    for form in ("split", "standin"):
         eq = solve_equilibrium(large_discs[form], c)
         assert eq.converged and eq.positive_definite, form
         assert np.abs(eq.x - ref.x).max() <= 1e-9 * np.abs(ref.x).max(), form

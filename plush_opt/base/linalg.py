@@ -147,9 +147,12 @@ class Factorizer:
         self._spare: list = []      # qdldl: solvers of this pattern no live Factor holds
         self._parts: dict[str, Factorizer] = {}    # low-rank form: its body's, the assembled one's
 
-    def factor(self, H, shift: float = 0.0) -> "Factor":
+    def factor(self, H, shift: float = 0.0, definite: bool = True) -> "Factor":
         """LDL^T of ``H + shift I``; raises :class:`NotPositiveDefinite`.
-        ``H``: a CSC matrix, or a :class:`LowRankHessian`."""
+        ``H``: a CSC matrix, or a :class:`LowRankHessian`. ``definite=False``
+        (a CSC matrix, a Factorizer of mode "simplicial"): any inertia, its
+        pivots in ``Factor.pivots``; refused only on a zero pivot (there is
+        no pivoting)."""
         if isinstance(H, LowRankHessian):
             return self._factor_low_rank(H, shift)
         pattern = (H.shape, H.indptr.tobytes(), H.indices.tobytes())
@@ -158,11 +161,11 @@ class Factorizer:
             self._spare = []
             self._pattern = pattern
         if self.backend == "cholmod":
-            return self._factor_cholmod(H, shift)
+            return self._factor_cholmod(H, shift, definite)
         self.mode_used = "simplicial"
-        return self._factor_qdldl(H, shift)
+        return self._factor_qdldl(H, shift, definite)
 
-    def _factor_cholmod(self, H, shift) -> "Factor":
+    def _factor_cholmod(self, H, shift, definite) -> "Factor":
         from sksparse.cholmod import CholmodNotPositiveDefiniteError
         if self._symbolic is None:
             self.mode_used = self.mode
@@ -178,10 +181,11 @@ class Factorizer:
         # D of a supernodal LL^T is diag(L)^2 (read off a simplicial copy of
         # the factor: a small fraction of the factorisation's cost)
         d = f.D()
-        _check_pivots(d)
-        return Factor(f, H, shift, _CholmodHalves(f, d, self.mode_used == "simplicial"))
+        if definite:
+            _check_pivots(d)
+        return Factor(f, H, shift, _CholmodHalves(f, d, self.mode_used == "simplicial"), d)
 
-    def _factor_qdldl(self, H, shift) -> "Factor":
+    def _factor_qdldl(self, H, shift, definite) -> "Factor":
         # One qdldl solver holds one numeric factor, refactored in place;
         # a Factor handed out must stay valid, so each live Factor owns its
         # solver and gives it back (to be refactored) when it is dropped.
@@ -194,36 +198,43 @@ class Factorizer:
             solver.update(U, upper=True)
         else:
             solver = qdldl.Solver(U, upper=True)       # AMD + symbolic + numeric
+        d = solver.factors()[1]
         try:
-            _check_pivots(solver.factors()[1])
+            if definite:
+                _check_pivots(d)
         except NotPositiveDefinite:
             self._spare.append(solver)
             raise
-        f = Factor(_columnwise(solver.solve), H, shift)
+        f = Factor(_columnwise(solver.solve), H, shift, pivots=d.copy())
         weakref.finalize(f, self._give_back, self._pattern, solver).atexit = False
         return f
 
-    def _part(self, name: str) -> "Factorizer":
+    def _part(self, name: str, mode: str | None = None) -> "Factorizer":
         if name not in self._parts:
-            self._parts[name] = Factorizer(self.backend, self.mode)
+            self._parts[name] = Factorizer(self.backend, mode or self.mode)
         return self._parts[name]
 
     def _factor_low_rank(self, H: "LowRankHessian", shift) -> "Factor":
         """Factor of body + shift I, then Woodbury for the low-rank term
         (which also decides whether H + shift I is positive definite).
-        Where the body alone is not positive definite H is factored
-        assembled, so that certification never depends on the split (with
-        a regularising shift > 0 that is refused instead: the caller tries
-        a larger shift, and a larger shift is all it needs)."""
+        Where the body alone is not positive definite, H is decided on its
+        sparse augmented matrix (:mod:`.indefinite`, never assembled: the
+        tendons' blocks are dense over their discs), so that certification
+        never depends on the split (with a regularising shift > 0 that is
+        refused instead: the caller tries a larger shift, and a larger
+        shift is all it needs)."""
         try:
             body = self._part("body").factor(H.body, shift)
         except NotPositiveDefinite:
             if shift > 0:
                 raise       # a regularising shift: a larger one will do
-            full = self._part("assembled")
-            f = full.factor(H.assemble(), shift)
-            self.mode_used = full.mode_used
-            return f
+            from .indefinite import AugmentedSolve     # (it builds on this module)
+            solve = AugmentedSolve(self._part("augmented", "simplicial"), H, shift)
+            if solve.negative or solve.singular:
+                raise NotPositiveDefinite(f"augmented matrix: {solve.negative} negative eigenvalue(s) of H, "
+                                          "or a pivot near zero") from None
+            self.mode_used = "simplicial"
+            return Factor(solve, H, shift)
         self.mode_used = self._part("body").mode_used
         return Factor(_WoodburySolve(body, H, shift), H, shift)
 
@@ -295,8 +306,8 @@ class LowRankHessian:
     solves with the factor of the mesh-sparse part and k x k dense algebra
     per factorisation.
 
-    body : (n, n) CSC, symmetric; it must be positive definite for the
-        low-rank factorisation (else H is factored assembled).
+    body : (n, n) CSC, symmetric; where it is not positive definite H is
+        factored through its augmented matrix (:mod:`.indefinite`).
     Q : (k, n) CSR.
     M : (k, k) dense, symmetric, of any inertia.
     fast : the rows [start, stop) of Q whose terms change fastest with the
@@ -506,11 +517,12 @@ class Factor:
     """An LDL^T factor of ``H + shift I``: solve, and the smallest eigenvalue.
     ``H`` is a CSC matrix or a :class:`LowRankHessian`."""
 
-    def __init__(self, chol, H, shift, halves: "_CholmodHalves | None" = None):
+    def __init__(self, chol, H, shift, halves: "_CholmodHalves | None" = None, pivots=None):
         self._chol = chol
         self.H = H
         self.shift = shift
         self._halves = halves
+        self.pivots = pivots        # D of the LDL^T (a factor of a sparse matrix)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
         return self._chol(b)
@@ -568,31 +580,3 @@ class Factor:
         except spla.ArpackNoConvergence:
             return None
         return (float(w[0]), V[:, 0]) if w[0] < 0 else None
-
-
-def smallest_eigenpair(H: sp.csc_matrix) -> tuple[float, np.ndarray]:
-    """Smallest (algebraic) eigenvalue of a symmetric sparse H and its unit
-    eigenvector. Used to escape saddles, where H is indefinite."""
-    n = H.shape[0]
-    if n <= 400:
-        import scipy.linalg as sla
-        w, V = sla.eigh(H.toarray(), subset_by_index=[0, 0], driver="evr")
-        return float(w[0]), V[:, 0]
-    # the negative eigenvalues of a near-saddle are small: look around 0
-    # first (shift-invert, LU of the indefinite H); if none found below 0
-    # there, look at the far end of the spectrum
-    try:
-        w, V = spla.eigsh(H, k=min(4, n - 1), sigma=-1e-12, which="LM", tol=1e-10, v0=np.ones(n))
-        if w.min() < 0:
-            k = int(np.argmin(w))
-            return float(w[k]), V[:, k]
-    except (RuntimeError, spla.ArpackNoConvergence):
-        pass
-    try:
-        w, V = spla.eigsh(H, k=1, which="SA", tol=1e-10, maxiter=50 * n, v0=np.ones(n))
-    except spla.ArpackNoConvergence as exc:
-        if not len(exc.eigenvalues):
-            raise SolverError("smallest Hessian eigenvalue: ARPACK did not converge") from None
-        w, V = exc.eigenvalues, exc.eigenvectors
-    k = int(np.argmin(w))
-    return float(w[k]), V[:, k]

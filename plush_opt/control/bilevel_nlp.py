@@ -14,9 +14,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..base.linalg import NotPositiveDefinite, smallest_eigenpair
-from ..fem.model import Model
 from ..base.errors import interrupt_noted
+from ..base.indefinite import smallest_eigenpair
+from ..base.linalg import NotPositiveDefinite
+from ..fem.model import Model
 from ..solve.ipopt_equilibrium import IterationCallback
 from .result import ControlIterate
 
@@ -196,7 +197,7 @@ def pose_check(model: Model, x: np.ndarray, c: np.ndarray, residual_tol: float) 
         # positive definite: the certified pose's eigenvalue is reported instead
         out["positive_definite"] = True
     except NotPositiveDefinite:
-        out["min_eigenvalue"] = float(smallest_eigenpair(ev.hessian)[0])
+        out["min_eigenvalue"] = float(smallest_eigenpair(ev.hessian_form)[0])
     out["stable_equilibrium"] = bool(out["positive_definite"] and rel <= residual_tol)
     return out
 

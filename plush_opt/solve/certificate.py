@@ -17,8 +17,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..base.errors import SolverError
+from ..base.indefinite import smallest_eigenpair
+from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite
 from ..base.reprs import compact_repr
-from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite, smallest_eigenpair
 from ..fem.model import Evaluation, Model
 
 log = logging.getLogger("plush_opt.solve.equilibrium")   # one channel for every backend
@@ -231,7 +232,7 @@ def certify(model: Model, eq: Equilibrium) -> Equilibrium:
             ev = model.evaluate(eq.x, eq.contraction, order=2)
             if ev.hessian_form is None:
                 return eq
-            lam, _ = smallest_eigenpair(ev.hessian)
+            lam, _ = smallest_eigenpair(ev.hessian_form)
     except SolverError as exc:
         log.warning("smallest Hessian eigenvalue not computed: %s", exc)
         return eq
@@ -250,7 +251,7 @@ def certified(model, c, x, ev: Evaluation, factor, converged, status, it, t0, op
         if pd and options.eigenvalue:
             min_eig = factor.min_eigenvalue()
         elif options.eigenvalue and ev.hessian_form is not None:
-            min_eig, _ = smallest_eigenpair(ev.hessian)
+            min_eig, _ = smallest_eigenpair(ev.hessian_form)
     except SolverError as exc:
         log.warning("smallest Hessian eigenvalue not computed: %s", exc)
     norm = float(np.linalg.norm(ev.gradient)) if ev.gradient is not None else np.inf

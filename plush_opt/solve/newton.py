@@ -41,7 +41,8 @@ import time
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.linalg import Factor, NotPositiveDefinite, smallest_eigenpair
+from ..base.indefinite import smallest_eigenpair
+from ..base.linalg import Factor, NotPositiveDefinite
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor
 from .contact_step import corrected_step
@@ -95,7 +96,7 @@ def escape_saddle(model: Model, c, x, ev: Evaluation, options: EquilibriumOption
     is deterministic; both signs are tried, the lower energy wins (the first
     sign on a tie: a symmetric scene always buckles the same way).
     """
-    lam, v = pair if pair is not None else smallest_eigenpair(ev.hessian)
+    lam, v = pair if pair is not None else smallest_eigenpair(ev.hessian_form)
     if lam >= 0:
         return None
     # sign rule: the mode's net displacement (sum of components) positive,
