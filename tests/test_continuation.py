@@ -176,7 +176,7 @@ def test_the_round_off_floor_never_assembles_a_low_rank_hessian(monkeypatch):
     assembled Hessian hold billions of entries (`--accuracy 0.05` on the
     crescent ran out of memory there): the floor bounds |H| |x| by the
     sparse and low-rank parts apart, within a few % of the assembled one."""
-    from plush_opt.base.linalg import LowRankHessian
+    from plush_opt.base.low_rank import LowRankHessian
     model = load(Path(__file__).parent.parent / "problems" / "hexapod.yaml", max_area=2.0).model
     c = 0.5 * (np.asarray(model.lower) + np.asarray(model.upper))
     eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))

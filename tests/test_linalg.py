@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from plush_opt.base import linalg
+from plush_opt.base import linalg, low_rank
 from plush_opt.control.gradient import solve_control
 from plush_opt.base.errors import SolverError
 from plush_opt.base.linalg import PIVOT_MARGIN, Factorizer, NotPositiveDefinite
@@ -184,7 +184,7 @@ def _low_rank(n=300, k=8, negative=0.0, seed=7):
     Q = sp.random(k, n, density=0.2, random_state=seed, format="csr")
     V = np.linalg.qr(rng.standard_normal((k, k)))[0]
     lam = np.r_[rng.uniform(0.5, 3.0, k - 2), -negative * np.ones(2)]
-    return linalg.LowRankHessian(body, Q, (V * lam) @ V.T)
+    return low_rank.LowRankHessian(body, Q, (V * lam) @ V.T)
 
 
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
@@ -235,7 +235,7 @@ def _with_fast(n=300, seed=7, tendon=(1.0, 2.0, 3.0)):
         B = rng.standard_normal((2, 2))
         M[a:a + 2, a:a + 2] = 0.005 * (B + B.T)         # (either sign: H stays definite)
     M[4:7, 4:7] = np.diag(tendon)
-    return linalg.LowRankHessian(body, Q, M, (4, 7))
+    return low_rank.LowRankHessian(body, Q, M, (4, 7))
 
 
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
@@ -262,7 +262,7 @@ def test_a_refreshed_low_rank_term_takes_the_fast_rows_alone(backend, mode):
     if backend == "cholmod":
         assert np.array_equal(g._chol._Z, whole._chol._Z)
     # a Hessian naming no fast rows, or others: its whole low-rank term
-    plain = linalg.LowRankHessian(H2.body, H2.Q, H2.M)
+    plain = low_rank.LowRankHessian(H2.body, H2.Q, H2.M)
     h = f.with_low_rank_of(plain)
     assert h.H.fast is None and np.array_equal(h.H.M, H2.M)
 
@@ -289,7 +289,7 @@ def test_low_rank_factor_refuses_an_indefinite_or_singular_update(backend, mode)
     n = 50
     q = np.zeros(n)
     q[[3, 7]] = np.sqrt(0.5)
-    singular = linalg.LowRankHessian(sp.identity(n, format="csc"), sp.csr_matrix(q[None, :]), np.array([[-1.0]]))
+    singular = low_rank.LowRankHessian(sp.identity(n, format="csc"), sp.csr_matrix(q[None, :]), np.array([[-1.0]]))
     with pytest.raises(NotPositiveDefinite):
         Factorizer(backend, mode).factor(singular)
 
@@ -297,7 +297,7 @@ def test_low_rank_factor_refuses_an_indefinite_or_singular_update(backend, mode)
 def _never_assembled(monkeypatch):
     def refuse(self):
         raise AssertionError("a low-rank Hessian was assembled")
-    monkeypatch.setattr(linalg.LowRankHessian, "assemble", refuse)
+    monkeypatch.setattr(low_rank.LowRankHessian, "assemble", refuse)
 
 
 @pytest.mark.parametrize("backend, mode", FACTORIZATIONS)
@@ -311,7 +311,7 @@ def test_low_rank_with_an_indefinite_body_is_decided_on_the_whole(backend, mode,
     body = sp.diags(np.r_[-1.0, np.ones(n - 1)], 0, format="csc")
     e0 = np.zeros(n)
     e0[0] = 1.0
-    H = linalg.LowRankHessian(body, sp.csr_matrix(e0[None, :]), np.array([[5.0]]))
+    H = low_rank.LowRankHessian(body, sp.csr_matrix(e0[None, :]), np.array([[5.0]]))
     _never_assembled(monkeypatch)
     f = Factorizer(backend, mode).factor(H)
     b = np.arange(1.0, n + 1)
@@ -338,7 +338,7 @@ def _buckling(n=600, hold=(6.0, 6.0, 6.0), seed=3):
     M[:3, :3] = np.diag(hold)
     B = rng.standard_normal((2, 2))
     M[3:, 3:] = 0.3 * (B + B.T)
-    H = linalg.LowRankHessian(body, sp.csr_matrix(np.array(rows)), M)
+    H = low_rank.LowRankHessian(body, sp.csr_matrix(np.array(rows)), M)
     return H, body.toarray() + np.array(rows).T @ M @ np.array(rows)
 
 
@@ -349,7 +349,7 @@ def test_a_buckling_body_held_by_its_tendons_is_certified_without_assembly(backe
     dense matrix's, and nothing is assembled. Held too weakly, H is
     refused, and ``smallest_eigenpair`` finds its negative eigenvalue
     (through the augmented matrix, also unassembled)."""
-    from plush_opt.base.indefinite import smallest_eigenpair
+    from plush_opt.base.eigenpair import smallest_eigenpair
     H, dense = _buckling()
     assert np.sum(np.linalg.eigvalsh(H.body.toarray()) < 0) == 3 and np.linalg.eigvalsh(dense)[0] > 0
     _never_assembled(monkeypatch)

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from plush_opt.base import linalg
+from plush_opt.base import linalg, low_rank
 from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 from plush_opt.fem.mesh import mesh_for_nodes
 from plush_opt.fem.model import Model, build_model
@@ -129,8 +129,8 @@ def bench_modes(name: str, nodes: int, element: str, repeats: int, taken: bool =
     b = np.random.default_rng(0).standard_normal(H.shape[0])
     fns = {mode: (lambda fz: lambda: fz.factor(H).solve(b))(linalg.Factorizer("cholmod", mode))
            for mode in ("simplicial", "supernodal")}
-    nnz = H.body.nnz if isinstance(H, linalg.LowRankHessian) else H.nnz
-    label = " (gravity, no tendons)" if peer else " (low-rank)" if isinstance(H, linalg.LowRankHessian) else ""
+    nnz = H.body.nnz if isinstance(H, low_rank.LowRankHessian) else H.nnz
+    label = " (gravity, no tendons)" if peer else " (low-rank)" if isinstance(H, low_rank.LowRankHessian) else ""
     return {"problem": name + label,
             "element": element, "nodes": n_nodes, "dofs": H.shape[0], "nnz": nnz,
             **_best_seconds(fns, repeats)}

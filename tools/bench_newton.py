@@ -70,7 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt.apps.timing import counting_factorisations
-from plush_opt.base import linalg
+from plush_opt.base import linalg, low_rank
 from plush_opt.control.gradient import Controller
 from plush_opt.fem import mapped
 from plush_opt.fem.mesh import mesh_for_nodes
@@ -313,7 +313,7 @@ def _timed_parts() -> list[tuple[object, str, str]]:
     return [(Model, "evaluate", "evaluation"), (Model, "mixed", "d2E/dx dc"),
             (linalg.Factorizer, "_factor_cholmod", "numeric factorisation"),
             (linalg._WoodburySolve, "__init__", "low-rank set-up"), (linalg.Factor, "solve", "solve"),
-            (linalg.LowRankHessian, "__matmul__", "product with H")]
+            (low_rank.LowRankHessian, "__matmul__", "product with H")]
 
 
 def _own_timers(parts: dict) -> list[tuple[object, str, object]]:

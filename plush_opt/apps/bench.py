@@ -25,7 +25,8 @@ import numpy as np
 
 from ..control import BilevelOptions, BilevelSolver, run_control
 from ..solve.equilibrium import EquilibriumOptions, solve_equilibrium
-from ..base.linalg import Factorizer, LowRankHessian
+from ..base.linalg import Factorizer
+from ..base.low_rank import LowRankHessian
 from ..fem.mesh import build_mesh, mesh_for_nodes
 from ..problem import from_scene
 from .timing import median_time, timed_into

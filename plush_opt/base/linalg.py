@@ -17,18 +17,16 @@ forces one; :data:`BACKEND` names the one in use.
 
 from __future__ import annotations
 
-import functools
 import logging
 import os
 import weakref
-from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import connected_components
 
 from .errors import SettingError, SolverError
+from .low_rank import LowRankHessian, assembled, eigen_blocks, in_span, with_fast_rows
 
 log = logging.getLogger(__name__)
 
@@ -81,9 +79,6 @@ CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 # thousand times that is still far below the softest physical mode of the
 # shipped robots (lambda_min / |H| ~ 1e-8).
 PIVOT_MARGIN = 1e-13
-# Eigenvalues of a low-rank term's M below this fraction of its largest are
-# round-off (a slack tendon, a straight segment): left out of the update.
-LOW_RANK_DROP = 1e-14
 # A Woodbury solve is refined once by the residual it leaves when that is
 # above this fraction of the right-hand side (the update loses digits when
 # the sparse part is much softer than the whole: a stiff tendon on a soft body).
@@ -218,8 +213,8 @@ class Factorizer:
         """Factor of body + shift I, then Woodbury for the low-rank term
         (which also decides whether H + shift I is positive definite).
         Where the body alone is not positive definite, H is decided on its
-        sparse augmented matrix (:mod:`.indefinite`, never assembled: the
-        tendons' blocks are dense over their discs), so that certification
+        sparse augmented matrix (:func:`augmented_factor`, never assembled:
+        the tendons' blocks are dense over their discs), so that certification
         never depends on the split (with a regularising shift > 0 that is
         refused instead: the caller tries a larger shift, and a larger
         shift is all it needs)."""
@@ -228,13 +223,12 @@ class Factorizer:
         except NotPositiveDefinite:
             if shift > 0:
                 raise       # a regularising shift: a larger one will do
-            from .indefinite import AugmentedSolve     # (it builds on this module)
-            solve = AugmentedSolve(self._part("augmented", "simplicial"), H, shift)
-            if solve.negative or solve.singular:
-                raise NotPositiveDefinite(f"augmented matrix: {solve.negative} negative eigenvalue(s) of H, "
+            f, negative, singular = augmented_factor(H, shift, self._part("augmented", "simplicial"))
+            if negative or singular:
+                raise NotPositiveDefinite(f"augmented matrix: {negative} negative eigenvalue(s) of H, "
                                           "or a pivot near zero") from None
             self.mode_used = "simplicial"
-            return Factor(solve, H, shift)
+            return f
         self.mode_used = self._part("body").mode_used
         return Factor(_WoodburySolve(body, H, shift), H, shift)
 
@@ -296,63 +290,6 @@ class _UpperPattern:
         return sp.csc_matrix((data, self._indices, self._indptr), shape=self._shape)
 
 
-@dataclass(frozen=True)
-class LowRankHessian:
-    """H = body + Q^T M Q: a sparse part and a low-rank symmetric term.
-
-    Finite tendon attachments make a tendon's Hessian dense over all its
-    discs' nodes (its stiffness couples every via point with every other),
-    and assembled, those blocks fill the factor. Kept apart, they cost k
-    solves with the factor of the mesh-sparse part and k x k dense algebra
-    per factorisation.
-
-    body : (n, n) CSC, symmetric; where it is not positive definite H is
-        factored through its augmented matrix (:mod:`.indefinite`).
-    Q : (k, n) CSR.
-    M : (k, k) dense, symmetric, of any inertia.
-    fast : the rows [start, stop) of Q whose terms change fastest with the
-        pose (the tendons' own U'' l' l'^T: M is diagonal there and couples
-        them with no other row), or None (all rows): what a kept factor
-        takes from a newer Hessian (:meth:`Factor.with_low_rank_of`).
-    """
-
-    body: sp.csc_matrix
-    Q: sp.csr_matrix
-    M: np.ndarray
-    fast: tuple[int, int] | None = None
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.body.shape
-
-    @functools.cached_property
-    def QT(self) -> sp.csr_matrix:
-        return self.Q.T.tocsr()
-
-    def __matmul__(self, v: np.ndarray) -> np.ndarray:
-        return self.body @ v + self.QT @ (self.M @ (self.Q @ v))
-
-    def diagonal(self) -> np.ndarray:
-        return self.body.diagonal() + np.asarray(self.QT.multiply(self.QT @ self.M).sum(axis=1)).ravel()
-
-    def abs_product(self, v: np.ndarray) -> np.ndarray:
-        """A bound of |H| v (entrywise |.|, v >= 0): |body| v + |Q|^T |M| |Q| v,
-        never assembling the dense tendon blocks."""
-        return abs(self.body) @ v + abs(self.QT) @ (np.abs(self.M) @ (abs(self.Q) @ v))
-
-    def assemble(self) -> sp.csc_matrix:
-        """The whole matrix, sparse (dense over the tendons' nodes), exactly
-        symmetric (the products leave round-off asymmetry; a factorisation
-        reads one triangle, Lanczos assumes symmetry)."""
-        H = self.body + self.QT @ sp.csr_matrix(self.M) @ self.Q
-        return ((H + H.T) * 0.5).tocsc()
-
-
-def assembled(H) -> sp.csc_matrix:
-    """H as one sparse matrix (a :class:`LowRankHessian` assembled)."""
-    return H.assemble() if isinstance(H, LowRankHessian) else H
-
-
 class _CholmodHalves:
     """The two triangular halves of a CHOLMOD factor A = P^T L D L^T P
     (a supernodal LL^T: D = I): ``forward(B)`` = L^-1 P B (B dense or
@@ -370,45 +307,6 @@ class _CholmodHalves:
     def backward(self, V: np.ndarray) -> np.ndarray:
         f = self._f
         return f.apply_Pt(f.solve_DLt(V) if self._ldl else f.solve_Lt(V, use_LDLt_decomposition=False))
-
-
-def _low_rank_eigen(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """M's eigenpairs (lam, V) above round-off, block by block: M is block
-    diagonal (a segment's 2 x 2 coupling, a tendon's own entry), so V is
-    exactly as sparse as its blocks and so is Q^T V. Also the position
-    (row of M) each kept pair was found at, ascending: the pairs of one
-    block sit at that block's rows."""
-    k = M.shape[0]
-    lam, V = np.zeros(k), np.zeros((k, k))
-    if k:
-        _, label = connected_components(sp.csr_matrix(M != 0), directed=False)
-        order = np.argsort(label, kind="stable")           # each block's indices, ascending
-        starts = np.flatnonzero(np.r_[True, np.diff(label[order]) != 0])
-        sizes = np.diff(np.r_[starts, k])
-        for size in np.unique(sizes):                      # the blocks of one size in one call
-            idx = order[starts[sizes == size][:, None] + np.arange(size)]     # (blocks, size)
-            lam[idx], V[idx[:, :, None], idx[:, None, :]] = np.linalg.eigh(M[idx[:, :, None], idx[:, None, :]])
-    keep = np.abs(lam) > LOW_RANK_DROP * max(float(np.max(np.abs(lam), initial=0.0)), 1e-300)
-    return lam[keep], V[:, keep], np.flatnonzero(keep)
-
-
-def _with_fast_rows(kept: LowRankHessian, H: LowRankHessian) -> tuple[LowRankHessian, bool]:
-    """``kept``'s sparse part with the low-rank term of ``H``: its ``fast``
-    rows alone (the others ``kept``'s) where both name the same ones on a Q
-    of the same shape, else the whole term; and whether the rows outside
-    ``fast`` are ``kept``'s."""
-    if H.fast is None or H.fast != kept.fast or H.Q.shape != kept.Q.shape:
-        return LowRankHessian(kept.body, H.Q, H.M, H.fast), False
-    a, b = H.fast
-    M = kept.M.copy()
-    M[a:b, a:b] = H.M[a:b, a:b]
-    Q = sp.vstack([kept.Q[:a], H.Q[a:b], kept.Q[b:]], format="csr")
-    return LowRankHessian(kept.body, Q, M, H.fast), True
-
-
-def _in(where: np.ndarray, span: tuple[int, int]) -> np.ndarray:
-    """Which of the positions ``where`` lie in [start, stop) = ``span``."""
-    return (where >= span[0]) & (where < span[1])
 
 
 class _WoodburySolve:
@@ -436,7 +334,7 @@ class _WoodburySolve:
         self._halves = body._halves if WOODBURY_HALVES else None
         self._checked = False       # the first solve's residual decides on refinement
         self._refine = True
-        D, V, self._where = _low_rank_eigen(H.M)
+        D, V, self._where = eigen_blocks(H.M)
         scale = np.sqrt(np.abs(D))
         n = H.shape[0]
         if self._halves is not None:
@@ -467,8 +365,8 @@ class _WoodburySolve:
             return np.zeros((0, 0)), np.zeros(0, np.int64)
         new = np.ones(len(self._where), bool)                # the columns substituted here
         if kept is not None and kept._halves is self._halves and H.fast is not None:
-            new = _in(self._where, H.fast)
-            if not (new.any() and np.array_equal(kept._where[~_in(kept._where, H.fast)], self._where[~new])):
+            new = in_span(self._where, H.fast)
+            if not (new.any() and np.array_equal(kept._where[~in_span(kept._where, H.fast)], self._where[~new])):
                 new[:] = True
         Zn = self._halves.forward(np.asarray(H.QT @ (V[:, new] * scale[new])))
         rows = np.flatnonzero(np.any(Zn != 0.0, axis=1))
@@ -477,7 +375,7 @@ class _WoodburySolve:
         if not np.all(np.isin(rows, kept._rows, assume_unique=True)):    # (beyond the kept rows)
             return self._substituted(H, D, V, scale, None)
         Z = np.empty((len(kept._rows), len(self._where)))
-        Z[:, ~new], Z[:, new] = kept._Z[:, ~_in(kept._where, H.fast)], Zn[kept._rows]
+        Z[:, ~new], Z[:, new] = kept._Z[:, ~in_span(kept._where, H.fast)], Zn[kept._rows]
         return Z, kept._rows
 
     def _inner(self, w: np.ndarray) -> np.ndarray:
@@ -506,6 +404,53 @@ class _WoodburySolve:
         if not self._checked:
             self._checked, self._refine = True, refine
         return x + self._once(r) if refine else x
+
+
+class _AugmentedSolve:
+    """Solves with H + shift I (a :class:`LowRankHessian` of any inertia)
+    through an LDL^T of its augmented matrix (:meth:`LowRankHessian.augmented`),
+    made by ``factorizer`` (mode "simplicial": the inertia is read off D).
+    ``negative``: how many negative eigenvalues H + shift I has;
+    ``singular``: a pivot of K below ``PIVOT_MARGIN`` of the largest (a
+    zero eigenvalue, or a factor without pivoting that cannot be trusted).
+    A solve is refined once where its residual is above ``REFINE_ABOVE``
+    of the right-hand side. Raises :class:`NotPositiveDefinite` on a zero
+    pivot."""
+
+    def __init__(self, factorizer: Factorizer, H: LowRankHessian, shift: float = 0.0):
+        K, positive = H.augmented(shift)
+        try:
+            self._factor = factorizer.factor(K, definite=False)
+        except (RuntimeError, ValueError) as exc:       # (QDLDL on a zero pivot)
+            raise NotPositiveDefinite(f"augmented matrix: {exc}") from None
+        d = self._factor.pivots
+        self.negative = int(np.count_nonzero(d < 0)) - positive
+        self.singular = not (np.all(np.isfinite(d)) and np.min(np.abs(d)) > PIVOT_MARGIN * np.max(np.abs(d)))
+        self._H, self._shift, self._extra = H, shift, K.shape[0] - H.shape[0]
+
+    def _once(self, b: np.ndarray) -> np.ndarray:
+        padded = np.concatenate([b, np.zeros((self._extra,) + b.shape[1:])])
+        return self._factor.solve(padded)[:b.shape[0]]
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        """(H + shift I)^-1 b, b (n,) or (n, m)."""
+        b = np.asarray(b, dtype=np.float64)
+        x = self._once(b)
+        r = b - (self._H @ x + self._shift * x)
+        if np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * np.linalg.norm(b, axis=0)):
+            x = x + self._once(r)
+        return x
+
+
+def augmented_factor(H: LowRankHessian, shift: float = 0.0,
+                     factorizer: Factorizer | None = None) -> tuple["Factor", int, bool]:
+    """A factor of H + shift I (any inertia) through its augmented matrix,
+    how many negative eigenvalues H + shift I has, and whether a pivot was
+    near zero (:class:`_AugmentedSolve`); :class:`NotPositiveDefinite`
+    where one is zero. ``factorizer``: of mode "simplicial" (default: a
+    new one)."""
+    solve = _AugmentedSolve(factorizer or Factorizer(mode="simplicial"), H, shift)
+    return Factor(solve, H, shift), solve.negative, solve.singular
 
 
 def _operator(H) -> spla.LinearOperator:
@@ -540,7 +485,7 @@ class Factor:
         if not (isinstance(chol, _WoodburySolve) and isinstance(H, LowRankHessian)
                 and H.shape == self.H.shape):
             return None
-        mixed, rest_kept = _with_fast_rows(chol._H, H)
+        mixed, rest_kept = with_fast_rows(chol._H, H)
         try:
             return Factor(_WoodburySolve(chol._body, mixed, self.shift, chol if rest_kept else None), mixed,
                           self.shift)

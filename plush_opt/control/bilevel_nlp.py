@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 
 from ..base.errors import interrupt_noted
-from ..base.indefinite import smallest_eigenpair
+from ..base.eigenpair import smallest_eigenpair
 from ..base.linalg import NotPositiveDefinite
 from ..fem.model import Model
 from ..solve.ipopt_equilibrium import IterationCallback

@@ -13,7 +13,7 @@ Three forms (Model's ``hessian`` argument):
 
 - ``assembled``: everything in one sparse matrix;
 - ``rank_one``: each tendon's U'' l' l'^T kept apart as a low-rank term
-  (:class:`~plush_opt.base.linalg.LowRankHessian`): with attachment discs it
+  (:class:`~plush_opt.base.low_rank.LowRankHessian`): with attachment discs it
   couples every disc of the tendon with every other, densely;
 - ``split``: also each segment's coupling of its two ends. A segment's
   U' l'' is [[K, -K], [-K, K]] on its two ends (K 2 x 2, positive
@@ -38,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from ..base.linalg import LowRankHessian
+from ..base.low_rank import LowRankHessian
 
 #: the forms (Model's ``hessian`` argument; "auto" is decided by the model)
 FORMS = ("assembled", "rank_one", "split")

@@ -39,7 +39,8 @@ import casadi as ca
 import numpy as np
 import scipy.sparse as sp
 
-from ..base.linalg import Factorizer, LowRankHessian, assembled
+from ..base.linalg import Factorizer
+from ..base.low_rank import LowRankHessian, assembled
 from . import free_motion
 from .contact import ContactTerm
 from .hessian_layout import FORMS, HessianLayout
@@ -57,7 +58,7 @@ class Evaluation:
     """E, grad_x E and the sparse Hessian at one pose.
 
     ``hessian_form`` is the Hessian as the model built it: a CSC matrix, or
-    a :class:`~plush_opt.base.linalg.LowRankHessian` (finite attachments); factor
+    a :class:`~plush_opt.base.low_rank.LowRankHessian` (finite attachments); factor
     that. ``hessian`` is always the assembled CSC matrix (built on first
     use in the low-rank case).
     ``force_scale`` is the size of the forces in balance (norm of the
@@ -236,7 +237,7 @@ class Model:
     tendon_points : the tendons' via points (z-space, attachments).
     hessian_layout : the Hessian's pattern and scatter slots.
     low_rank : True when each tendon's U'' l' l'^T is kept out of the
-        sparse Hessian as a low-rank term (:class:`~plush_opt.base.linalg.LowRankHessian`);
+        sparse Hessian as a low-rank term (:class:`~plush_opt.base.low_rank.LowRankHessian`);
     split_segments : True when each segment's coupling of its two ends is too.
     n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
     X : (n_dofs,) rest positions, flat.

@@ -30,7 +30,7 @@ import numpy as np
 
 from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from ..base.errors import SolverError
-from ..base.linalg import LowRankHessian
+from ..base.low_rank import LowRankHessian
 from ..fem.model import Model
 
 log = logging.getLogger(__name__)
@@ -184,7 +184,7 @@ def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium
 
 def _abs_row_sums(H) -> np.ndarray:
     """Each row's sum of |H_ij|, (n,): exact for a sparse H; for a
-    :class:`~plush_opt.base.linalg.LowRankHessian` the bound
+    :class:`~plush_opt.base.low_rank.LowRankHessian` the bound
     |body| 1 + |Q^T| |M| |Q| 1 from above (the triangle inequality), with no
     assembly of the dense blocks."""
     if isinstance(H, LowRankHessian):

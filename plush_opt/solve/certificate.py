@@ -17,8 +17,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.indefinite import smallest_eigenpair
-from ..base.linalg import Factor, LowRankHessian, NotPositiveDefinite
+from ..base.eigenpair import smallest_eigenpair
+from ..base.linalg import Factor, NotPositiveDefinite
+from ..base.low_rank import LowRankHessian
 from ..base.reprs import compact_repr
 from ..fem.model import Evaluation, Model
 

@@ -14,7 +14,8 @@ import logging
 
 import numpy as np
 
-from ..base.linalg import Factor, LowRankHessian
+from ..base.linalg import Factor
+from ..base.low_rank import LowRankHessian
 from ..fem.model import Evaluation, Model
 from .certificate import EquilibriumOptions
 

@@ -41,7 +41,7 @@ import time
 import numpy as np
 
 from ..base.errors import SolverError
-from ..base.indefinite import smallest_eigenpair
+from ..base.eigenpair import smallest_eigenpair
 from ..base.linalg import Factor, NotPositiveDefinite
 from ..fem.model import Evaluation, Model
 from .certificate import LEFT_BRANCH, Equilibrium, EquilibriumOptions, certified, try_factor

@@ -26,7 +26,7 @@ import contextlib
 import dataclasses
 import time
 
-from ..base.linalg import LowRankHessian
+from ..base.low_rank import LowRankHessian
 
 FACTOR_S = 0.15e-9
 EVAL_HESSIAN_S = 14e-9
