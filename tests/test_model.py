@@ -330,10 +330,11 @@ def test_auto_splits_where_the_discs_are_large(large_discs, monkeypatch):
     assert large_discs["rank_one"].low_rank and not large_discs["rank_one"].split_segments
     coarse = built("gripper")[2]            # its file mesh: small discs
     assert coarse.tendon_points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES and not coarse.low_rank
-    # too many segments to split (the update's rank): each tendon's rank-one term only
-    monkeypatch.setattr(model_module, "SPLIT_MAX_RANK", 2 * auto.n_segments + auto.n_tendons - 1)
+    # an update of high rank: split, factored through its augmented matrix
+    assert auto.low_rank_factor == "woodbury" and auto.factorizer.low_rank == "woodbury"
+    monkeypatch.setattr(model_module, "SPLIT_MAX_RANK", auto.split_rank - 1)
     many = Model(auto.scene, auto.mesh)
-    assert many.low_rank and not many.split_segments
+    assert many.low_rank and many.split_segments and many.factorizer.low_rank == "augmented"
 
 
 @pytest.mark.slow
@@ -384,13 +385,17 @@ def element_and_pin_nnz(model) -> int:
 
 @pytest.mark.slow
 def test_equilibria_agree_across_hessian_forms(large_discs):
+    from plush_opt.base.linalg import Factorizer
+    from plush_opt.fem.model import Model
     from plush_opt.solve.equilibrium import solve_equilibrium
     model = large_discs["assembled"]
     c = model.lower + 0.6 * (model.upper - model.lower)
     ref = solve_equilibrium(model, c)
     assert ref.converged
-    for form in ("rank_one", "split", "standin"):
-        eq = solve_equilibrium(large_discs[form], c)
+    augmented = Model(model.scene, model.mesh, hessian="split")      # factored through its augmented matrix
+    augmented.factorizer = Factorizer(low_rank="augmented")
+    for form, m in [(f, large_discs[f]) for f in ("rank_one", "split", "standin")] + [("augmented", augmented)]:
+        eq = solve_equilibrium(m, c)
         assert eq.converged and eq.positive_definite, form
         assert np.abs(eq.x - ref.x).max() <= 1e-9 * np.abs(ref.x).max(), form
         assert eq.min_eigenvalue == pytest.approx(ref.min_eigenvalue, rel=1e-6), form

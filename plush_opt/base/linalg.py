@@ -74,6 +74,9 @@ SUPERNODAL_MIN_DENSITY = 150
 SUPERNODAL_ORDERING = "metis"
 #: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
+#: how a LowRankHessian is factored: its sparse part and Woodbury, or its
+#: augmented matrix (:func:`augmented_factor`)
+LOW_RANK_FACTORS = ("woodbury", "augmented")
 
 # Relative pivot margin: round-off in a factorisation is ~1e-16 |H|; a
 # thousand times that is still far below the softest physical mode of the
@@ -129,13 +132,20 @@ class Factorizer:
     ``mode``: CHOLMOD's factorisation, one of :data:`CHOLMOD_MODES`
     (ignored by QDLDL); :attr:`mode_used` says which one the last
     factorisation took.
+    ``low_rank``: how a :class:`LowRankHessian` is factored, one of
+    :data:`LOW_RANK_FACTORS`: "woodbury" (its sparse part, then the
+    update; a kept factor can take a newer update, :meth:`Factor.with_low_rank_of`),
+    or "augmented" (one LDL^T of its augmented matrix: faster where the
+    update's rank is high).
     """
 
-    def __init__(self, backend: str | None = None, mode: str = "auto"):
+    def __init__(self, backend: str | None = None, mode: str = "auto", low_rank: str = "woodbury"):
         self.backend = _checked_backend(BACKEND if backend is None else backend)
         if mode not in CHOLMOD_MODES:
             raise SolverError(f"factorisation mode {mode!r}: expected one of {', '.join(CHOLMOD_MODES)}")
-        self.mode = mode
+        if low_rank not in LOW_RANK_FACTORS:
+            raise SolverError(f"low-rank factor {low_rank!r}: expected one of {', '.join(LOW_RANK_FACTORS)}")
+        self.mode, self.low_rank = mode, low_rank
         self.mode_used = None
         self._symbolic = None
         self._pattern = None
@@ -217,20 +227,26 @@ class Factorizer:
         the tendons' blocks are dense over their discs), so that certification
         never depends on the split (with a regularising shift > 0 that is
         refused instead: the caller tries a larger shift, and a larger
-        shift is all it needs)."""
+        shift is all it needs). With ``low_rank="augmented"``, always on
+        the augmented matrix."""
+        if self.low_rank == "augmented":
+            return self._factor_augmented(H, shift)
         try:
             body = self._part("body").factor(H.body, shift)
         except NotPositiveDefinite:
             if shift > 0:
                 raise       # a regularising shift: a larger one will do
-            f, negative, singular = augmented_factor(H, shift, self._part("augmented", "simplicial"))
-            if negative or singular:
-                raise NotPositiveDefinite(f"augmented matrix: {negative} negative eigenvalue(s) of H, "
-                                          "or a pivot near zero") from None
-            self.mode_used = "simplicial"
-            return f
+            return self._factor_augmented(H, shift)
         self.mode_used = self._part("body").mode_used
         return Factor(_WoodburySolve(body, H, shift), H, shift)
+
+    def _factor_augmented(self, H: "LowRankHessian", shift) -> "Factor":
+        f, negative, singular = augmented_factor(H, shift, self._part("augmented", "simplicial"))
+        if negative or singular:
+            raise NotPositiveDefinite(f"augmented matrix: {negative} negative eigenvalue(s) of H, "
+                                      "or a pivot near zero")
+        self.mode_used = "simplicial"
+        return f
 
     def _give_back(self, pattern, solver):
         if pattern == self._pattern:

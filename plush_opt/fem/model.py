@@ -239,6 +239,8 @@ class Model:
     low_rank : True when each tendon's U'' l' l'^T is kept out of the
         sparse Hessian as a low-rank term (:class:`~plush_opt.base.low_rank.LowRankHessian`);
     split_segments : True when each segment's coupling of its two ends is too.
+    low_rank_factor : how the factorizer factors a low-rank Hessian
+        ("woodbury" or "augmented": :data:`~plush_opt.base.linalg.LOW_RANK_FACTORS`).
     n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
     X : (n_dofs,) rest positions, flat.
     E, grad_E, hess_E, mixed_E : CasADi Functions of (x, c):
@@ -257,8 +259,10 @@ class Model:
         coupling of its two ends' discs); "auto": "assembled" where the
         attachment discs are small (:data:`SPLIT_MIN_DISC_NODES`) and the
         tendons' dense blocks too (:data:`DENSE_TENDON_MAX`), else
-        "split", or "rank_one" where splitting would make the update's rank
-        larger than :data:`SPLIT_MAX_RANK`."""
+        "split" ("rank_one" above :data:`DENSE_TENDON_MAX`). A split
+        update of rank above :data:`SPLIT_MAX_RANK` is factored through its
+        augmented matrix (``low_rank_factor``: "augmented"; else
+        "woodbury", :class:`~plush_opt.base.linalg.Factorizer`)."""
         if hessian not in HESSIAN_FORMS:
             raise ValueError(f"hessian={hessian!r}: expected one of {', '.join(HESSIAN_FORMS)}")
         self.scene = scene
@@ -294,7 +298,11 @@ class Model:
             self.tendons.local_dofs, self._auto_form(hessian))
         self.low_rank, self.split_segments = self.hessian_layout.low_rank, self.hessian_layout.split
         self.hessian_nnz = self.hessian_layout.nnz
-        self.factorizer = free_motion.GaugedFactorizer() if self.unpinned else Factorizer()
+        # a split update of high rank: one LDL^T of its augmented matrix beats Woodbury's solves
+        self.low_rank_factor = "augmented" if self.split_segments and self.split_rank > SPLIT_MAX_RANK \
+            else "woodbury"
+        self.factorizer = (free_motion.GaugedFactorizer if self.unpinned else Factorizer)(
+            low_rank=self.low_rank_factor)
 
     def _describe_terms(self, scene: Scene) -> None:
         """The terms' data under the names the solvers and apps read."""
@@ -327,7 +335,13 @@ class Model:
             return "rank_one"
         if self.tendon_points.mean_disc_nodes() < SPLIT_MIN_DISC_NODES:
             return "assembled"
-        return "split" if 2 * self.n_segments + self.n_tendons <= SPLIT_MAX_RANK else "rank_one"
+        return "split"
+
+    @property
+    def split_rank(self) -> int:
+        """The rank of the split form's low-rank update (2 per segment, 1
+        per tendon, before round-off is dropped)."""
+        return 2 * self.n_segments + self.n_tendons
 
     @functools.cached_property
     def _casadi(self) -> dict:
@@ -505,9 +519,10 @@ HESSIAN_FORMS = ("auto",) + FORMS
 # the assembled factor is as fast or faster (docs/benchmarks.md, "Finite
 # attachments and the factor")
 SPLIT_MIN_DISC_NODES = 10
-# ... and only up to this rank of the update (2 per segment + 1 per tendon),
-# above which its solves cost more than the segments' fill: "rank_one" then
-# (same table)
+# Up to this rank of the split update (2 per segment + 1 per tendon) it is
+# factored by Woodbury (the sparse part, then k solves), above it through
+# its augmented matrix, whose one LDL^T then costs less (0.7 x on the
+# hexapod's rank 84: docs/benchmarks.md, "Finite attachments and the factor")
 SPLIT_MAX_RANK = 48
 # "auto" keeps the tendons' dense l' l'^T blocks (2 dofs per via point
 # squared, summed over tendons) apart above this many entries: assembled,
