@@ -150,7 +150,7 @@ class Factorizer:
         self._symbolic = None
         self._pattern = None
         self._spare: list = []      # qdldl: solvers of this pattern no live Factor holds
-        self._parts: dict[str, Factorizer] = {}    # low-rank form: its body's, the assembled one's
+        self._parts: dict[str, Factorizer] = {}    # low-rank form: its body's, its augmented matrix's
 
     def factor(self, H, shift: float = 0.0, definite: bool = True) -> "Factor":
         """LDL^T of ``H + shift I``; raises :class:`NotPositiveDefinite`.
