@@ -358,6 +358,7 @@ def test_a_buckling_body_held_by_its_tendons_is_certified_without_assembly(backe
     x = f.solve(b)
     assert np.linalg.norm(dense @ x - b) <= 1e-12 * np.linalg.norm(b)
     assert f.min_eigenvalue() == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-8)
+    assert smallest_eigenpair(H)[0] == pytest.approx(np.linalg.eigvalsh(dense)[0], rel=1e-8)
     weak, weak_dense = _buckling(hold=(6.0, 0.05, 6.0))
     lam = np.linalg.eigvalsh(weak_dense)
     assert lam[0] < 0 < lam[1]

@@ -33,14 +33,15 @@ def smallest_eigenpair(H: sp.csc_matrix | LowRankHessian) -> tuple[float, np.nda
     A = spla.LinearOperator((n, n), matvec=lambda v: H @ v, dtype=np.float64) if low_rank else H
     # look around 0 first (shift-invert: an LU of the indefinite H, or an
     # LDL^T of its augmented matrix); if none is found below 0 there, look
-    # at the far end of the spectrum
+    # at the far end of the spectrum, unless the augmented matrix's inertia
+    # says there is none: the one nearest 0 is then the smallest
     try:
-        near = {}
+        near, negative = {}, None
         if low_rank:
-            factor, _, _ = augmented_factor(H, -NEAR_ZERO)
+            factor, negative, _ = augmented_factor(H, -NEAR_ZERO)
             near["OPinv"] = spla.LinearOperator((n, n), matvec=factor.solve, dtype=np.float64)
         w, V = spla.eigsh(A, k=min(4, n - 1), sigma=NEAR_ZERO, which="LM", tol=1e-10, v0=np.ones(n), **near)
-        if w.min() < 0:
+        if w.min() < 0 or negative == 0:
             k = int(np.argmin(w))
             return float(w[k]), V[:, k]
     except (RuntimeError, NotPositiveDefinite, spla.ArpackNoConvergence):
