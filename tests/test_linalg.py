@@ -174,6 +174,11 @@ def test_unknown_backend_is_one_clear_error(monkeypatch):
         Factorizer()
 
 
+def test_unknown_low_rank_factor_is_one_clear_error():
+    with pytest.raises(SolverError, match=r"^low-rank factor 'lu': expected one of woodbury, augmented$"):
+        Factorizer(low_rank="lu")
+
+
 # -- the low-rank form: H = body + Q^T M Q ------------------------------------
 
 def _low_rank(n=300, k=8, negative=0.0, seed=7):
