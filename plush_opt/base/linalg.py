@@ -2,7 +2,9 @@
 once per sparsity pattern, a positive-definiteness test for free, and a
 cheap smallest-eigenvalue estimate from the factor. A matrix given as a
 sparse part plus a low-rank term (:class:`LowRankHessian`) is factored
-through its sparse part and the Woodbury identity.
+through its sparse part and the Woodbury identity, or (where that part
+alone is not positive definite, or the term's rank is high) through its
+sparse augmented matrix, never assembled.
 
 Two backends, the same results to round-off:
 
