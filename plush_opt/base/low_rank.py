@@ -94,6 +94,15 @@ def assembled(H) -> sp.csc_matrix:
     return H.assemble() if isinstance(H, LowRankHessian) else H
 
 
+def abs_product(H, v: np.ndarray) -> np.ndarray:
+    """|H| v (entrywise |.|, v >= 0), (n,): exact for a sparse H; for a
+    :class:`LowRankHessian` a bound from above (the triangle inequality:
+    :meth:`LowRankHessian.abs_product`), never assembled."""
+    if isinstance(H, LowRankHessian):
+        return H.abs_product(v)
+    return np.asarray(abs(H) @ v).ravel()
+
+
 def eigen_blocks(M: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """M's eigenpairs (lam, V) above round-off, block by block: M is block
     diagonal (a segment's 2 x 2 coupling, a tendon's own entry), so V is

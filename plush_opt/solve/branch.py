@@ -30,7 +30,7 @@ import numpy as np
 
 from .equilibrium import LEFT_BRANCH, Equilibrium, EquilibriumOptions, IpoptEquilibrium, solve_equilibrium
 from ..base.errors import SolverError
-from ..base.low_rank import LowRankHessian
+from ..base.low_rank import abs_product
 from ..fem.model import Model
 
 log = logging.getLogger(__name__)
@@ -164,7 +164,7 @@ def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium
     of inverse iteration say it may be round-off, the eigenvalue is computed
     (shift-invert Lanczos with the factor) and kept."""
     eq = replace(eq, t_wall=t_wall)
-    rows = _abs_row_sums(eq.factor.H)
+    rows = abs_product(eq.factor.H, np.ones(eq.factor.H.shape[0]))   # each row's sum of |H_ij| (a bound)
     roundoff = ROUNDOFF_EIGENVALUE * np.finfo(float).eps
     if not eigenvalue and _inverse_estimate(eq.factor) > SAFETY * roundoff * float(rows.sum()):
         return eq                     # (the sum of |H_ij| bounds |H|_inf from above)
@@ -180,18 +180,6 @@ def _at_the_end(eq: Equilibrium, t_wall: float, eigenvalue: bool) -> Equilibrium
     return replace(eq, converged=False,
                    status=(f"{LEFT_BRANCH}: smallest Hessian eigenvalue {lam:.2e} is round-off "
                            f"(below {margin:.1e}): the branch ends here"))
-
-
-def _abs_row_sums(H) -> np.ndarray:
-    """Each row's sum of |H_ij|, (n,): exact for a sparse H; for a
-    :class:`~plush_opt.base.low_rank.LowRankHessian` the bound
-    |body| 1 + |Q^T| |M| |Q| 1 from above (the triangle inequality), with no
-    assembly of the dense blocks."""
-    if isinstance(H, LowRankHessian):
-        ones = np.ones(H.shape[0])
-        return (np.asarray(abs(H.body) @ ones).ravel()
-                + np.asarray(abs(H.QT) @ (np.abs(H.M) @ (abs(H.Q) @ ones))).ravel())
-    return np.asarray(abs(H).sum(axis=1)).ravel()
 
 
 def _inverse_estimate(factor) -> float:

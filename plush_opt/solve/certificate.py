@@ -19,7 +19,7 @@ import numpy as np
 from ..base.errors import SolverError
 from ..base.eigenpair import smallest_eigenpair
 from ..base.linalg import Factor, NotPositiveDefinite
-from ..base.low_rank import LowRankHessian
+from ..base.low_rank import abs_product
 from ..base.reprs import compact_repr
 from ..fem.model import Evaluation, Model
 
@@ -297,8 +297,7 @@ def roundoff_floor(model: Model, x, contraction) -> float:
     ev = model.evaluate(x, c, order=2)
     if not ev.admissible or ev.hessian_form is None:
         return 0.0
-    H = ev.hessian_form
-    per_dof = H.abs_product(np.abs(x)) if isinstance(H, LowRankHessian) else abs(H) @ np.abs(x)
+    per_dof = abs_product(ev.hessian_form, np.abs(x))
     for term in model.terms:
         part = term.evaluate(x, c, 1)
         if part.gradient is not None:
