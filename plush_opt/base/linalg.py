@@ -327,7 +327,30 @@ class _CholmodHalves:
         return f.apply_Pt(f.solve_DLt(V) if self._ldl else f.solve_Lt(V, use_LDLt_decomposition=False))
 
 
-class _WoodburySolve:
+class _RefinedSolve:
+    """A solve with ``_H`` + ``_shift`` I (the subclass's ``_once``)
+    refined once by its residual where the first solve with this factor
+    left one above ``REFINE_ABOVE`` of its right-hand side (after a first
+    solve that did not, later ones skip the residual)."""
+
+    _checked = False       # the first solve's residual decides on refinement
+    _refine = True
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        """(H + shift I)^-1 b, b (n,) or (n, m)."""
+        b = np.asarray(b, dtype=np.float64)
+        x = self._once(b)
+        if self._checked and not self._refine:
+            return x
+        r = b - (self._H @ x + self._shift * x)
+        size = np.linalg.norm(b, axis=0)
+        refine = bool(np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * size))
+        if not self._checked:
+            self._checked, self._refine = True, refine
+        return x + self._once(r) if refine else x
+
+
+class _WoodburySolve(_RefinedSolve):
     """Solves with H + shift I = A + G D G^T, A = body + shift I factored,
     G D G^T = Q^T M Q (M's eigenpairs, those below round-off dropped).
     With Y = A^-1 G |D|^1/2 and T = sign(D) + |D|^1/2 G^T A^-1 G |D|^1/2:
@@ -350,8 +373,6 @@ class _WoodburySolve:
     def __init__(self, body: "Factor", H: LowRankHessian, shift: float, kept: "_WoodburySolve | None" = None):
         self._body, self._H, self._shift = body, H, shift
         self._halves = body._halves if WOODBURY_HALVES else None
-        self._checked = False       # the first solve's residual decides on refinement
-        self._refine = True
         D, V, self._where = eigen_blocks(H.M)
         scale = np.sqrt(np.abs(D))
         n = H.shape[0]
@@ -408,32 +429,17 @@ class _WoodburySolve:
         u = self._body.solve(b)
         return u - self._Y @ self._inner(self._Y.T @ b)
 
-    def __call__(self, b: np.ndarray) -> np.ndarray:
-        """H^-1 b, refined once by its residual where the first solve with
-        this factor left one above ``REFINE_ABOVE`` of its right-hand side
-        (after a first solve that did not, later ones skip the residual)."""
-        b = np.asarray(b, dtype=np.float64)
-        x = self._once(b)
-        if self._checked and not self._refine:
-            return x
-        r = b - (self._H @ x + self._shift * x)
-        size = np.linalg.norm(b, axis=0)
-        refine = bool(np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * size))
-        if not self._checked:
-            self._checked, self._refine = True, refine
-        return x + self._once(r) if refine else x
 
 
-class _AugmentedSolve:
+class _AugmentedSolve(_RefinedSolve):
     """Solves with H + shift I (a :class:`LowRankHessian` of any inertia)
     through an LDL^T of its augmented matrix (:meth:`LowRankHessian.augmented`),
     made by ``factorizer`` (mode "simplicial": the inertia is read off D).
     ``negative``: how many negative eigenvalues H + shift I has;
     ``singular``: a pivot of K below ``PIVOT_MARGIN`` of the largest (a
     zero eigenvalue, or a factor without pivoting that cannot be trusted).
-    A solve is refined once where its residual is above ``REFINE_ABOVE``
-    of the right-hand side. Raises :class:`NotPositiveDefinite` on a zero
-    pivot."""
+    Solves are refined as :class:`_RefinedSolve` says. Raises
+    :class:`NotPositiveDefinite` on a zero pivot."""
 
     def __init__(self, factorizer: Factorizer, H: LowRankHessian, shift: float = 0.0):
         K, positive = H.augmented(shift)
@@ -450,14 +456,6 @@ class _AugmentedSolve:
         padded = np.concatenate([b, np.zeros((self._extra,) + b.shape[1:])])
         return self._factor.solve(padded)[:b.shape[0]]
 
-    def __call__(self, b: np.ndarray) -> np.ndarray:
-        """(H + shift I)^-1 b, b (n,) or (n, m)."""
-        b = np.asarray(b, dtype=np.float64)
-        x = self._once(b)
-        r = b - (self._H @ x + self._shift * x)
-        if np.any(np.linalg.norm(r, axis=0) > REFINE_ABOVE * np.linalg.norm(b, axis=0)):
-            x = x + self._once(r)
-        return x
 
 
 def augmented_factor(H: LowRankHessian, shift: float = 0.0,
