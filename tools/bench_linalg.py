@@ -156,7 +156,7 @@ def bench_forms(name: str, nodes: int, element: str, repeats: int) -> dict:
     auto = build_model(scene, mesh)
     return {"problem": name, "element": element, "nodes": mesh.n_nodes,
             "disc_nodes": auto.tendon_points.mean_disc_nodes(), "k": forms["split"].M.shape[0],
-            "auto": (f"split ({auto.low_rank_factor})" if auto.split_segments else
+            "auto": (f"split ({auto.factorizer.low_rank})" if auto.split_segments else
                      "rank_one" if auto.low_rank else "assembled"),
             **_best_seconds(fns, repeats)}
 

@@ -239,8 +239,6 @@ class Model:
     low_rank : True when each tendon's U'' l' l'^T is kept out of the
         sparse Hessian as a low-rank term (:class:`~plush_opt.base.low_rank.LowRankHessian`);
     split_segments : True when each segment's coupling of its two ends is too.
-    low_rank_factor : how the factorizer factors a low-rank Hessian
-        ("woodbury" or "augmented": :data:`~plush_opt.base.linalg.LOW_RANK_FACTORS`).
     n_nodes, n_dofs, n_elems, n_tendons, n_winches : sizes.
     X : (n_dofs,) rest positions, flat.
     E, grad_E, hess_E, mixed_E : CasADi Functions of (x, c):
@@ -261,7 +259,7 @@ class Model:
         tendons' dense blocks too (:data:`DENSE_TENDON_MAX`), else
         "split" ("rank_one" above :data:`DENSE_TENDON_MAX`). A split
         update of rank above :data:`SPLIT_MAX_RANK` is factored through its
-        augmented matrix (``low_rank_factor``: "augmented"; else
+        augmented matrix (``factorizer.low_rank``: "augmented"; else
         "woodbury", :class:`~plush_opt.base.linalg.Factorizer`)."""
         if hessian not in HESSIAN_FORMS:
             raise ValueError(f"hessian={hessian!r}: expected one of {', '.join(HESSIAN_FORMS)}")
@@ -299,10 +297,8 @@ class Model:
         self.low_rank, self.split_segments = self.hessian_layout.low_rank, self.hessian_layout.split
         self.hessian_nnz = self.hessian_layout.nnz
         # a split update of high rank: one LDL^T of its augmented matrix beats Woodbury's solves
-        self.low_rank_factor = "augmented" if self.split_segments and self.split_rank > SPLIT_MAX_RANK \
-            else "woodbury"
-        self.factorizer = (free_motion.GaugedFactorizer if self.unpinned else Factorizer)(
-            low_rank=self.low_rank_factor)
+        low_rank = "augmented" if self.split_segments and self.split_rank > SPLIT_MAX_RANK else "woodbury"
+        self.factorizer = (free_motion.GaugedFactorizer if self.unpinned else Factorizer)(low_rank=low_rank)
 
     def _describe_terms(self, scene: Scene) -> None:
         """The terms' data under the names the solvers and apps read."""
