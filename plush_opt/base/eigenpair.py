@@ -12,7 +12,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .errors import SolverError
-from .linalg import NotPositiveDefinite, augmented_factor
+from .linalg import NotPositiveDefinite, augmented_factor, product_operator
 from .low_rank import LowRankHessian, assembled
 
 # Up to this many unknowns an eigenpair is found dense.
@@ -30,7 +30,7 @@ def smallest_eigenpair(H: sp.csc_matrix | LowRankHessian) -> tuple[float, np.nda
         w, V = sla.eigh(assembled(H).toarray(), subset_by_index=[0, 0], driver="evr")
         return float(w[0]), V[:, 0]
     low_rank = isinstance(H, LowRankHessian)
-    A = spla.LinearOperator((n, n), matvec=lambda v: H @ v, dtype=np.float64) if low_rank else H
+    A = product_operator(H) if low_rank else H
     # look around 0 first (shift-invert: an LU of the indefinite H, or an
     # LDL^T of its augmented matrix); if none is found below 0 there, look
     # at the far end of the spectrum, unless the augmented matrix's inertia

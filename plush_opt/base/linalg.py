@@ -469,7 +469,8 @@ def augmented_factor(H: LowRankHessian, shift: float = 0.0,
     return Factor(solve, H, shift), solve.negative, solve.singular
 
 
-def _operator(H) -> spla.LinearOperator:
+def product_operator(H) -> spla.LinearOperator:
+    """v -> H v as a SciPy operator (H sparse, or a :class:`LowRankHessian`)."""
     n = H.shape[0]
     return spla.LinearOperator((n, n), matvec=lambda v: H @ v, dtype=np.float64)
 
@@ -516,7 +517,7 @@ class Factor:
             return float(np.linalg.eigvalsh(assembled(self.H).toarray())[0])
         op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
         try:
-            vals = spla.eigsh(_operator(self.H), k=1, sigma=0.0, which="LM", OPinv=op,
+            vals = spla.eigsh(product_operator(self.H), k=1, sigma=0.0, which="LM", OPinv=op,
                               tol=1e-8, maxiter=2000, return_eigenvectors=False,
                               v0=np.ones(n))
         except spla.ArpackNoConvergence as exc:
@@ -536,7 +537,7 @@ class Factor:
             return None
         op = spla.LinearOperator((n, n), matvec=lambda v: self._chol(v), dtype=np.float64)
         try:
-            w, V = spla.eigsh(_operator(self.H), k=1, sigma=-self.shift, which="LM", OPinv=op, tol=1e-10,
+            w, V = spla.eigsh(product_operator(self.H), k=1, sigma=-self.shift, which="LM", OPinv=op, tol=1e-10,
                               maxiter=1000, v0=np.ones(n))
         except spla.ArpackNoConvergence:
             return None
