@@ -203,8 +203,9 @@ def test_sensitivity_across_a_contact_that_is_just_touching_matches_resolving(gr
 def test_both_control_methods_stand_the_hexapod_up_to_the_same_pose():
     """From rest the loop's first Gauss-Newton step lifts both legs
     together, while IPOPT's first steps off the lower bounds can head for
-    a corner (a at its upper bound, another certified local answer, as at
-    3,064 nodes in docs/benchmarks.md); from a symmetric start off the
+    a corner (a at its upper bound, another certified local answer, as it
+    did at 3,064 nodes with the file's earlier targets, 18 mm up,
+    docs/benchmarks.md); from a symmetric start off the
     bounds both methods reach the loop's pose from rest."""
     from plush_opt.problem import load
     problem = load(PROBLEMS / "hexapod_stand.yaml")

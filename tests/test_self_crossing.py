@@ -88,6 +88,27 @@ def test_the_standing_hexapod_sweep_leaves_out_the_one_legged_probes_where_a_leg
     assert "crosses itself" in report["summary"]
 
 
+@pytest.mark.slow        # control on the file's mesh, then a P2 solve of about 12,000 nodes
+def test_the_shipped_standing_hexapod_asks_for_a_pose_below_its_fold():
+    """The file's targets are reached where a fine mesh does not fold yet
+    (they once asked for 18 mm of lift, about 11 mm of each winch, where
+    the feet fold through the body on every finer mesh): control's answer
+    solved again on a P2 mesh of about 12,000 nodes does not cross itself
+    and puts the targets within 1 mm of where the file's mesh does."""
+    import dataclasses
+
+    from plush_opt.fem.contact_boundary import crossings
+    from plush_opt.problem import from_scene, load
+    problem = load(ROOT / "problems" / "hexapod_stand.yaml")
+    result = problem.control()
+    assert result.equilibrium.converged, result.status
+    fine = from_scene(dataclasses.replace(problem.scene, element="P2"), max_area=1.25)
+    eq = fine.equilibrium(result.contractions)
+    assert eq.converged, eq.status
+    assert crossings(fine.model, [eq.x]) == (None,)
+    assert np.abs(fine.targets.y(eq.x) - problem.targets.y(result.equilibrium.x)).max() <= 1.0
+
+
 def test_a_result_whose_leg_folds_through_the_body_says_so(tmp_path):
     import json
 
