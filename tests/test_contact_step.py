@@ -102,6 +102,22 @@ def test_a_gauged_evaluation_adds_the_mean_diagonal_on_one_dof_per_free_motion(f
     assert np.array_equal(model.hessian_layout.diagonal_slots.shape, (model.n_dofs,))
 
 
+def test_a_flat_motion_under_a_net_force_above_the_solvers_tolerance_is_not_gauged(floor_slab):
+    """A gauged motion keeps its net force (the steps are projected off
+    it), so only one balanced to round-off may be gauged: a net force of
+    1e-8 of the force scale, far below the old cut (1e-6) and far above
+    Newton's tolerance (1e-10), makes the sliding motion one the body
+    slides along, not a free one."""
+    model, c = floor_slab, np.zeros(1)
+    x, _ = _fallen(model)
+    plain = sum_terms(model.terms, model.hessian_layout, x, c, 2)
+    R, U = free_motion.split_motions(plain.hessian, x, plain.gradient, plain.force_scale)
+    assert (R.shape[1], U.shape[1]) == (1, 0)                # balanced to round-off: free
+    pushed = plain.gradient + 1e-8 * plain.force_scale * R[:, 0]
+    R, U = free_motion.split_motions(plain.hessian, x, pushed, plain.force_scale)
+    assert (R.shape[1], U.shape[1]) == (0, 1)
+
+
 def test_rigid_motions_are_orthonormal_translations_and_a_rotation_about_the_centroid():
     x = np.random.default_rng(3).standard_normal(40) * 10 + 5
     V = free_motion.rigid_motions(x)

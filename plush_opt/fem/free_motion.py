@@ -33,8 +33,14 @@ from ..base.linalg import Factorizer
 #: Hessian's largest diagonal entry: round-off of a translation-invariant
 #: energy is ~1e-16 of it, the softest contact or elastic mode far above
 FLAT = 1e-9
-#: ... and balanced when |grad E . r| is below this fraction of the force scale
-BALANCED = 1e-6
+#: ... and balanced when |grad E . r| is below this fraction of the force
+#: scale: below any residual Newton stops at (gtol 1e-10), since a gauged
+#: motion keeps its net force (its steps are projected off it), yet above the
+#: round-off of a net force that is zero (~1e-16-1e-14 of the scale). With
+#: friction every contact node can slide at once, leaving a translation flat
+#: under a tiny net force: gauged at 1e-6, its 5e-6 N held Newton there for
+#: 500 iterations; left free, regularised steps slide the body until a node sticks
+BALANCED = 1e-12
 #: the motions' names, in the order of :func:`rigid_motions`
 NAMES = ("translation in x", "translation in y", "rotation")
 
