@@ -187,6 +187,20 @@ def test_a_row_names_where_its_reference_moved_between_levels():
     assert guarantee.verdict({**row, "error_points": 0.3, "ref_jumps": []}) == ("yes", "")
 
 
+def test_a_row_whose_answer_folds_through_itself_says_so_and_wants_no_reference():
+    """Where the check at the returned contractions found the body crossing
+    itself (the crescent's lower arm at its winch's bound), there is no
+    converged answer to refer to: the row says so, not that the
+    reference's own error is unknown."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    row = {"tol": 1.0, "exit": 0, "met": False, "ratio": 1.1, "fold": {"element": "P2", "nodes": 5455}}
+    verdict, note = guarantee.verdict(row)
+    assert verdict == "NO"
+    assert note == ("not met at the returned contractions; the body crosses itself at the returned contractions "
+                    "(P2 level of 5,455 nodes): no converged answer, no reference")
+
+
 def test_a_stopped_row_says_what_it_already_knew():
     """A row stopped in its reference (its time ran out) still names what
     rules it out already: gripper_object at 0.25 ended exit 3, not met."""

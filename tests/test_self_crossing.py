@@ -4,6 +4,7 @@ do not converge and say nothing of the mesh the other contractions need)."""
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -46,6 +47,50 @@ def test_a_strip_folded_back_through_itself_crosses_and_one_moved_rigidly_does_n
     folded[right] = np.c_[10.0 - X[right, 0], X[right, 1] + 0.5]
     where = self_crossing(boundary, folded.ravel())
     assert where is not None and "cross near" in where
+
+
+def _folded(mesh):
+    """The strip's right half laid back over its left half, 0.5 higher."""
+    folded = mesh.X.copy()
+    right = mesh.X[:, 0] > 5.0
+    folded[right] = np.c_[10.0 - mesh.X[right, 0], mesh.X[right, 1] + 0.5]
+    return folded.ravel()
+
+
+def _posed(element, pose_of):
+    mesh = _strip(element)
+    res = Resolution(0.2, 0, 0.2)
+    return Level(element, res, mesh, 0.0, 1e-3 * mesh.n_nodes, 1, [pose_of(mesh)], np.zeros((1, 1, 2)))
+
+
+def test_a_fold_at_the_returned_contractions_is_found_on_the_level_in_use_or_a_finer_one():
+    """What the check at the returned contractions asks before it claims
+    anything there: whether the answer's level, or one finer, crosses
+    itself (a coarser level's fold says nothing of the answer's)."""
+    from plush_opt.solve.accuracy_check import fold_at
+    scene = scene_from_dict(STRIP, "strip.yaml")
+    rest = lambda mesh: mesh.X.ravel()              # noqa: E731
+    coarse, fine = _posed("P1", rest), _posed("P2", _folded)
+    assert fold_at(scene, [coarse, fine], coarse) == {"element": "P2", "nodes": fine.mesh.n_nodes,
+                                                      "where": fold_at(scene, [fine], fine)["where"]}
+    assert "cross near" in fold_at(scene, [fine], fine)["where"]
+    coarse, fine = _posed("P1", _folded), _posed("P2", rest)
+    assert fold_at(scene, [coarse, fine], fine) is None
+    assert fold_at(scene, [coarse, fine], coarse)["element"] == "P1"
+    # a level off the answer's branch (no pose there) has nothing to cross
+    assert fold_at(scene, [dataclasses.replace(coarse, poses=[None]), fine], coarse) is None
+    # with self-contact a pose never crosses: nothing to look for
+    held = scene_from_dict({**STRIP, "contact": {"self": True, "distance": 0.05}}, "strip.yaml")
+    assert fold_at(held, [_posed("P1", _folded)], _posed("P1", _folded)) is None
+
+
+def test_the_line_at_the_returned_contractions_says_the_body_crosses_itself_there():
+    from plush_opt.apps.accuracy_run import at_result_summary
+    at_result = {"estimated_error": None, "met": False, "element": "P1", "nodes": 1512, "resolves": 0,
+                 "crosses_itself": {"element": "P2", "nodes": 5455, "where": "boundary segments 1-2 and 7-8 cross"}}
+    line = at_result_summary(at_result, 1.0)
+    assert "NOT met: no estimate (the body crosses itself there on the P2 level of 5,455 nodes" in line
+    assert "`self: true` under `contact:`" in line
 
 
 def _level(ys, n, crossing=()):
@@ -95,8 +140,6 @@ def test_the_shipped_standing_hexapod_asks_for_a_pose_below_its_fold():
     the feet fold through the body on every finer mesh): control's answer
     solved again on a P2 mesh of about 12,000 nodes does not cross itself
     and puts the targets within 1 mm of where the file's mesh does."""
-    import dataclasses
-
     from plush_opt.fem.contact_boundary import crossings
     from plush_opt.problem import from_scene, load
     problem = load(ROOT / "problems" / "hexapod_stand.yaml")

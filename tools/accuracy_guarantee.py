@@ -286,7 +286,7 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     acc = doc.get("accuracy", {})
     at = acc.get("at_result") or {}
     row.update(met=at.get("met"), estimate=at.get("estimated_error"), element=acc.get("element"),
-               nodes=acc.get("nodes"), resolves=at.get("resolves"))
+               nodes=acc.get("nodes"), resolves=at.get("resolves"), fold=at.get("crosses_itself"))
     partial(row, "the plain solves")
     levels = levels_solved(doc["mesh_accuracy"])
     row["n_levels"] = len(levels)
@@ -307,6 +307,9 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
     names = [w.name for w in scene.winches]
     c = np.array([doc["contractions"][n] for n in names])
     row["ratio"] = row["cpu_accuracy_s"] / (row["cpu_plain_s"] + row["cpu_levels_s"])
+    if row["fold"] is not None:        # folded through itself there: no converged answer to refer to
+        row["verdict"], row["note"] = verdict(row)
+        return row
     # the reference at the returned contractions
     partial(row, "the reference")
     # friction: the reference replays the path the returned pose was reached by (its friction_path)
@@ -360,9 +363,12 @@ def verdict(row: dict) -> tuple[str, str]:
         why.append(f"exit {row['exit']}")
     if not row.get("met"):
         why.append("not met at the returned contractions")
+    if row.get("fold") is not None:
+        why.append(f"the body crosses itself at the returned contractions ({row['fold']['element']} level of "
+                   f"{row['fold']['nodes']:,} nodes): no converged answer, no reference")
     if row.get("error_points") is not None and row["error_points"] > row["tol"]:
         why.append("error above TOL")
-    if row.get("ref_error") is None:
+    if row.get("ref_error") is None and row.get("fold") is None:
         why.append("reference's own error unknown")
     elif row.get("error_points") is not None and row["error_points"] + row["ref_error"] > row["tol"] >= \
             row["error_points"]:

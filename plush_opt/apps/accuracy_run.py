@@ -22,7 +22,7 @@ from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
 from ..solve.accuracy import ELEMENT_ORDER, Resolution, cheapest_meeting, choose_levels, default_levels, summary
-from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, seed_level
+from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, fold_at, seed_level
 from ..solve.accuracy_path import extend_along, levels_along
 from ..solve.plant import path_dependent
 
@@ -86,7 +86,8 @@ class AccurateSolve:
                 break
             found = self._estimate_at(p, eq, doc.get("method"), history)
             rounds.append(found["round"])
-            if found["round"]["met"] or attempt == MAX_RESOLVES:
+            # (a fold there: finer levels fold further, and no level resolves the answer)
+            if found["round"]["met"] or attempt == MAX_RESOLVES or "crosses_itself" in found["round"]:
                 break
             k, again, extended, why = self._next_level(found, here, start)
             if k is None:
@@ -107,8 +108,9 @@ class AccurateSolve:
             last = rounds[-1]
             at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
             at_result["resolves"] = resolves
-            if "path" in last:
-                at_result["path"] = last["path"]
+            for key in ("path", "crosses_itself"):
+                if key in last:
+                    at_result[key] = last[key]
             if "cross_check" in last:
                 at_result["cross_check"] = {k: last["cross_check"][k]
                                             for k in ("element", "nodes", "distance", "bound", "agrees")}
@@ -131,9 +133,16 @@ class AccurateSolve:
                       f"{len(self.levels)} levels")
         at, waypoints = self._levels_at(p, eq, method, history)
         used = at[self.index]
-        # (bounds_at solves the levels cheapest first and none after one that is lost)
-        lost = min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.cost, default=None)
+        # (bounds_at solves the levels cheapest first and none after one that is lost or folded)
+        fold = fold_at(self.scene, at, used)
+        lost = None if fold is not None else \
+            min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.cost, default=None)
         met, estimate = lost is None and used.meets(self.tol), None if lost is not None else _number(used.bound)
+        if fold is not None:
+            met, estimate = False, None
+            self.progress(f"accuracy: at the returned contractions the body crosses itself on the {fold['element']} "
+                          f"level of {fold['nodes']:,} nodes ({fold['where']}; the scene has no contact.self): "
+                          "a fold has no converged answer, nothing is estimated there")
         cross = p2 = None
         via = used if used.bound_via is None else at[used.bound_via]
         if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
@@ -147,6 +156,8 @@ class AccurateSolve:
                  "levels": [lv.row() for lv in at]}
         if cross is not None:
             found["cross_check"] = cross
+        if fold is not None:
+            found["crosses_itself"] = fold
         if lost is not None:
             found["branch_lost"] = {"element": lost.element, "nodes": lost.mesh.n_nodes}
         if self.path_dependent:
@@ -328,6 +339,10 @@ def at_result_summary(at_result: dict, tol: float) -> str:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
                 f"on {where}{again}")
     value = "no estimate" if est is None else f"estimated error {est:.3g}"
+    fold = at_result.get("crosses_itself")
+    if fold is not None:
+        value += (f" (the body crosses itself there on the {fold['element']} level of {fold['nodes']:,} nodes, "
+                  "and no mesh resolves a fold: add `self: true` under `contact:` to forbid it)")
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
 
 

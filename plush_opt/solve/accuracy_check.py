@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from ..base.errors import SceneError
+from ..fem.contact_boundary import build_boundary, self_crossing
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
@@ -59,7 +60,8 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     solved cheapest first (:attr:`Level.cost`), and once a level :func:`finer`
     than it is not on the branch, the answer's branch is one of the
     coarser levels alone, and the dearer levels are not solved (off the
-    branch too).
+    branch too); nor are they once the pose of that level, or of one finer,
+    crosses itself there (:func:`fold_at`: no level resolves a fold).
     ``progress(line)``, if given, hears of each level solved (its nodes,
     wall seconds, Newton iterations and how it was started)."""
     options = options or LEVEL_OPTIONS
@@ -70,6 +72,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     near = int(np.argmin(gap))
     here = [] if start is None else [start]
     refuted = None                    # a level finer than the one in use that cannot follow the answer
+    folded = False                    # ... or one (or the one in use) whose pose crosses itself
     # a probe contraction: the sweep's poses serve, unless the answer is another pose than the sweep's
     # on its own level (solved again from elsewhere, e.g. from rest: possibly another branch)
     swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
@@ -78,7 +81,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     out = [None] * len(levels)
     for i in sorted(range(len(levels)), key=lambda i: levels[i].cost):
         lv = levels[i]
-        if refuted is not None:       # the answer's branch is the coarse level's alone: nothing to estimate
+        if refuted is not None or folded:   # the coarse level's branch alone, or a fold: nothing to estimate
             out[i] = one_pose(lv, None, np.full((1, len(points), 2), np.nan))
             continue
         t0 = time.perf_counter()
@@ -108,10 +111,31 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions {said}")
         if eq.converged:
             here.append((lv.mesh, eq.x))
+            folded = used is not None and (i == used or finer(lv, levels[used])) and \
+                fold_at(scene, [one_pose(lv, eq.x, None)], None) is not None
         y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
             np.full((1, len(points), 2), np.nan)
         out[i] = one_pose(lv, eq.x if eq.converged else None, y)
     return estimate_each_element(out)
+
+
+def fold_at(scene: Scene, levels: list[Level], used: Level | None) -> dict | None:
+    """Where the pose of the cheapest of ``levels`` (as :func:`bounds_at`
+    returns them: one pose each) that is ``used`` or :func:`finer` than it
+    (any, where ``used`` is None) crosses itself: ``{"element", "nodes", "where"}``, or None (none does,
+    or the scene has self-contact and its poses never cross). A body folded
+    through itself has no converged answer there (a fold has no length
+    scale: each finer mesh folds further), so no estimate made there means
+    anything."""
+    if scene.contact is not None and scene.contact.self_contact:
+        return None
+    for lv in sorted(levels, key=lambda lv: lv.cost):
+        if lv.poses[0] is None or not (used is None or lv is used or finer(lv, used)):
+            continue
+        where = self_crossing(build_boundary(lv.mesh), lv.poses[0])
+        if where is not None:
+            return {"element": lv.element, "nodes": lv.mesh.n_nodes, "where": where}
+    return None
 
 
 def _sweep_has(levels: list[Level], start, j: int) -> bool:
