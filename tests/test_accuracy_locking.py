@@ -40,15 +40,14 @@ def _fine_p2_distance(scene, mesh, x, contraction, refinements=2):
 @pytest.mark.slow        # a sweep of mesh levels, P2 levels at the answer, a fine P2 reference: about a minute
 def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     """The coarse crescent curled hard (a forward solve at upper 8, lower
-    12 mm, from rest by continuation), TOL 0.5. Without the check the run
-    claimed the tolerance there on estimates resting on P1 levels (0.41 on
-    a P2 level of 1,084 nodes bounded through a P1 level, for a pose 0.60
-    from a fine P2 solve; or 0.37 on the P1 level of 1,084 nodes, which
-    order the sweep takes depends on the levels' measured solve times).
-    Now every claim that rests on a P1 estimate is checked against the P2
-    levels swept at the answer (there it is refuted: the P1 levels are
-    closer to each other than to P2), and what the run claims holds against
-    a fine P2 solve."""
+    8 mm, from rest by continuation), TOL 0.5. Without the check the run
+    claims the tolerance there on estimates resting on P1 levels (at lower
+    12 mm it claimed 0.41 on a P2 level of 1,084 nodes bounded through a P1
+    level, for a pose 0.60 from a fine P2 solve; there the lower arm folds
+    through itself, the next test). Now every claim that rests on a P1
+    estimate is checked against the P2 levels swept at the answer (there it
+    is refuted: the P1 levels are closer to each other than to P2), and
+    what the run claims holds against a fine P2 solve."""
     from plush_opt.apps.accuracy_run import AccurateSolve
     from plush_opt.solve.accuracy import LEVEL_OPTIONS
     said = []
@@ -60,8 +59,9 @@ def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
             {"accuracy": {}, "mesh_accuracy": {}}, ()
 
     p = acc.problem
-    p, eq, doc, _ = acc.check(forward(p, {"upper": 8.0, "lower": 12.0}), forward)
+    p, eq, doc, _ = acc.check(forward(p, {"upper": 8.0, "lower": 8.0}), forward)
     at, rounds = doc["accuracy"]["at_result"], doc["mesh_accuracy"]["at_result"]
+    assert any("cross_check" in r for r in rounds)       # the check was made
     # no claim at an answer rests on a P1 estimate without P2 levels agreeing there
     for r in rounds:
         assert r["levels"], r             # every pose here is certified: estimated on the levels
@@ -82,6 +82,34 @@ def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     true, n = _fine_p2_distance(load_scene(CRESCENT), p.mesh, eq.x, eq.contraction)
     assert n > 10_000
     assert not at["met"] or true <= 0.5, (true, at["estimated_error"])
+
+
+@pytest.mark.slow        # a sweep of mesh levels and the levels at the answer: about 15 s
+def test_where_the_body_folds_through_itself_at_the_answer_nothing_is_claimed_and_nothing_more_solved():
+    """At upper 8, lower 12 mm the coarse crescent's lower arm folds through
+    itself on fine levels: the check at the answer stops at the first
+    level, as fine as the answer's or finer, whose pose crosses itself,
+    claims nothing, checks nothing against P2 and solves nothing again."""
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    said = []
+    acc = AccurateSolve(CRESCENT, 0.5, progress=said.append)
+
+    def forward(problem, contraction):
+        c = np.array([contraction[n] for n in problem.winch_names])
+        return problem, equilibrium_at(problem.model, c, None, LEVEL_OPTIONS), \
+            {"accuracy": {}, "mesh_accuracy": {}}, ()
+
+    p, eq, doc, _ = acc.check(forward(acc.problem, {"upper": 8.0, "lower": 12.0}), forward)
+    at, rounds = doc["accuracy"]["at_result"], doc["mesh_accuracy"]["at_result"]
+    assert eq.converged and len(rounds) == 1 and at["resolves"] == 0
+    assert at["met"] is False and at["estimated_error"] is None and "cross_check" not in at
+    fold = at["crosses_itself"]
+    assert fold["nodes"] > at["nodes"] and "cross near" in fold["where"]
+    assert "the body crosses itself there" in at["summary"]
+    # the levels dearer than the folded one are not solved there (the P1 level of 9,189 nodes)
+    assert sum("at the returned contractions solved" in line for line in said) < len(rounds[0]["levels"])
+    assert any("crosses itself on the" in line and "nothing is estimated there" in line for line in said)
 
 
 def test_the_summary_says_what_the_p2_check_found():

@@ -101,14 +101,9 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
                                  f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
         if not eq.converged and used is not None and finer(lv, levels[used]):
             refuted = lv
-        said = (f"solved {how} in {time.perf_counter() - t0:.1f} s ({eq.iterations} Newton iterations)"
-                if eq.converged else
-                f"not on the answer's branch: Newton {how} did not converge in {eq.iterations} iterations "
-                f"({time.perf_counter() - t0:.1f} s; {eq.status}): left out of the estimate there"
-                + ("" if refuted is None else "; finer than the level in use, so the answer's branch does not "
-                   "survive refinement: the dearer levels are not solved"))
         if progress is not None:
-            progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions {said}")
+            progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
+                     + _said(eq, how, time.perf_counter() - t0, refuted is not None))
         if eq.converged:
             here.append((lv.mesh, eq.x))
             folded = used is not None and (i == used or finer(lv, levels[used])) and \
@@ -117,6 +112,16 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             np.full((1, len(points), 2), np.nan)
         out[i] = one_pose(lv, eq.x if eq.converged else None, y)
     return estimate_each_element(out)
+
+
+def _said(eq, how: str, seconds: float, refuted: bool) -> str:
+    """What :func:`bounds_at` says of a level solved at the returned contractions."""
+    if eq.converged:
+        return f"solved {how} in {seconds:.1f} s ({eq.iterations} Newton iterations)"
+    return (f"not on the answer's branch: Newton {how} did not converge in {eq.iterations} iterations "
+            f"({seconds:.1f} s; {eq.status}): left out of the estimate there"
+            + ("" if not refuted else "; finer than the level in use, so the answer's branch does not "
+               "survive refinement: the dearer levels are not solved"))
 
 
 def fold_at(scene: Scene, levels: list[Level], used: Level | None) -> dict | None:
