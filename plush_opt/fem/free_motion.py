@@ -38,7 +38,7 @@ FLAT = 1e-9
 #: motion keeps its net force (its steps are projected off it), yet above the
 #: round-off of a net force that is zero (~1e-16-1e-14 of the scale). With
 #: friction every contact node can slide at once, leaving a translation flat
-#: under a tiny net force: gauged at 1e-6, its 5e-6 N held Newton there for
+#: under a tiny net force: gauged at 1e-6, its 1e-5 N held Newton there for
 #: 500 iterations; left free, regularised steps slide the body until a node sticks
 BALANCED = 1e-12
 #: the motions' names, in the order of :func:`rigid_motions`

@@ -107,7 +107,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         if eq.converged:
             here.append((lv.mesh, eq.x))
             folded = used is not None and (i == used or finer(lv, levels[used])) and \
-                fold_at(scene, [one_pose(lv, eq.x, None)], None) is not None
+                _crossing(scene, lv.mesh, eq.x) is not None
         y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
             np.full((1, len(points), 2), np.nan)
         out[i] = one_pose(lv, eq.x if eq.converged else None, y)
@@ -124,23 +124,29 @@ def _said(eq, how: str, seconds: float, refuted: bool) -> str:
                "survive refinement: the dearer levels are not solved"))
 
 
-def fold_at(scene: Scene, levels: list[Level], used: Level | None) -> dict | None:
+def fold_at(scene: Scene, levels: list[Level], used: Level) -> dict | None:
     """Where the pose of the cheapest of ``levels`` (as :func:`bounds_at`
     returns them: one pose each) that is ``used`` or :func:`finer` than it
-    (any, where ``used`` is None) crosses itself: ``{"element", "nodes", "where"}``, or None (none does,
+    crosses itself: ``{"element", "nodes", "where"}``, or None (none does,
     or the scene has self-contact and its poses never cross). A body folded
     through itself has no converged answer there (a fold has no length
     scale: each finer mesh folds further), so no estimate made there means
     anything."""
-    if scene.contact is not None and scene.contact.self_contact:
-        return None
     for lv in sorted(levels, key=lambda lv: lv.cost):
-        if lv.poses[0] is None or not (used is None or lv is used or finer(lv, used)):
+        if lv.poses[0] is None or not (lv is used or finer(lv, used)):
             continue
-        where = self_crossing(build_boundary(lv.mesh), lv.poses[0])
+        where = _crossing(scene, lv.mesh, lv.poses[0])
         if where is not None:
             return {"element": lv.element, "nodes": lv.mesh.n_nodes, "where": where}
     return None
+
+
+def _crossing(scene: Scene, mesh, x) -> str | None:
+    """Where the pose ``x`` on ``mesh`` crosses itself, or None (also in a
+    scene with self-contact, whose poses never do)."""
+    if scene.contact is not None and scene.contact.self_contact:
+        return None
+    return self_crossing(build_boundary(mesh), x)
 
 
 def _sweep_has(levels: list[Level], start, j: int) -> bool:
