@@ -134,9 +134,49 @@ def obstacle_vertex() -> str:
     return "\n".join(ovp.arithmetic(ovp.GAP, ovp.SIZES))
 
 
+def hexapod_friction() -> str:
+    """Control of problems/hexapod_stand.yaml with friction at its contacts
+    (docs/model.md, "Contact"): at its targets and at 18 mm up, and the
+    walk of its body driven straight to a = b = 7 mm."""
+    import yaml
+    from plush_opt import from_scene, load
+    from plush_opt.io.problem_file import scene_from_dict
+    path = ROOT / "problems" / "hexapod_stand.yaml"
+    up = [{"at": [-40.0, 30.5], "to": [-40.0, 48.5]}, {"at": [40.0, 30.5], "to": [40.0, 48.5]}]
+
+    def with_friction(mu):
+        doc = yaml.safe_load(path.read_text())
+        doc["contact"]["friction"] = mu
+        return from_scene(scene_from_dict(doc, path.name))
+
+    def said(r):
+        where = ", ".join(f"{n} = {v:.2f}" for n, v in r.contractions.items())
+        how = {"max_iterations": "at its iteration limit", "stationary": "stationary"}.get(r.reason, r.reason)
+        return f"O = {r.objective:.4g} mm^2 ({where} mm; {how})"
+
+    plain, p = load(path), with_friction(0.5)
+    at_file, high = p.control(), p.with_targets(up).control()
+    first, second = at_file.history[2], at_file.history[3]
+    others = {mu: with_friction(mu).control() for mu in (0.3, 0.2)}
+    walked, still = p.equilibrium({"a": 7.0, "b": 7.0}), plain.equilibrium({"a": 7.0, "b": 7.0})
+    x, x0 = p.targets.y(walked.x)[:, 0], plain.targets.y(still.x)[:, 0]
+    return (f"With the targets 18 mm up (the file's until 2026-12-06, `tests/test_contact_friction_history.py`) "
+            f"the loop ends at {said(high)} (frictionless: O = {plain.with_targets(up).control().objective:.3g}). "
+            f"With the file's targets, 8 mm up, it ends at {said(at_file)}: from rest it reaches "
+            f"a = {first.contraction[0]:.2f}, b = {first.contraction[1]:.2f} (O = {first.objective:.3g}), and its "
+            f"next step, Gauss-Newton on the sensitivities of that friction state, goes asymmetric (a = "
+            f"{second.contraction[0]:.2f}, b = {second.contraction[1]:.2f}); mu = 0.3: {said(others[0.3])}; "
+            f"mu = 0.2: {said(others[0.2])}; frictionless: O = {plain.control().objective:.3g}. Why: the body "
+            f"walks. With both feet sliding outwards their friction forces differ by the mesh's slight asymmetry, "
+            f"so in each step one foot sticks and the other slides for both; driven from rest to a = b = 7 mm the "
+            f"body ends {np.mean(x - x0):.1f} mm further in x (the targets' points at x = "
+            f"{x[0]:.2f} and {x[1]:.2f} instead of {x0[0]:.2f} and {x0[1]:.2f}), and the targets, fixed in space, "
+            f"are out of reach of equal contractions.")
+
+
 BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True),
           "friction-loops": (friction_loops, True), "accuracy-pick": (accuracy_pick, False),
-          "obstacle-vertex": (obstacle_vertex, True)}
+          "obstacle-vertex": (obstacle_vertex, True), "hexapod-friction": (hexapod_friction, True)}
 
 
 #: Blocks whose numbers round-off moves (a via point within stick_tol of its
