@@ -39,6 +39,24 @@ def test_pose_picture_has_legend_names_errors_and_a_fixed_scale(gripper):
     plt.close(fig)
 
 
+@pytest.mark.parametrize("name", ["gripper", "hexapod_stand"])
+def test_the_pose_legend_hangs_below_the_x_label_of_a_tall_body_and_of_a_wide_one(name):
+    """The legend once hung a fraction of the axes' height below them: on
+    the wide, flat hexapod that put it over the x label."""
+    import plush_opt
+    from plush_opt.apps.plot import pose_figure
+    p = plush_opt.load(ROOT / "problems" / f"{name}.yaml")
+    x = p.model.X.reshape(-1)
+    fig = pose_figure(p.model, x, np.zeros(p.model.n_winches), p.targets)
+    fig.canvas.draw()
+    ax = fig.axes[0]
+    renderer = fig.canvas.get_renderer()
+    label = ax.xaxis.label.get_window_extent(renderer)
+    legend = ax.get_legend().get_window_extent(renderer)
+    assert legend.y1 < label.y0                     # (display coordinates: y grows upwards)
+    plt.close(fig)
+
+
 def _white_border(png) -> bool:
     img = plt.imread(png)[..., :3]
     return all(np.all(strip > 0.99) for strip in (img[:2], img[-2:], img[:, :2], img[:, -2:]))

@@ -10,6 +10,7 @@ import numpy as np
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.transforms import offset_copy
 
 from ..base.files import atomic_path
 from ..fem.contact_report import node_forces
@@ -22,6 +23,9 @@ PIN_COLOR = "#222222"
 TARGET_COLOR = "#d62728"
 TENDON_CMAP = "viridis"
 LABEL_FONT = 7           # tendon, winch and error labels: small, the pose stays readable
+#: the pose's legend hangs this far (points) below its axes: under the tick labels and the
+#: x label whatever the axes' height (a fraction of it put a wide body's legend on its x label)
+LEGEND_DROP = 34.0
 LABEL_MERGE = 0.05       # stoppers closer than this fraction of the picture share a label (no overprint)
 GROUND_COLOR = "#5a5a5a"
 OBSTACLE_COLOR = "#9fb4c7"
@@ -181,8 +185,9 @@ def _legend(ax, model, targets, show_rest):
         handles += [Line2D([], [], ls="", marker="x", ms=8, mew=2, color=TARGET_COLOR, label="target"),
                     Line2D([], [], ls="", marker="o", mfc="white", mec=TARGET_COLOR, ms=5,
                            label="target point (error beside its target)")]
-    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, fontsize=LABEL_FONT,
-              frameon=False)
+    below = offset_copy(ax.transAxes, fig=ax.figure, y=-LEGEND_DROP, units="points")
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=below, ncol=3,
+              fontsize=LABEL_FONT, frameon=False)
 
 
 def contraction_label(model, contraction) -> str:
