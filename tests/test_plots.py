@@ -57,6 +57,31 @@ def test_the_pose_legend_hangs_below_the_x_label_of_a_tall_body_and_of_a_wide_on
     plt.close(fig)
 
 
+def test_the_names_of_steps_close_in_time_do_not_run_into_each_other(monkeypatch):
+    """A pose solved in a tenth of a second and its hold: their names once
+    printed over each other ("pohseld") above a run's plot."""
+    from plush_opt.apps import plot
+    figures = []
+    monkeypatch.setattr(plot, "save_figure", lambda fig, path, **kw: figures.append(fig))
+    starts = [(0.0, "pose"), (0.35, "hold"), (2.35, "pose"), (2.42, "hold"), (4.42, "pose"), (4.5, "release")]
+    rows = [{"t": t, "commanded": {"a": 1.0}, "step": k, "kind": kind} for k, (t, kind) in enumerate(starts)]
+    rows.append({"t": 4.85, "commanded": {"a": 0.0}, "step": 5, "kind": "release"})
+    plot.plot_run_log("r.png", rows, title="a run")
+    fig = figures[0]
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        names = [a for a in fig.axes[0].texts if a.get_text() in ("pose", "hold", "release")]
+        assert [a.get_text() for a in names] == [kind for _, kind in starts]
+        boxes = [a.get_window_extent(renderer) for a in names]
+        assert not any(b.overlaps(c) for i, b in enumerate(boxes) for c in boxes[i + 1:])
+        assert all(b.y0 > fig.axes[0].get_window_extent(renderer).y1 for b in boxes)    # above the axes
+        title = [t for t in fig.findobj(matplotlib.text.Text) if t.get_text() == "a run"]
+        assert len(title) == 1 and not any(b.overlaps(title[0].get_window_extent(renderer)) for b in boxes)
+    finally:
+        plt.close(fig)
+
+
 def _white_border(png) -> bool:
     img = plt.imread(png)[..., :3]
     return all(np.all(strip > 0.99) for strip in (img[:2], img[-2:], img[:, :2], img[:, -2:]))

@@ -320,13 +320,34 @@ def plot_run_log(path, log_lines, title=None, length: str = "mm"):
         if r.get("step") is not None and r["step"] not in seen:
             seen.add(r["step"])
             steps.append((r["t"], r["kind"]))
-    for t, kind in steps:
+    for t, _ in steps:
         for ax in axes[:, 0]:
             ax.axvline(t, color="#999", lw=0.6, ls="--")
-        axes[0, 0].annotate(kind, (t, 1.02), xycoords=("data", "axes fraction"), fontsize=7,
-                            rotation=0, va="bottom")
     axes[-1, 0].set_xlabel("planned time [s]" if plan else "time [s]")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    _step_names(axes[0, 0], steps)
+    fig.tight_layout()
     save_figure(fig, path)
+
+
+#: step names above a run's plot: font size, and points per character (a generous width)
+STEP_FONT, STEP_CHAR_WIDTH = 7, 4.6
+
+
+def _step_names(ax, steps) -> None:
+    """Each step's name above ``ax`` at its start time; a name that would run
+    into the one before on its line goes a line higher (short steps: a pose
+    solved in a tenth of a second, then its hold)."""
+    lo, hi = ax.get_xlim()
+    width = ax.get_window_extent().width * 72.0 / ax.figure.dpi        # the axes' width in points
+    ends: list[float] = []                 # per line: where its last name ends (points from the left)
+    for t, kind in steps:
+        at = (t - lo) / (hi - lo) * width
+        line = next((k for k, end in enumerate(ends) if at >= end), len(ends))
+        if line == len(ends):
+            ends.append(0.0)
+        ends[line] = at + STEP_CHAR_WIDTH * (len(kind) + 1)
+        ax.annotate(kind, (t, 1.02), xycoords=("data", "axes fraction"), xytext=(0, 1.3 * STEP_FONT * line),
+                    textcoords="offset points", fontsize=STEP_FONT, va="bottom")
