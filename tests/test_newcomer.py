@@ -195,6 +195,30 @@ def test_the_sweep_plot_says_mm_and_tells_coinciding_curves_apart():
     plt.close(fig)
 
 
+def test_a_sweep_of_a_scene_without_points_follows_its_targets_points(tmp_path):
+    """hexapod_stand has targets and no `points`: its sweep's picture was
+    empty and its CSV had no positions."""
+    from plush_opt.apps.sweep import run_sweep, write_csv
+    from plush_opt.apps.sweep_plot import sweep_figure
+    from plush_opt.problem import load
+    problem = load(ROOT / "problems" / "hexapod_stand.yaml")
+    plant, states = run_sweep(problem, np.array([[2.0, 0.0], [4.0, 0.0], [2.0, 0.0]]))
+    write_csv(problem, plant, states, tmp_path / "s.csv")
+    header = (tmp_path / "s.csv").read_text().splitlines()[0].split(",")
+    assert header[3:7] == ["x_0", "y_0", "x_1", "y_1"]
+    fig = sweep_figure(problem, states, "a")
+    try:
+        ax = fig.axes[0]
+        legend = [t.get_text() for t in ax.get_legend().get_texts()]
+        assert [text.split(":")[0] for text in legend] == ["target point 0 (-40.0, 30.5)", "target point 1 (40.0, 30.5)"]
+        assert ax.get_title() == "hexapod_stand: target points as winch a moves, loading and unloading"
+        rows = [line.split(",") for line in (tmp_path / "s.csv").read_text().splitlines()[1:]]
+        front = [float(r[6]) for r in rows]            # the front corner rises as its leg curls, and comes back
+        assert front[2] > front[1] > front[0] and front[3] < front[2]
+    finally:
+        plt.close(fig)
+
+
 # -- the posing window ----------------------------------------------------------------
 
 def test_the_status_line_fits_the_default_window(gripper):

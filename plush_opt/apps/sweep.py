@@ -1,7 +1,8 @@
 """plush-opt sweep: follow one winch's contraction forward (and back) from
 the scene's start state, each step from the previous one, and write what
-the robot went through: contractions, the scene's ``points`` and the end
-tensions of every tendon (CSV), optionally the hysteresis loop (PNG).
+the robot went through: contractions, the scene's ``points`` (or, where it
+has none, its targets' points) and the end tensions of every tendon (CSV),
+optionally the hysteresis loop (PNG).
 
 Works with and without friction: a frictionless tendon is one spring, so
 its two end tensions are equal and loading and unloading coincide."""
@@ -21,6 +22,7 @@ from ..solve.plant import make_plant
 from ..base.files import atomic_path
 from .console import is_quiet, say
 from .run_log import ProgressLine
+from .sweep_plot import followed_positions
 
 # steps of one leg: each is an equilibrium solve, so a million would run for
 # hours (and its states fill memory); a hysteresis loop needs hundreds
@@ -120,7 +122,8 @@ class SweepProgress:
 def write_csv(problem, plant, states, out: Path) -> None:
     scene = problem.scene
     header = ["step"] + [f"c_{w}" for w in problem.winch_names]
-    for k in range(len(problem.mesh.point_nodes)):
+    points = followed_positions(problem, states)
+    for k in range(points.shape[1]):
         header += [f"x_{k}", f"y_{k}"]
     for t in scene.tendons:
         header += [f"T_{t.name}_winch", f"T_{t.name}_stopper"]
@@ -129,8 +132,8 @@ def write_csv(problem, plant, states, out: Path) -> None:
         writer.writerow(header)
         for i, s in enumerate(states):
             row = [i] + [float(v) for v in s.contraction]
-            for node in problem.mesh.point_nodes:
-                row += [float(v) for v in s.nodes[node]]
+            for xy in points[i]:
+                row += [float(v) for v in xy]
             for ends in plant.end_tensions(s):
                 row += [float(v) for v in ends]
             writer.writerow([f"{v:.10g}" if isinstance(v, float) else v for v in row])
