@@ -155,7 +155,8 @@ def _labels(axis) -> list[str]:
             if lo <= v <= hi and t.get_text()]
 
 
-@pytest.mark.parametrize("times", [(0.034, 0.036, 0.035), (0.034, 0.09, 0.05), (0.5, 3.0, 40.0)])
+@pytest.mark.parametrize("times", [(0.034, 0.036, 0.035), (0.034, 0.09, 0.05), (0.5, 3.0, 40.0),
+                                   (0.037, 0.15, 0.1)])
 def test_compare_log_axes_carry_at_least_two_readable_ticks(times):
     from plush_opt.apps.compare.report import anytime_figure, speed_error_figure
     problem = SimpleNamespace(scene=SimpleNamespace(name="gripper", units=Units()))
@@ -168,6 +169,11 @@ def test_compare_log_axes_carry_at_least_two_readable_ticks(times):
         FigureCanvasAgg(fig).draw()
         labels = _labels(getattr(fig.axes[0], axis))
         assert len(labels) >= 2 and all(float(s) > 0 for s in labels), (make.__name__, labels)
+        # ... none running into another (0.08, 0.09 and 0.1 once printed as "0.080.090.1")
+        drawn = [t.get_window_extent() for t in getattr(fig.axes[0], axis).get_majorticklabels()
+                 if t.get_text() and t.get_visible()]
+        assert not any(a.overlaps(b) for i, a in enumerate(drawn) for b in drawn[i + 1:]), (make.__name__, labels)
+        plt.close(fig)
 
 
 def _sweep_states(curves, c):

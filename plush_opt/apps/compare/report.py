@@ -114,7 +114,34 @@ def readable_log_axis(ax, which: str) -> None:
         (ax.set_xlim if which == "x" else ax.set_ylim)(lo, hi)
         ticks = _log_ticks(lo, hi, LOG_SUBS[-1])
     axis.set_major_locator(FixedLocator(ticks))
-    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    shown = _spaced(ax, which, lo, hi, ticks)
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}" if v in shown else ""))
+
+
+#: room (points) a log axis' tick label takes along its axis: per character
+#: on the x axis, per line on the y axis, and a gap between two labels
+LABEL_CHAR, LABEL_LINE, LABEL_GAP = 5.8, 10.0, 5.0
+
+
+def _spaced(ax, which: str, lo: float, hi: float, ticks) -> set:
+    """The ``ticks`` (of a log axis viewing [lo, hi]) to label: the powers
+    of ten first, then 2 and 5 times them, then the others, each that does
+    not run into a label placed before (1..9 times a power of ten crowd at
+    the top of a decade: 0.08, 0.09 and 0.1 once printed as "0.080.090.1")."""
+    box = ax.get_window_extent()
+    length = (box.width if which == "x" else box.height) * 72.0 / ax.figure.dpi
+    def rank(t: float) -> tuple[int, float]:           # 1 first, then 2 and 5, then the rest
+        mantissa = round(t / 10 ** math.floor(math.log10(t) + 1e-9))
+        return {1: 0, 2: 1, 5: 1}.get(mantissa, 2), t
+
+    shown, placed = set(), []          # (the labels placed: their extents along the axis, points)
+    for t in sorted(ticks, key=rank):
+        at = math.log(t / lo) / math.log(hi / lo) * length
+        half = 0.5 * (LABEL_CHAR * len(f"{t:g}") if which == "x" else LABEL_LINE) + 0.5 * LABEL_GAP
+        if all(at + half <= a or at - half >= b for a, b in placed):
+            shown.add(t)
+            placed.append((at - half, at + half))
+    return shown
 
 
 def _grid(n):
