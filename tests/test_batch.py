@@ -38,8 +38,9 @@ def test_parallel_study_equals_serial_bit_for_bit():
     for row in parallel.rows:
         assert row["certified"], row
         assert math.isfinite(row["target_error"]) and row["max_tension"] > 0
-    # friction loses work in a pull-and-release cycle; without it the loop closes
-    assert parallel.rows[1]["hysteresis_work"] > 100 * abs(parallel.rows[0]["hysteresis_work"])
+    # friction loses work in a pull-and-release cycle; without it the loop closes (0, not the
+    # solver's round-off of a sweep there and back)
+    assert parallel.rows[1]["hysteresis_work"] > 0.0 == parallel.rows[0]["hysteresis_work"]
 
 
 @pytest.mark.parametrize("jobs", [1, 2])

@@ -208,8 +208,7 @@ def solve_variant(variant: Variant, options: StudyOptions) -> dict:
     ``hysteresis_work`` the work one pull-and-release cycle of
     ``sweep_winch`` (0 to its contraction in the solution and back, the
     others slack) loses to friction, the loop's area in tension against
-    contraction (force x length; 0 up to solver tolerance without
-    friction), ``release_error`` the largest distance of a node from where
+    contraction (force x length; 0 without friction), ``release_error`` the largest distance of a node from where
     it sits at zero contraction reached from the start state, after every
     winch is released from the solution (length; what friction holds).
     ``certified``: every pose above converged with a positive definite Hessian.
@@ -251,8 +250,10 @@ def solve_variant(variant: Variant, options: StudyOptions) -> dict:
 def _hysteresis(problem, c: np.ndarray, options: StudyOptions) -> tuple[str, float, bool]:
     """(winch, loop area, every state converged) of a pull-and-release
     sweep of one winch from the start state, on the segmented plant (the
-    same poses without friction, both end tensions of every tendon)."""
-    from ..solve.plant import make_plant
+    same poses without friction, both end tensions of every tendon); a
+    scene without friction loses nothing: 0, not swept (its sweep measured
+    the solver's tolerance, 1e-10 to 1e-5 N mm)."""
+    from ..solve.plant import make_plant, path_dependent
     names = problem.winch_names
     if options.sweep_winch is not None:
         if options.sweep_winch not in names:
@@ -266,6 +267,8 @@ def _hysteresis(problem, c: np.ndarray, options: StudyOptions) -> tuple[str, flo
     values = np.concatenate([leg[1:], leg[::-1][1:]])
     path = np.zeros((len(values), len(names)))
     path[:, w] = values
+    if not path_dependent(problem.scene):     # no friction: the same poses both ways, nothing lost
+        return names[w], 0.0, True
     plant = make_plant(problem.model, segmented=True)
     states = plant.follow(path)
     ok = len(states) == len(path) + 1 and all(s.converged for s in states)
