@@ -37,6 +37,23 @@ def _fine_p2_distance(scene, mesh, x, contraction, refinements=2):
     return float(np.max(np.linalg.norm(y - y_fine, axis=-1))), fine.n_nodes
 
 
+def _checked_at(contraction):
+    """``--accuracy 0.5`` on the coarse crescent for a forward solve at
+    ``contraction`` (by winch name, from rest by continuation): the
+    progress lines and what :meth:`AccurateSolve.check` returns."""
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    said = []
+    acc = AccurateSolve(CRESCENT, 0.5, progress=said.append)
+
+    def forward(problem, contraction):
+        c = np.array([contraction[n] for n in problem.winch_names])
+        return problem, equilibrium_at(problem.model, c, None, LEVEL_OPTIONS), \
+            {"accuracy": {}, "mesh_accuracy": {}}, ()
+
+    return said, acc.check(forward(acc.problem, contraction), forward)
+
+
 @pytest.mark.slow        # a sweep of mesh levels, P2 levels at the answer, a fine P2 reference: about a minute
 def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     """The coarse crescent curled hard (a forward solve at upper 8, lower
@@ -48,18 +65,7 @@ def test_a_claim_resting_on_p1_estimates_is_checked_against_p2_at_the_answer():
     estimate is checked against the P2 levels swept at the answer (there it
     is refuted: the P1 levels are closer to each other than to P2), and
     what the run claims holds against a fine P2 solve."""
-    from plush_opt.apps.accuracy_run import AccurateSolve
-    from plush_opt.solve.accuracy import LEVEL_OPTIONS
-    said = []
-    acc = AccurateSolve(CRESCENT, 0.5, progress=said.append)
-
-    def forward(problem, contraction):
-        c = np.array([contraction[n] for n in problem.winch_names])
-        return problem, equilibrium_at(problem.model, c, None, LEVEL_OPTIONS), \
-            {"accuracy": {}, "mesh_accuracy": {}}, ()
-
-    p = acc.problem
-    p, eq, doc, _ = acc.check(forward(p, {"upper": 8.0, "lower": 8.0}), forward)
+    said, (p, eq, doc, _) = _checked_at({"upper": 8.0, "lower": 8.0})
     at, rounds = doc["accuracy"]["at_result"], doc["mesh_accuracy"]["at_result"]
     assert any("cross_check" in r for r in rounds)       # the check was made
     # no claim at an answer rests on a P1 estimate without P2 levels agreeing there
@@ -90,17 +96,7 @@ def test_where_the_body_folds_through_itself_at_the_answer_nothing_is_claimed_an
     itself on fine levels: the check at the answer stops at the first
     level, as fine as the answer's or finer, whose pose crosses itself,
     claims nothing, checks nothing against P2 and solves nothing again."""
-    from plush_opt.apps.accuracy_run import AccurateSolve
-    from plush_opt.solve.accuracy import LEVEL_OPTIONS
-    said = []
-    acc = AccurateSolve(CRESCENT, 0.5, progress=said.append)
-
-    def forward(problem, contraction):
-        c = np.array([contraction[n] for n in problem.winch_names])
-        return problem, equilibrium_at(problem.model, c, None, LEVEL_OPTIONS), \
-            {"accuracy": {}, "mesh_accuracy": {}}, ()
-
-    p, eq, doc, _ = acc.check(forward(acc.problem, {"upper": 8.0, "lower": 12.0}), forward)
+    said, (p, eq, doc, _) = _checked_at({"upper": 8.0, "lower": 12.0})
     at, rounds = doc["accuracy"]["at_result"], doc["mesh_accuracy"]["at_result"]
     assert eq.converged and len(rounds) == 1 and at["resolves"] == 0
     assert at["met"] is False and at["estimated_error"] is None and "cross_check" not in at

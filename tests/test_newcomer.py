@@ -216,7 +216,8 @@ def test_a_sweep_of_a_scene_without_points_follows_its_targets_points(tmp_path):
     try:
         ax = fig.axes[0]
         legend = [t.get_text() for t in ax.get_legend().get_texts()]
-        assert [text.split(":")[0] for text in legend] == ["target point 0 (-40.0, 30.5)", "target point 1 (40.0, 30.5)"]
+        assert [text.split(":")[0] for text in legend] == ["target point 0 (-40.0, 30.5)",
+                                                            "target point 1 (40.0, 30.5)"]
         assert ax.get_title() == "hexapod_stand: target points as winch a moves, loading and unloading"
         rows = [line.split(",") for line in (tmp_path / "s.csv").read_text().splitlines()[1:]]
         front = [float(r[6]) for r in rows]            # the front corner rises as its leg curls, and comes back
