@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from ..base.errors import SceneError
-from ..fem.contact_boundary import build_boundary, self_crossing
+from ..fem.contact_boundary import build_boundary, crossings, self_crossing
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
@@ -104,13 +104,14 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
                      + _said(eq, how, time.perf_counter() - t0, refuted is not None))
+        crossing = crossings(model, [eq.x]) if eq.converged else ()     # (what fold_at reads)
         if eq.converged:
             here.append((lv.mesh, eq.x))
             folded = used is not None and (i == used or finer(lv, levels[used])) and \
-                _crossing(scene, lv.mesh, eq.x) is not None
+                any(where is not None for where in crossing)
         y = Targets.at_points(lv.mesh, points, points).y(eq.x)[None] if eq.converged else \
             np.full((1, len(points), 2), np.nan)
-        out[i] = one_pose(lv, eq.x if eq.converged else None, y)
+        out[i] = dataclasses.replace(one_pose(lv, eq.x if eq.converged else None, y), crossing=crossing)
     return estimate_each_element(out)
 
 
@@ -135,7 +136,8 @@ def fold_at(scene: Scene, levels: list[Level], used: Level) -> dict | None:
     for lv in sorted(levels, key=lambda lv: lv.cost):
         if lv.poses[0] is None or not (lv is used or finer(lv, used)):
             continue
-        where = _crossing(scene, lv.mesh, lv.poses[0])
+        # (as bounds_at found it; levels it did not solve there, unchecked, are checked here)
+        where = lv.crossing[0] if lv.crossing else _crossing(scene, lv.mesh, lv.poses[0])
         if where is not None:
             return {"element": lv.element, "nodes": lv.mesh.n_nodes, "where": where}
     return None
@@ -143,7 +145,9 @@ def fold_at(scene: Scene, levels: list[Level], used: Level) -> dict | None:
 
 def _crossing(scene: Scene, mesh, x) -> str | None:
     """Where the pose ``x`` on ``mesh`` crosses itself, or None (also in a
-    scene with self-contact, whose poses never do)."""
+    scene with self-contact, whose poses never do): what
+    :func:`~plush_opt.fem.contact_boundary.crossings` says of a model, for a
+    level that keeps none."""
     if scene.contact is not None and scene.contact.self_contact:
         return None
     return self_crossing(build_boundary(mesh), x)
