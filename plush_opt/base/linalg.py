@@ -430,7 +430,6 @@ class _WoodburySolve(_RefinedSolve):
         return u - self._Y @ self._inner(self._Y.T @ b)
 
 
-
 class _AugmentedSolve(_RefinedSolve):
     """Solves with H + shift I (a :class:`LowRankHessian` of any inertia)
     through an LDL^T of its augmented matrix (:meth:`LowRankHessian.augmented`),
@@ -455,7 +454,6 @@ class _AugmentedSolve(_RefinedSolve):
     def _once(self, b: np.ndarray) -> np.ndarray:
         padded = np.concatenate([b, np.zeros((self._extra,) + b.shape[1:])])
         return self._factor.solve(padded)[:b.shape[0]]
-
 
 
 def augmented_factor(H: LowRankHessian, shift: float = 0.0,

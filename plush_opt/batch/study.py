@@ -208,9 +208,10 @@ def solve_variant(variant: Variant, options: StudyOptions) -> dict:
     ``hysteresis_work`` the work one pull-and-release cycle of
     ``sweep_winch`` (0 to its contraction in the solution and back, the
     others slack) loses to friction, the loop's area in tension against
-    contraction (force x length; 0 without friction), ``release_error`` the largest distance of a node from where
-    it sits at zero contraction reached from the start state, after every
-    winch is released from the solution (length; what friction holds).
+    contraction (force x length; 0 without friction), ``release_error``
+    the largest distance of a node from where it sits at zero contraction
+    reached from the start state, after every winch is released from the
+    solution (length; what friction holds).
     ``certified``: every pose above converged with a positive definite Hessian.
     """
     t0 = time.perf_counter()
@@ -262,13 +263,13 @@ def _hysteresis(problem, c: np.ndarray, options: StudyOptions) -> tuple[str, flo
         w = names.index(options.sweep_winch)
     else:
         w = int(np.argmax(c))
+    if not path_dependent(problem.scene):     # no friction: the same poses both ways, nothing lost
+        return names[w], 0.0, True
     top = max(float(c[w]), MIN_SWEEP)
     leg = np.linspace(0.0, top, options.sweep_steps + 1)
     values = np.concatenate([leg[1:], leg[::-1][1:]])
     path = np.zeros((len(values), len(names)))
     path[:, w] = values
-    if not path_dependent(problem.scene):     # no friction: the same poses both ways, nothing lost
-        return names[w], 0.0, True
     plant = make_plant(problem.model, segmented=True)
     states = plant.follow(path)
     ok = len(states) == len(path) + 1 and all(s.converged for s in states)
