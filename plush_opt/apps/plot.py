@@ -327,8 +327,8 @@ def plot_run_log(path, log_lines, title=None, length: str = "mm"):
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    _step_names(axes[0, 0], steps)
-    fig.tight_layout()
+    _step_names(axes[0, 0], steps)      # (their lines depend on the laid-out axes' width ...)
+    fig.tight_layout()                  # (... and take room above it)
     save_figure(fig, path)
 
 
