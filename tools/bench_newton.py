@@ -21,9 +21,11 @@ Variants (module constants switched between runs, nothing else changes):
 - ``refresh``: that, and the kept factor's low-rank term set up afresh
   where its steps stall, and a control trial's factor with its predictor's
   tendon terms (``kept_factor.FRESH_LOW_RANK``);
-- ``now``: that, and an inexact Newton step (conjugate gradients
+- ``krylov``: that, and an inexact Newton step (conjugate gradients
   preconditioned by the kept factor) where they stall even so
-  (``kept_factor.KRYLOV_STEPS``): the shipped code.
+  (``kept_factor.KRYLOV_STEPS``);
+- ``now``: that, and the same where they cut the residual slowly in the
+  local phase (``kept_factor.KRYLOV_AFTER_RATE``): the shipped code.
 
 For each: the forward solve (CPU s, Newton iterations, factorisations), and
 a reparam control run: the median CPU time of an iterate after the first
@@ -81,19 +83,22 @@ from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
 
 ROOT = Path(__file__).resolve().parent.parent
 # (linalg.WOODBURY_HALVES, kept_factor.CHORD_STEPS, newton.TENTATIVE_FAILURES, kept_factor.FRESH_LOW_RANK,
-#  kept_factor.KRYLOV_STEPS, elastic kernels compiled with their loop)
-SWITCHES = ("WOODBURY_HALVES", "CHORD_STEPS", "TENTATIVE_FAILURES", "FRESH_LOW_RANK", "KRYLOV_STEPS")
+#  kept_factor.KRYLOV_STEPS, kept_factor.KRYLOV_AFTER_RATE, elastic kernels compiled with their loop)
+SWITCHES = ("WOODBURY_HALVES", "CHORD_STEPS", "TENTATIVE_FAILURES", "FRESH_LOW_RANK", "KRYLOV_STEPS",
+            "KRYLOV_AFTER_RATE")
 #: the module each of the solver's switches lives in
 _HOME = {"CHORD_STEPS": kept_factor, "TENTATIVE_FAILURES": newton, "FRESH_LOW_RANK": kept_factor,
-         "KRYLOV_STEPS": kept_factor}
-_CHORD, _TENTATIVE, _FRESH, _KRYLOV = (kept_factor.CHORD_STEPS, newton.TENTATIVE_FAILURES, kept_factor.FRESH_LOW_RANK,
-                                       kept_factor.KRYLOV_STEPS)
-VARIANTS = {"reference": (False, 0, 0, 0, 0, False), "halves": (True, 0, 0, 0, 0, False),
-            "chord": (True, _CHORD, 0, 0, 0, False),
-            "tentative": (True, _CHORD, _TENTATIVE, 0, 0, False),
-            "kernels": (True, _CHORD, _TENTATIVE, 0, 0, True),
-            "refresh": (True, _CHORD, _TENTATIVE, _FRESH, 0, True),
-            "now": (True, _CHORD, _TENTATIVE, _FRESH, _KRYLOV, True)}
+         "KRYLOV_STEPS": kept_factor, "KRYLOV_AFTER_RATE": kept_factor}
+_CHORD, _TENTATIVE, _FRESH, _KRYLOV, _SLOW = (kept_factor.CHORD_STEPS, newton.TENTATIVE_FAILURES,
+                                              kept_factor.FRESH_LOW_RANK, kept_factor.KRYLOV_STEPS,
+                                              kept_factor.KRYLOV_AFTER_RATE)
+VARIANTS = {"reference": (False, 0, 0, 0, 0, 1.0, False), "halves": (True, 0, 0, 0, 0, 1.0, False),
+            "chord": (True, _CHORD, 0, 0, 0, 1.0, False),
+            "tentative": (True, _CHORD, _TENTATIVE, 0, 0, 1.0, False),
+            "kernels": (True, _CHORD, _TENTATIVE, 0, 0, 1.0, True),
+            "refresh": (True, _CHORD, _TENTATIVE, _FRESH, 0, 1.0, True),
+            "krylov": (True, _CHORD, _TENTATIVE, _FRESH, _KRYLOV, 1.0, True),
+            "now": (True, _CHORD, _TENTATIVE, _FRESH, _KRYLOV, _SLOW, True)}
 
 
 def _switch(values) -> None:

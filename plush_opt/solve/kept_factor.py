@@ -88,6 +88,14 @@ KRYLOV_CHECK, KRYLOV_CHECK_CUT = 5, 0.1
 # ... or once |H dx + g| is this fraction of |g|: the step then cuts the
 # residual about as far, and the kept-factor steps after it go on.
 KRYLOV_TOL = 1e-3
+# In the local phase, kept-factor steps that cut the residual by less than
+# this each give way to a fresh low-rank term (where one is left) or an
+# inexact Newton step: conjugate gradients preconditioned by the same factor
+# converge at about (sqrt(k) - 1) / (sqrt(k) + 1) a solve, k = (1 + rate) /
+# (1 - rate), and a dozen kept-factor steps at a rate of 0.45 (the gripper's
+# forward solve at 30,000 nodes) cost what six such solves do twice over
+# (1.0: never).
+KRYLOV_AFTER_RATE = 0.3
 # An inexact step that lands below the tolerance but leaves more than this
 # many times the residual its conjugate gradients predicted has met the
 # residual's round-off floor (that near the equilibrium its nonlinear error
@@ -144,7 +152,9 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     cheaply (:func:`_chord_pays`, on the rate the last step cut the
     residual by; before the first, on the cut predicted from the Hessian
     in hand: g + H dx = (H - F) dx). Where they would stop short of the
-    tolerance in the local phase (``FRESH_BELOW``), a factor of a low-rank
+    tolerance in the local phase (``FRESH_BELOW``), or go on there at a
+    rate above ``KRYLOV_AFTER_RATE`` where an inexact step may follow
+    (:func:`_inexact_pays`, ``KRYLOV_STEPS``), a factor of a low-rank
     Hessian goes on with the tendons' low-rank terms set up afresh at the
     current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
@@ -172,11 +182,13 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         target = CHORD_DEPTH * options.gtol * ev1.force_scale
         if norm <= target or floor:
             break
-        dx, pays = (None, False) if again else _chord_dx(factor, ev1, norm, target, since, last)
+        rel = norm / ev1.force_scale
+        slow = since > 0 and norm > KRYLOV_AFTER_RATE * last and rel <= FRESH_BELOW and \
+            krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
+        dx, pays = (None, False) if again or slow else _chord_dx(factor, ev1, norm, target, since, last)
         last = norm
         taken = _kept_step(model, c, x, ev1, dx, norm, options) if pays else None
         if taken is None:
-            rel = norm / ev1.force_scale
             refresh = not again and refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW and \
                 isinstance(factor.H, LowRankHessian)         # (else nothing to refresh)
             inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
