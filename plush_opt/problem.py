@@ -8,6 +8,7 @@ repeating the pipeline ``scene -> mesh -> model -> targets``.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
@@ -16,10 +17,13 @@ import numpy as np
 from .solve.equilibrium import Equilibrium, EquilibriumOptions
 from .base.errors import SceneError
 from .io import load_scene
+from .fem.contact import rest_pushes
 from .fem.mesh import Mesh, build_mesh
 from .fem.model import Model, build_model
 from .fem.objective import Targets
 from .io.scene import Scene
+
+log = logging.getLogger("plush_opt")
 
 #: what a bad target given to :meth:`Problem.with_targets` is reported as coming from
 WITH_TARGETS = "with_targets"
@@ -205,6 +209,10 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
         else:
             mesh = build_mesh(scene, max_area)
     model = build_model(scene, mesh)
+    pushes = rest_pushes(model.contact, model.X) if model.contact is not None else None
+    if pushes is not None:                     # valid, but unlikely meant: said, not refused
+        log.warning("%s: contact.self: on this mesh of %d nodes, %s (a contact.distance below the "
+                    "boundary's segments keeps the rest pose free)", scene.source, mesh.n_nodes, pushes)
     return Problem(scene, mesh, model, Targets.from_mesh(mesh, scene), report)
 
 

@@ -6,18 +6,23 @@ an obstacle."""
 from __future__ import annotations
 
 import json
+import logging
 
 import numpy as np
 import pytest
 import yaml
 
 from plush_opt.apps.cantilever import SHEAR_CORRECTION
+from plush_opt.base.errors import SceneError
 from plush_opt.fem import contact_geometry as geo
 from plush_opt.fem import contact_report
+from plush_opt.fem.contact import rest_pushes
 from plush_opt.fem.contact_boundary import build_boundary
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import Model
 from plush_opt.io.problem_file import load_scene, scene_from_dict
+from plush_opt.problem import from_scene
+from plush_opt.solve.accuracy import level_model
 from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.solve.plant import make_plant
 
@@ -98,6 +103,30 @@ def test_a_strip_curled_onto_itself_crosses_itself_only_without_self_contact(sel
         assert contact_report.min_gap(model.contact, x) > 0
     else:
         assert max(crossed) > 0
+
+
+def test_self_contact_on_a_boundary_cut_finer_than_its_distance_is_said_to_push_at_rest(caplog):
+    """The strip with self-contact at d_hat 0.5: on its file's mesh (boundary
+    segments about 1.4 long) nothing is within reach in the rest pose; on a
+    mesh whose boundary segments are shorter than d_hat, a node is within
+    d_hat of a segment two along, and the pair pushes the unloaded body
+    apart: the contact term says where, a problem built on that mesh warns,
+    naming the key, and an accuracy level on it is refused."""
+    doc = json.loads(json.dumps(STRIP))
+    doc["contact"] = {"self": True, "distance": 0.5}
+    scene = scene_from_dict(doc, "strip.yaml")
+    model = Model(scene, build_mesh(scene))
+    assert rest_pushes(model.contact, model.X) is None
+    fine = build_mesh(scene, max_area=0.02)
+    model = Model(scene, fine)
+    pushes = rest_pushes(model.contact, model.X)
+    assert pushes is not None and "within contact.distance 0.5" in pushes, pushes
+    with caplog.at_level(logging.WARNING, logger="plush_opt"):
+        from_scene(scene, fine)
+    assert any("strip.yaml: contact.self" in r.getMessage() and "pushes the unloaded body apart" in r.getMessage()
+               for r in caplog.records)
+    with pytest.raises(SceneError, match=r"strip.yaml: accuracy: .*contact\.distance below"):
+        level_model(scene, fine)
 
 
 def test_obstacle_and_self_pairs_match_finite_differences():

@@ -409,6 +409,31 @@ class ContactTerm(Term):
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
 
 
+def rest_pushes(term: ContactTerm, X: np.ndarray) -> str | None:
+    """Where ``term``'s self-contact already pushes in the rest pose ``X``,
+    in words (the closest pair within d_hat), or None. The format pairs a
+    node with every boundary segment but its own and its neighbours': on a boundary
+    cut into segments shorter than about d_hat / 2 (a fine mesh of any
+    outline), or at a tight bend, the same stretch of boundary is then
+    within reach of itself, and the unloaded body is pushed apart."""
+    if not term.self_contact:
+        return None
+    P = term.points(X)
+    A, B = P[term.boundary.local[:, 0]], P[term.boundary.local[:, 1]]
+    i, k = geo.candidate_pairs(P, A, B, term.distance, exclude=term.boundary.near)
+    if not len(i):
+        return None
+    gap = np.sqrt(geo.point_segment_sq(P[i], A[k], B[k], order=0)[0])
+    if not np.any(gap < term.distance):
+        return None
+    j = int(np.argmin(gap))
+    node, (a, b) = int(term.boundary.nodes[i[j]]), term.boundary.segments[k[j]]
+    return (f"boundary node {node} at {format_point(P[i[j]])} is {gap[j]:.3g} from boundary segment "
+            f"{int(a)}-{int(b)} in the rest pose, within contact.distance {term.distance:g} "
+            f"(segments {term.boundary.rest_length[k[j]]:.3g} long there): self-contact pushes the "
+            "unloaded body apart")
+
+
 def _floor_slope(d0: np.ndarray, rate: float, kw: np.ndarray, distance: float, dhat2: float, t: float) -> float:
     """d/dt of the floor's barrier energy where the gaps ``d0`` (b,) move by
     t ``rate`` (``kw`` (b,) the nodes' stiffness x weight)."""

@@ -58,6 +58,7 @@ from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 from ..base.errors import SceneError
 from ..base.linalg import NotPositiveDefinite
 from ..base.geometry import body_area
+from ..fem.contact import rest_pushes
 from ..fem.contact_boundary import crossings
 from ..fem.mesh import Mesh, area_for_nodes, build_mesh
 from ..fem.model import Model, build_model
@@ -197,6 +198,20 @@ def probe_contractions(scene: Scene) -> np.ndarray:
     return np.array(cs)
 
 
+def level_model(scene: Scene, mesh: Mesh) -> Model:
+    """The model of an accuracy level; :class:`SceneError` where its
+    self-contact pushes in the rest pose (its boundary is cut finer than
+    ``contact.distance``): its unloaded body would not be at rest, so its
+    poses estimate nothing about the file's."""
+    model = build_model(scene, mesh)
+    pushes = rest_pushes(model.contact, model.X) if model.contact is not None else None
+    if pushes is not None:
+        raise SceneError(f"{scene.source}: accuracy: on the {scene.element} mesh of {mesh.n_nodes:,} nodes, {pushes}; "
+                         "self-contact needs a contact.distance below the length of the boundary's segments "
+                         "on every mesh the accuracy sweep solves (a refinement halves them)")
+    return model
+
+
 def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
                  options: EquilibriumOptions, follow: bool = False, sources=()) -> Level | None:
     """Mesh ``scene`` at ``res``, time one cold solve on it, and solve at
@@ -217,7 +232,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
         log.info("accuracy: %s max_area %.4g is not finer than the previous level: skipped",
                  scene.element, res.max_area)
         return None
-    model = build_model(scene, mesh)
+    model = level_model(scene, mesh)
     probe = Targets.at_points(mesh, points, points)
     # where the pose depends on the path (friction), the pose at c is the plant's: the end of a
     # fresh path from the scene's start state (a pose alone is no start: x0 is not used)

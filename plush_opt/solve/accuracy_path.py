@@ -24,11 +24,10 @@ import numpy as np
 
 from ..base.errors import SceneError
 from ..fem.mesh import build_mesh
-from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
 from .accuracy import (GRADED, LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
-                       one_pose)
+                       level_model, one_pose)
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
@@ -77,7 +76,7 @@ def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, option
     (one pose, ``y`` (1, k, 2), ``along`` the path's :func:`path_key`); a
     :class:`SceneError` if its end is not certified."""
     s = dataclasses.replace(scene, element=lv.element)
-    model = lv.model if lv.model is not None else build_model(s, lv.mesh)
+    model = lv.model if lv.model is not None else level_model(s, lv.mesh)
     eq = replay(make_plant(model), waypoints, contraction, options)
     if not eq.converged:
         raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
@@ -132,7 +131,7 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         t0 = time.perf_counter()
         mesh = build_mesh(s, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=False)
         t_mesh = time.perf_counter() - t0
-        model = build_model(s, mesh)
+        model = level_model(s, mesh)
         plant = make_plant(model)
         with counted(model) as work:
             cold = plant.equilibrium(scene.contraction, options=options)

@@ -152,9 +152,8 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
     cheaply (:func:`_chord_pays`, on the rate the last step cut the
     residual by; before the first, on the cut predicted from the Hessian
     in hand: g + H dx = (H - F) dx). Where they would stop short of the
-    tolerance in the local phase (``FRESH_BELOW``), or go on there at a
-    rate above ``KRYLOV_AFTER_RATE`` where an inexact step may follow
-    (:func:`_inexact_pays`, ``KRYLOV_STEPS``), a factor of a low-rank
+    tolerance in the local phase (``FRESH_BELOW``), or go on there more slowly
+    than ``KRYLOV_AFTER_RATE`` a step (:func:`_slow`), a factor of a low-rank
     Hessian goes on with the tendons' low-rank terms set up afresh at the
     current pose (``FRESH_LOW_RANK``), and where that stalls too, an inexact Newton
     step preconditioned by the kept factor is tried (:func:`krylov_step`,
@@ -182,13 +181,12 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
         target = CHORD_DEPTH * options.gtol * ev1.force_scale
         if norm <= target or floor:
             break
-        rel = norm / ev1.force_scale
-        slow = since > 0 and norm > KRYLOV_AFTER_RATE * last and rel <= FRESH_BELOW and \
-            krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
-        dx, pays = (None, False) if again or slow else _chord_dx(factor, ev1, norm, target, since, last)
+        skip = again or since > 0 and _slow(ev1, norm, last, krylov, options)
+        dx, pays = (None, False) if skip else _chord_dx(factor, ev1, norm, target, since, last)
         last = norm
         taken = _kept_step(model, c, x, ev1, dx, norm, options) if pays else None
         if taken is None:
+            rel = norm / ev1.force_scale
             refresh = not again and refreshed < FRESH_LOW_RANK and options.gtol < rel <= FRESH_BELOW and \
                 isinstance(factor.H, LowRankHessian)         # (else nothing to refresh)
             inexact = krylov < KRYLOV_STEPS and _inexact_pays(g, rel, options)
@@ -222,6 +220,15 @@ def kept_factor_steps(model: Model, c, x, ev: Evaluation, factor: Factor,
                   "residual %.3e", steps, refreshed, krylov, np.linalg.norm(ev1.gradient) / ev1.force_scale)
         return x, (ev1 if ev1.hessian_form is not None else model.evaluate(x, c, order=2)), steps
     return x, ev, 0
+
+
+def _slow(ev: Evaluation, norm: float, last: float, krylov: int, options: EquilibriumOptions) -> bool:
+    """Whether a kept-factor step that took the residual from ``last`` to
+    ``norm`` (at ``ev``) cut it by less than ``KRYLOV_AFTER_RATE`` in the
+    local phase where an inexact step may follow (``krylov`` taken so far)."""
+    rel = norm / ev.force_scale
+    return norm > KRYLOV_AFTER_RATE * last and rel <= FRESH_BELOW and krylov < KRYLOV_STEPS and \
+        _inexact_pays(ev.gradient, rel, options)
 
 
 def _chord_dx(factor: Factor, ev: Evaluation, norm: float, target: float, since: int, last: float):
