@@ -91,10 +91,10 @@ KRYLOV_TOL = 1e-3
 # In the local phase, kept-factor steps that cut the residual by less than
 # this each give way to a fresh low-rank term (where one is left) or an
 # inexact Newton step: conjugate gradients preconditioned by the same factor
-# converge at about (sqrt(k) - 1) / (sqrt(k) + 1) a solve, k = (1 + rate) /
-# (1 - rate), and a dozen kept-factor steps at a rate of 0.45 (the gripper's
-# forward solve at 30,000 nodes) cost what six such solves do twice over
-# (1.0: never).
+# cut it by about (sqrt(k) - 1) / (sqrt(k) + 1) a solve, k = (1 + rate) /
+# (1 - rate) (0.24 where the steps cut it by 0.45, as a dozen of them did at
+# the end of the gripper's forward solve at 30,000 nodes), and a step costs
+# a solve and an evaluation (1.0: never; docs/notes/benchmarks-history.md).
 KRYLOV_AFTER_RATE = 0.3
 # An inexact step that lands below the tolerance but leaves more than this
 # many times the residual its conjugate gradients predicted has met the
