@@ -47,6 +47,24 @@ SLOW_SOLVE = textwrap.dedent("""
 """)
 
 
+# `plush-opt solve` that says when control starts and then waits 2 s before
+# its starting solve: a signal then lands before the first iterate
+SLOW_START = textwrap.dedent("""
+    import sys, time
+    from plush_opt.control import gradient
+    iterates = gradient.Controller.iterates
+
+    def late(self):
+        print("STARTING", flush=True)
+        time.sleep(2.0)
+        yield from iterates(self)
+
+    gradient.Controller.iterates = late
+    from plush_opt.apps.cli import main
+    sys.exit(main(sys.argv[1:]))
+""")
+
+
 def _env():
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
@@ -86,9 +104,9 @@ def test_interrupted_control_run_writes_an_interrupted_result(tmp_path, name, me
 def test_a_signal_before_the_first_iterate_writes_no_result(tmp_path):
     """Interrupted before the starting equilibrium is certified: nothing to report."""
     out = tmp_path / "r.json"
-    proc = subprocess.Popen([sys.executable, "-m", "plush_opt", "solve", "problems/gripper.yaml", "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_START, "solve", "problems/gripper.yaml", "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=ROOT)
-    time.sleep(0.5)
+    assert proc.stdout.readline().strip() == "STARTING", proc.stderr.read()[-2000:]
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=WAIT)
     assert proc.returncode == 143, err[-2000:]
