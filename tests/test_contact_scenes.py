@@ -106,8 +106,8 @@ def test_a_strip_curled_onto_itself_crosses_itself_only_without_self_contact(sel
 
 
 def test_self_contact_on_a_boundary_cut_finer_than_its_distance_is_said_to_push_at_rest(caplog):
-    """The strip with self-contact at d_hat 0.5: on its file's mesh (boundary
-    segments about 1.4 long) nothing is within reach in the rest pose; on a
+    """The strip with self-contact at d_hat 0.5: on its file's mesh nothing
+    is within reach in the rest pose; on a
     mesh whose boundary segments are shorter than d_hat, a node is within
     d_hat of a segment two along, and the pair pushes the unloaded body
     apart: the contact term says where, a problem built on that mesh warns,

@@ -15,6 +15,7 @@ import scipy.sparse as sp
 
 from plush_opt.apps.bench_peers import peer_problem
 from plush_opt.apps.timing import counting_factorisations
+from plush_opt.base.linalg import Factorizer
 from plush_opt.control.gradient import ControlOptions
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import Evaluation, Model
@@ -189,7 +190,6 @@ def test_kept_factor_steps_that_cut_the_residual_slowly_give_way_to_an_inexact_s
     factor's steps run out (then an inexact step); with it, the first slow
     step gives way to an inexact step on H preconditioned by that factor:
     2 steps instead of 13, both below the tolerance at the same equilibrium."""
-    from plush_opt.base.linalg import Factorizer
     _, _, model, _ = built("gripper")
     c = np.array([10.0, 0.0, 5.0])
     eq = solve_equilibrium(model, c)
