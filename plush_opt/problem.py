@@ -209,7 +209,7 @@ def from_scene(scene: Scene, mesh: Mesh | None = None, *, max_area: float | None
         else:
             mesh = build_mesh(scene, max_area)
     model = build_model(scene, mesh)
-    pushes = rest_pushes(model.contact, model.X) if model.contact is not None else None
+    pushes = rest_pushes(model.contact, model.X)
     if pushes is not None:                     # valid, but unlikely meant: said, not refused
         log.warning("%s: contact.self: on this mesh of %d nodes, %s (a contact.distance below the "
                     "boundary's segments keeps the rest pose free)", scene.source, mesh.n_nodes, pushes)

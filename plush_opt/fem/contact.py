@@ -409,14 +409,15 @@ class ContactTerm(Term):
             raise SceneError(f"{where}: the rest pose is not admissible: {bad}")
 
 
-def rest_pushes(term: ContactTerm, X: np.ndarray) -> str | None:
+def rest_pushes(term: ContactTerm | None, X: np.ndarray) -> str | None:
     """Where ``term``'s self-contact already pushes in the rest pose ``X``,
-    in words (the closest pair within d_hat), or None. The format pairs a
+    in words (the closest pair within d_hat), or None (also for no contact
+    term, a model's ``contact`` without a section). The format pairs a
     node with every boundary segment but its own and its neighbours': on a boundary
     cut into segments shorter than about d_hat / 2 (a fine mesh of any
     outline), or at a tight bend, the same stretch of boundary is then
     within reach of itself, and the unloaded body is pushed apart."""
-    if not term.self_contact:
+    if term is None or not term.self_contact:
         return None
     P = term.points(X)
     A, B = P[term.boundary.local[:, 0]], P[term.boundary.local[:, 1]]

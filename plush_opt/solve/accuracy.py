@@ -204,7 +204,7 @@ def level_model(scene: Scene, mesh: Mesh) -> Model:
     ``contact.distance``): its unloaded body would not be at rest, so its
     poses estimate nothing about the file's."""
     model = build_model(scene, mesh)
-    pushes = rest_pushes(model.contact, model.X) if model.contact is not None else None
+    pushes = rest_pushes(model.contact, model.X)
     if pushes is not None:
         raise SceneError(f"{scene.source}: accuracy: on the {scene.element} mesh of {mesh.n_nodes:,} nodes, {pushes}; "
                          "self-contact needs a contact.distance below the length of the boundary's segments "

@@ -25,9 +25,10 @@ import numpy as np
 
 from ..base.errors import SceneError
 from ..fem.contact_boundary import build_boundary, crossings, self_crossing
+from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at, level_model,
+from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
                        estimate_each_element, one_pose, solve_on_branch)
 from .equilibrium import EquilibriumOptions
 
@@ -85,7 +86,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             continue
         t0 = time.perf_counter()
         model = lv.model if lv.model is not None else \
-            level_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
+            build_model(dataclasses.replace(scene, element=lv.element), lv.mesh)
         if here:                      # follow the answer's branch: Newton from the finest pose there
             sources = sorted(here, key=lambda m: -m[0].n_nodes)
             if start is not None and start[0] is lv.mesh:

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..base.errors import SceneError
 from ..fem.mesh import build_mesh
+from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
 from .accuracy import (GRADED, LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
@@ -76,7 +77,7 @@ def _level_along(scene: Scene, lv: Level, waypoints, contraction, points, option
     (one pose, ``y`` (1, k, 2), ``along`` the path's :func:`path_key`); a
     :class:`SceneError` if its end is not certified."""
     s = dataclasses.replace(scene, element=lv.element)
-    model = lv.model if lv.model is not None else level_model(s, lv.mesh)
+    model = lv.model if lv.model is not None else build_model(s, lv.mesh)
     eq = replay(make_plant(model), waypoints, contraction, options)
     if not eq.converged:
         raise SceneError(f"{scene.source}: accuracy: the returned path replayed on the {lv.element} mesh of "
