@@ -280,9 +280,11 @@ def test_the_step_is_a_function_of_explicit_state():
 def test_a_line_search_no_comparison_of_O_could_decide_is_stationary():
     """Where every trial fails, each certified, and none was predicted to
     lower O by more than its round-off (first order, -g . dc), the line
-    search says so ('below_roundoff', the largest such decrease); with a
-    larger prediction, a trial not certified, or no gradient given, it
-    found no decrease ('no_decrease')."""
+    search says so ('below_roundoff', the largest such decrease); where the
+    first trial, certified, changes O by no more than its round-off either
+    way, it says so after that trial alone (the others are smaller); with a
+    larger prediction, a first trial not certified, or no gradient given,
+    it found no decrease ('no_decrease') after every trial."""
     from types import SimpleNamespace
 
     from plush_opt.control.bounds import ClipBounds
@@ -292,19 +294,24 @@ def test_a_line_search_no_comparison_of_O_could_decide_is_stationary():
     g = np.array([1e-8, -1e-8, 0.0])
     gn = dataclasses.replace(ControlOptions(), max_backtracks=3)
 
-    def search(roundoff, certified=(True, True, True), gradient=g):
-        flags, sizes = iter(certified), iter([2e-6, 1e-6, 5e-7])    # -g . dc: 2e-14, 1e-14, 5e-15
-        return line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3,
-                           lambda mu: np.array([0.0, next(sizes), 0.0]),
-                           lambda c: SimpleNamespace(converged=next(flags)), lambda eq: 1.0,
-                           gradient=gradient, roundoff=roundoff)
-    found = search(1e-13)
-    assert found.kind == "below_roundoff" and found.predicted == pytest.approx(2e-14)
-    assert found.mu == 1e-3 * 10.0 ** 3                     # (the damping raised per trial as before)
-    assert search(2.001e-14).kind == "below_roundoff"       # (the largest prediction, the first trial's)
-    assert search(1.999e-14).kind == "no_decrease"
-    assert search(1e-13, certified=(True, False, True)).kind == "no_decrease"
-    assert search(1e-13, gradient=None).kind == "no_decrease"
+    def search(roundoff, certified=(True, True, True), gradient=g, sizes=(2e-6, 1e-6, 5e-7)):
+        flags, steps, solved = iter(certified), iter(sizes), []     # -g . dc: 2e-14, 1e-14, 5e-15
+        found = line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3,
+                            lambda mu: np.array([0.0, next(steps), 0.0]),
+                            lambda c: solved.append(c) or SimpleNamespace(converged=next(flags)), lambda eq: 1.0,
+                            gradient=gradient, roundoff=roundoff)
+        return found.kind, len(solved), found
+    kind, solved, found = search(1e-13)
+    assert (kind, solved) == ("below_roundoff", 1) and found.predicted == pytest.approx(2e-14)
+    assert found.mu == 1e-3 * 10.0                           # (the damping raised for the rejected trial)
+    assert search(2.001e-14)[:2] == ("below_roundoff", 1)
+    assert search(1.999e-14)[:2] == ("no_decrease", 3)
+    assert search(1e-13, certified=(False, True, True))[:2] == ("no_decrease", 3)
+    assert search(1e-13, gradient=None)[:2] == ("no_decrease", 3)
+    # a first trial predicted to raise O by more than its round-off: the smaller ones are tried
+    # (a bounded step's first-order model fails far out), and all of them failing, nothing was predicted
+    # to lower O
+    assert search(1e-13, sizes=(-1e-3, -1e-4, -1e-5))[:2] == ("below_roundoff", 3)
 
 
 def test_objective_roundoff_bounds_its_evaluation_at_nearby_float_poses():

@@ -125,17 +125,18 @@ def _control(model, targets) -> dict:
     steps = ctl.iterates()
     next(steps)                                   # the starting solve
     count = counting_factorisations(model)
-    times = []
+    times, inside = [], 0
     try:
         t = time.process_time()
         for _ in steps:
             times.append(time.process_time() - t)
+            inside = count["n"]       # (the search that finds no next iterate is no iterate's)
             t = time.process_time()
     finally:
         del model.factorizer.factor
     res = ctl.result(eigenvalue=False)
     return {"iterate_cpu": float(np.median(times)) if times else None, "iterates": len(times),
-            "factorisations_per_iterate": count["n"] / max(len(times), 1), "objective": res.objective}
+            "factorisations_per_iterate": inside / max(len(times), 1), "objective": res.objective}
 
 
 _NO_CONTROL: dict = {}
@@ -295,14 +296,16 @@ def _counts(problem: str, nodes_list) -> None:
             return plain_once(self, b)
         Model.evaluate, linalg.Factor.solve, model.factorizer.factor = evaluate, solve, counted_factor
         woodbury.__call__, woodbury._once = call, once
+        iterates, inside = 0, {}
         try:
-            iterates = sum(1 for _ in steps)
+            for _ in steps:           # (the search that finds no next iterate is no iterate's: left out)
+                iterates, inside = iterates + 1, {name: list(row) for name, row in count.items()}
         finally:
             Model.evaluate, linalg.Factor.solve = plain_evaluate, plain_solve
             woodbury.__call__, woodbury._once = plain_call, plain_once
             del model.factorizer.factor
-        total = np.sum(list(count.values()), axis=0)
-        for name, row in sorted(count.items(), key=lambda item: -sum(item[1])) + [("all", total)]:
+        total = np.sum(list(inside.values()), axis=0)
+        for name, row in sorted(inside.items(), key=lambda item: -sum(item[1])) + [("all", total)]:
             per = [v / max(iterates, 1) for v in row]
             print(f"| {model.n_nodes} | {name} | {per[0]:.2f} / {per[1]:.2f} / {per[2]:.2f} | {per[3]:.2f} "
                   f"| {per[4]:.2f} |", flush=True)

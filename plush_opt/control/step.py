@@ -129,7 +129,11 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     than ``roundoff`` (O's round-off at the iterate, length^2) to first
     order along ``gradient`` (dO/dc at the iterate, (n_winches,); the
     Gauss-Newton model's decrease is at most that), the comparisons could
-    not have seen a decrease: 'below_roundoff', not 'no_decrease'.
+    not have seen a decrease: 'below_roundoff', not 'no_decrease'. The
+    same after the first trial alone where it was certified and rejected
+    and changes O by no more than ``roundoff`` to first order either way
+    (the damped or halved trials after it are smaller still: the round-off
+    steps at the end of a run, where a comparison of O decides nothing).
     """
     gn = options.direction == "gauss-newton"
     predicted, judged = -np.inf, gradient is not None    # (judged: every trial certified, judged by O)
@@ -149,7 +153,12 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
         if judged:
-            predicted, judged = max(predicted, -float(gradient @ (c_t - contraction))), eq.converged
+            change = -float(gradient @ (c_t - contraction))
+            predicted, judged = max(predicted, change), eq.converged
+            if judged and attempt == 0 and abs(change) <= roundoff:
+                # a first trial whose O changes by less than its round-off to first order either
+                # way: the smaller trials after it cannot show a decrease either
+                return Outcome("below_roundoff", options.damping.rejected(mu) if gn else mu, predicted=predicted)
         if gn:
             mu = options.damping.rejected(mu)
     if judged and predicted <= roundoff:
