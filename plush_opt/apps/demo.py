@@ -10,7 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from .arguments import check_tension_max
-from .console import EXIT_OK, EXIT_SOLVER, is_quiet, say, target_summary, use_agg
+from .console import EXIT_OK, EXIT_SOLVER, say, target_summary, use_agg
 from ..io.units import units_of
 from .run_command import cmd_run
 from .solve_command import solve_problem, write_interrupted, write_trace
@@ -120,8 +120,9 @@ def _demo_run(script: Path, out: Path) -> int:
     from .plot import plot_run_log
     say(f"demo: playing {script.name} on the board emulator")
     log_path = out / "run.jsonl"
+    # (quiet: the demo's own line below says how the run ended, on the same stream as its others)
     args = SimpleNamespace(script=script, port=None, emulator=True, dry_run=False, log=log_path,
-                           quiet=is_quiet(), plot=None, vtk=None, progress=False)
+                           quiet=True, plot=None, vtk=None, progress=False)
     code = cmd_run(args)
     if code != EXIT_OK:
         return code

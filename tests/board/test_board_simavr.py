@@ -5,6 +5,7 @@ test_board_runs.py).
 These are real time (simavr keeps the simulated clock at the wall clock).
 """
 
+import re
 import shutil
 import subprocess
 import time
@@ -36,6 +37,12 @@ def test_firmware_builds_for_the_mega_and_reports_its_size():
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Device: atmega2560" in r.stdout and "Program:" in r.stdout and "Data:" in r.stdout
     assert (HW / "firmware" / "build" / "plush_winch.hex").read_text().startswith(":")
+    # docs/hardware.md's size table is this report's
+    doc = (ROOT / "docs" / "hardware.md").read_text()
+    for memory, label in (("flash", "Program"), ("RAM", "Data")):
+        used, share = re.search(rf"{label}:\s+(\d+) bytes \(([\d.]+)% Full\)", r.stdout).groups()
+        assert f"| {memory} (" in doc and re.search(rf"\| {memory} \(.*\| {int(used):,} bytes \({share} %\)", doc), \
+            f"docs/hardware.md: the {memory} row should say {int(used):,} bytes ({share} %)"
 
 
 def test_missing_avr_toolchain_is_named_with_the_fix(tmp_path):

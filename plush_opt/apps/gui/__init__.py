@@ -57,7 +57,7 @@ def add_gui_parser(subparsers) -> argparse.ArgumentParser:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--port", help="serial port of the winch board: every pose shown is sent to it")
     where.add_argument("--emulator", action="store_true",
-                       help="attach the board emulator (build it with `make -C hw`)")
+                       help="attach the board emulator (compiled on first use when `make -C hw` has not built it)")
     p.add_argument("--board", type=Path, metavar="FILE",
                    help="board calibration (default: the shipped hw/boards/<problem name>.yaml)")
     p.add_argument("--out", type=Path, metavar="FILE.json",
