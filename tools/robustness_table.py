@@ -222,7 +222,8 @@ vary between runs; control runs are capped at {budget:g} s.
 """
 
 
-def render(rows: list[dict], scenes: list[Path]) -> str:
+def render(rows: list[dict], scenes: list[Path], seconds: float) -> str:
+    """The page: ``rows`` of ``scenes``, made in ``seconds`` (wall)."""
     mentions, defects = test_index(ROOT / "tests" / "hard")
     out = [INTRO.format(machine=f"{platform.machine()}, Python {platform.python_version()}",
                         budget=CONTROL_BUDGET_S)]
@@ -279,7 +280,7 @@ def render(rows: list[dict], scenes: list[Path]) -> str:
                "not load raises SceneError naming the file, whatever loads meshes and builds "
                "a model, and value-preserving rewrites load to the same scene.\n")
     out.append("## Regenerating\n")
-    out.append("```sh\n.venv/bin/python tools/robustness_table.py      # about two minutes\n```\n")
+    out.append(f"```sh\n.venv/bin/python tools/robustness_table.py      # this page took {seconds:.0f} s\n```\n")
     out.append("On a small machine that is busy with other work, `OPENBLAS_NUM_THREADS=1` "
                "makes both this script and `pytest tests/hard` several times faster (the dense "
                "eigen-solves and Cholesky re-checks otherwise fight over the cores).\n")
@@ -308,13 +309,13 @@ def main(argv=None) -> int:
     scenes = sorted(HARD.glob("*.yaml"))
     if args.scene:
         scenes = [p for p in scenes if p.stem in args.scene]
-    rows = []
+    rows, start = [], time.perf_counter()
     for path in scenes:
         t = time.perf_counter()
         mine = rows_for(path)
         rows += mine
         print(f"{path.stem}: {len(mine)} rows, {time.perf_counter() - t:.1f} s", flush=True)
-    text = keep_promises(render(rows, scenes), args.out)
+    text = keep_promises(render(rows, scenes, time.perf_counter() - start), args.out)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.out.with_suffix(".tmp")
     tmp.write_text(text)

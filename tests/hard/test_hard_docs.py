@@ -36,7 +36,7 @@ def test_the_generator_renders_headers_tests_and_known_defects():
     scenes = sorted(HARD.glob("*.yaml"))
     row = {"scene": "buckling", "method": "forward, newton", "setting": "c = (1)",
            "outcome": "certified", "status": "converged | fine", "iterations": 3, "seconds": 0.1}
-    text = tool.render([row], scenes)
+    text = tool.render([row], scenes, 1.0)
     assert "| buckling | forward, newton | c = (1) | certified | converged / fine | 3 | 0.10 |" in text
     assert "Right outcome" in text and "Observed in this run: 1 certified." in text
     assert "test_hard_scenes.py::test_buckling_" in text
