@@ -55,7 +55,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write-doc", action="store_true", help="rewrite the table's rows in docs/control.md")
     args = ap.parse_args()
-    lines = [HEADER, "|---|---|---|---|"] + rows() + ["", f"(Run on {time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC.)"]
+    when = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
+    lines = [HEADER, "|---|---|---|---|"] + rows() + ["", f"(Run on {when} UTC.)"]
     print("\n".join(lines))
     if args.write_doc:
         try:
