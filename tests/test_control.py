@@ -298,7 +298,8 @@ def test_a_line_search_no_comparison_of_O_could_decide_is_stationary():
         flags, steps, solved = iter(certified), iter(sizes), []     # -g . dc: 2e-14, 1e-14, 5e-15
         found = line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3,
                             lambda mu: np.array([0.0, next(steps), 0.0]),
-                            lambda c: solved.append(c) or SimpleNamespace(converged=next(flags)), lambda eq: 1.0,
+                            lambda c: solved.append(c) or SimpleNamespace(converged=next(flags), status="x"),
+                            lambda eq: 1.0,
                             gradient=gradient, roundoff=roundoff)
         return found.kind, len(solved), found
     kind, solved, found = search(1e-13)
@@ -312,6 +313,41 @@ def test_a_line_search_no_comparison_of_O_could_decide_is_stationary():
     # (a bounded step's first-order model fails far out), and all of them failing, nothing was predicted
     # to lower O
     assert search(1e-13, sizes=(-1e-3, -1e-4, -1e-5))[:2] == ("below_roundoff", 3)
+
+
+def test_a_search_whose_trials_all_left_the_branch_says_the_branch_ends_ahead():
+    """Where no trial is certified because each left the stable branch (a
+    limit point just ahead: the crescent's lower arm at 20,517 nodes, where
+    dO/dc grew to 3.6e4 and every trial snapped), the failed search says so;
+    where a trial failed otherwise (an iteration limit) it says only that it
+    failed."""
+    from types import SimpleNamespace
+
+    from plush_opt.control.bounds import ClipBounds
+    from plush_opt.control.gradient import BRANCH_AHEAD, LINE_SEARCH_FAILED, _search_verdict
+    from plush_opt.control.step import line_search
+    from plush_opt.solve.branch import BRANCH_ENDS
+    from plush_opt.solve.certificate import LEFT_BRANCH
+    bounds = ClipBounds(np.zeros(2), np.full(2, 10.0))
+    xi, frozen = np.array([5.0, 5.0]), np.zeros(2, dtype=bool)
+    gn = dataclasses.replace(ControlOptions(), max_backtracks=3)
+    model = SimpleNamespace(winch_names=("a", "b"), lower=np.zeros(2), upper=np.full(2, 10.0))
+    last = SimpleNamespace(active_bounds=(), contraction=xi.copy(), gradient=np.array([-1.0, 0.0]), objective=1.0)
+    plant = SimpleNamespace(path_dependent=False, path_cause=None)
+
+    def verdict(statuses):
+        trials = iter(statuses)
+        found = line_search(xi, xi.copy(), frozen, bounds, 1.0, gn, 1e-3, lambda mu: np.array([0.1, 0.0]),
+                            lambda c: SimpleNamespace(converged=False, status=next(trials)), lambda eq: 0.5,
+                            gradient=last.gradient, roundoff=1e-13)
+        return found.branch_ends, _search_verdict(found, last, model, gn, plant)
+    ends, (converged, reason, status) = verdict([f"{BRANCH_ENDS}: it ends (limit point) past ...",
+                                                 f"{LEFT_BRANCH}: smallest Hessian eigenvalue ...",
+                                                 f"{BRANCH_ENDS}: it ends (limit point) past ..."])
+    assert ends and (converged, reason) == (False, "no_decrease") and status == LINE_SEARCH_FAILED + BRANCH_AHEAD
+    ends, (_, _, status) = verdict([f"{BRANCH_ENDS}: ...", "iteration limit (500) reached on the branch",
+                                    f"{BRANCH_ENDS}: ..."])
+    assert not ends and status == LINE_SEARCH_FAILED
 
 
 def test_objective_roundoff_bounds_its_evaluation_at_nearby_float_poses():

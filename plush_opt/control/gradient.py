@@ -450,12 +450,18 @@ def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions,
         return True, "stationary", (f"stationary to the objective's round-off: no step tried could lower O by "
                                     f"more than {max(found.predicted, 0.0):.2g} to first order, below its "
                                     f"round-off {roundoff:.2g}" + note)
-    failed = stalled_on(plant.path_cause) if plant.path_dependent else LINE_SEARCH_FAILED
+    if plant.path_dependent:
+        failed = stalled_on(plant.path_cause)
+    else:
+        failed = LINE_SEARCH_FAILED + (BRANCH_AHEAD if found.branch_ends else "")
     return False, "no_decrease", failed + note
 
 
 #: The status of a line search that found no decrease.
 LINE_SEARCH_FAILED = "cannot decrease the objective further: line search failed"
+#: ... where no trial had a certified pose because each left the stable branch
+BRANCH_AHEAD = (" (the stable branch ends just ahead, a limit point where the pose would snap: every trial step "
+                "left it)")
 
 
 def stalled_on(cause: str) -> str:

@@ -17,6 +17,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..solve.branch import branch_ended
+
 # A winch whose xi is within this fraction of its range from where xi stops
 # counts as on that edge (round-off of f's inverse at a bound).
 EDGE_TOLERANCE = 1e-12
@@ -108,6 +110,7 @@ class Outcome:
     xi: np.ndarray | None = None
     equilibrium: Any = None
     predicted: float | None = None
+    branch_ends: bool = False       # no trial certified: each left the stable branch (a limit point ahead)
 
 
 def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: float,
@@ -137,7 +140,7 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
     """
     gn = options.direction == "gauss-newton"
     predicted, judged = -np.inf, gradient is not None    # (judged: every trial certified, judged by O)
-    vanished = False
+    vanished, solved, ended = False, 0, True               # (ended: every trial solved left the branch)
     for attempt in range(options.max_backtracks):
         step = direction(mu)
         if not gn:
@@ -152,6 +155,7 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
         eq = trial(c_t)
         if eq.converged and value(eq) < objective:
             return Outcome("accepted", options.damping.accepted(mu) if gn else mu, xi_t, eq)
+        solved, ended = solved + 1, ended and not eq.converged and branch_ended(eq.status)
         if judged:
             change = -float(gradient @ (c_t - contraction))
             predicted, judged = max(predicted, change), eq.converged
@@ -163,4 +167,4 @@ def line_search(xi, contraction, frozen, bounds, objective: float, options, mu: 
             mu = options.damping.rejected(mu)
     if judged and predicted <= roundoff:
         return Outcome("below_roundoff", mu, predicted=predicted)
-    return Outcome("vanished" if vanished else "no_decrease", mu)
+    return Outcome("vanished" if vanished else "no_decrease", mu, branch_ends=bool(solved) and ended)

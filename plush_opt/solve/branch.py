@@ -51,6 +51,14 @@ SAFETY = 100.0
 # a sub-step that stayed on the branch lets the next be this much longer;
 # one that left it is retried this much shorter (bisection of the end)
 GROW, CUT = 2.0, 0.5
+# how a move's status begins where the branch ends before its contraction
+BRANCH_ENDS = "no stable equilibrium on the branch"
+
+
+def branch_ended(status: str) -> bool:
+    """Whether a move's ``status`` says the stable branch ended on the way
+    (a limit point: past it the pose would snap), not some other failure."""
+    return status.startswith(BRANCH_ENDS) or status.startswith(LEFT_BRANCH)
 
 
 def solve_on_branch(model: Model, c0, x0, c1, guess=None, options: EquilibriumOptions | None = None,
@@ -124,7 +132,7 @@ def _substeps(model: Model, c0, x0, c1, guess, options: EquilibriumOptions, dire
                 h, look = h / CUT, True     # the smallest step that failed, once more, looking
                 continue
             reached = c0 + done * (c1 - c0)
-            status = (f"no stable equilibrium on the branch: it ends (limit point) past "
+            status = (f"{BRANCH_ENDS}: it ends (limit point) past "
                       f"contraction {np.array2string(reached, precision=6)} on the way to "
                       f"{np.array2string(c1, precision=6)}")
             return (replace(direct, status=status, iterations=used, t_wall=time.perf_counter() - t0),
