@@ -1,6 +1,9 @@
-"""A body that folds through itself: found in a pose, and left out of the
-accuracy sweep's mesh choice (a fold has no length scale, so its levels
-do not converge and say nothing of the mesh the other contractions need)."""
+"""A body that folds through itself: found in a pose, told a crease (the
+boundary folded back on itself over a short stretch) from an overlap (two
+parts far apart along it passing through each other), and a crease left
+out of the accuracy sweep's mesh choice (a crease has no length scale, so
+its levels do not converge and say nothing of the mesh the other
+contractions need; an overlap converges like any pose)."""
 
 from __future__ import annotations
 
@@ -28,8 +31,8 @@ STRIP = {
 }
 
 
-def _strip(element):
-    doc = dict(STRIP, mesh=dict(STRIP["mesh"], element=element))
+def _strip(element, max_area=0.2):
+    doc = dict(STRIP, mesh=dict(STRIP["mesh"], element=element, max_area=max_area))
     return build_mesh(scene_from_dict(doc, "strip.yaml"))
 
 
@@ -47,6 +50,39 @@ def test_a_strip_folded_back_through_itself_crosses_and_one_moved_rigidly_does_n
     folded[right] = np.c_[10.0 - X[right, 0], X[right, 1] + 0.5]
     where = self_crossing(boundary, folded.ravel())
     assert where is not None and "cross near" in where
+    # its two ends cross, about 10 apart along the outline of 22: an overlap, not a crease
+    assert "an overlap, 10" in where and "apart along a boundary of 22" in where
+    assert self_crossing(boundary, folded.ravel(), creases_only=True) is None
+
+
+@pytest.mark.parametrize("element", ["P1", "P2"])
+def test_a_loop_in_the_outline_is_a_crease(element):
+    mesh = _strip(element, 0.05)
+    boundary = build_boundary(mesh)
+    where = self_crossing(boundary, _creased(mesh))
+    assert where is not None and "a crease, 0.625 apart along a boundary of 22" in where
+    assert self_crossing(boundary, _creased(mesh), creases_only=True) == where
+
+
+def test_a_crossing_between_a_hole_and_the_outline_is_an_overlap():
+    doc = dict(STRIP, mesh=dict(STRIP["mesh"], outline=[[0, 0], [10, 0], [10, 3], [0, 3]],
+                                holes=[[[4, 1], [6, 1], [6, 2], [4, 2]]]))
+    mesh = build_mesh(scene_from_dict(doc, "holed.yaml"))
+    # the outline's top above the hole pushed down into it
+    x = mesh.X.copy()
+    top = (x[:, 1] > 2.0) & (x[:, 0] >= 4.0) & (x[:, 0] <= 6.0)
+    x[top, 1] -= 1.5
+    where = self_crossing(build_boundary(mesh), x.ravel())
+    assert where is not None and "an overlap" in where
+    assert self_crossing(build_boundary(mesh), x.ravel(), creases_only=True) is None
+
+
+def _creased(mesh, R=0.4):
+    """The strip with a loop in its outline at x = 5: a prolate cycloid of
+    radius ``R`` over one unit of its length, the parts either side 2 R higher."""
+    x = mesh.X[:, 0]
+    s = np.clip(x - 5.0, -0.5, 0.5)
+    return np.c_[x - R * np.sin(2 * np.pi * s), mesh.X[:, 1] + R * (1 - np.cos(2 * np.pi * s))].ravel()
 
 
 def _folded(mesh):
@@ -58,30 +94,34 @@ def _folded(mesh):
 
 
 def _posed(element, pose_of):
-    mesh = _strip(element)
+    mesh = _strip(element, 0.05)
     res = Resolution(0.2, 0, 0.2)
     return Level(element, res, mesh, 0.0, 1e-3 * mesh.n_nodes, 1, [pose_of(mesh)], np.zeros((1, 1, 2)))
 
 
 def test_a_fold_at_the_returned_contractions_is_found_on_the_level_in_use_or_a_finer_one():
     """What the check at the returned contractions asks before it claims
-    anything there: whether the answer's level, or one finer, crosses
-    itself (a coarser level's fold says nothing of the answer's)."""
+    anything there: whether the answer's level, or one finer, creases
+    (a coarser level's crease says nothing of the answer's, and an overlap
+    converges like any pose)."""
     from plush_opt.solve.accuracy_check import fold_at
     scene = scene_from_dict(STRIP, "strip.yaml")
     rest = lambda mesh: mesh.X.ravel()              # noqa: E731
-    coarse, fine = _posed("P1", rest), _posed("P2", _folded)
+    coarse, fine = _posed("P1", rest), _posed("P2", _creased)
     assert fold_at(scene, [coarse, fine], coarse) == {"element": "P2", "nodes": fine.mesh.n_nodes,
                                                       "where": fold_at(scene, [fine], fine)["where"]}
-    assert "cross near" in fold_at(scene, [fine], fine)["where"]
-    coarse, fine = _posed("P1", _folded), _posed("P2", rest)
+    assert "a crease" in fold_at(scene, [fine], fine)["where"]
+    coarse, fine = _posed("P1", _creased), _posed("P2", rest)
     assert fold_at(scene, [coarse, fine], fine) is None
     assert fold_at(scene, [coarse, fine], coarse)["element"] == "P1"
     # a level off the answer's branch (no pose there) has nothing to cross
     assert fold_at(scene, [dataclasses.replace(coarse, poses=[None]), fine], coarse) is None
+    # an overlap is no fold: its levels converge, the estimate there stands
+    overlap = _posed("P2", _folded)
+    assert fold_at(scene, [overlap], overlap) is None
     # with self-contact a pose never crosses: nothing to look for
     held = scene_from_dict({**STRIP, "contact": {"self": True, "distance": 0.05}}, "strip.yaml")
-    assert fold_at(held, [_posed("P1", _folded)], _posed("P1", _folded)) is None
+    assert fold_at(held, [_posed("P1", _creased)], _posed("P1", _creased)) is None
 
 
 def test_the_line_at_the_returned_contractions_says_the_body_crosses_itself_there():

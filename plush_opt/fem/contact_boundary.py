@@ -7,7 +7,10 @@ segments' end points; each carries the length weight w of its pairs (half
 the summed rest lengths of the segments at it), and knows its neighbours
 along the boundary (self-contact skips them). :func:`self_crossing` finds
 where a pose's boundary passes through itself (a scene without
-self-contact allows it; a level or a result that does is flagged).
+self-contact allows it; a level or a result that does is flagged), and
+tells a crease (the boundary folded back on itself over a short stretch)
+from an overlap (two parts of the body far apart along it passing through
+each other).
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from . import contact_geometry as geo
 from .mesh import Mesh
@@ -87,28 +92,70 @@ def build_boundary(mesh: Mesh) -> Boundary:
                     near=near_arr)
 
 
-def self_crossing(boundary: Boundary, x: np.ndarray) -> str | None:
+#: A crossing whose two segments are at most this fraction of their loop's
+#: rest length apart along the boundary is a crease. A crease has no length
+#: scale (each finer mesh folds further), an overlap converges like any
+#: pose. Measured (docs/notes/accuracy-measurements.md, "A crease and an
+#: overlap, along the boundary"): creases 0.5-3 % of their loop apart, the
+#: thin strip's curled end over its base 35 %.
+CREASE_SPAN = 0.1
+
+
+def self_crossing(boundary: Boundary, x: np.ndarray, creases_only: bool = False) -> str | None:
     """Where the boundary of flat pose ``x`` crosses itself: the first two
-    crossing segments (neither sharing an end node) and the point, in
-    words; None where it does not."""
+    crossing segments (neither sharing an end node), the point and how far
+    apart the two are along the rest boundary (a crease, or an overlap: see
+    :data:`CREASE_SPAN`), in words; None where it does not (with
+    ``creases_only``: where it has no crease)."""
     P = np.asarray(x, dtype=np.float64).reshape(-1, 2)[boundary.nodes]
     A, B = P[boundary.local[:, 0]], P[boundary.local[:, 1]]
     i, j = geo.crossing_pairs(A, B, shared=boundary.local)
     if not len(i):
         return None
-    s, t = boundary.segments[i[0]], boundary.segments[j[0]]
-    near = 0.25 * (A[i[0]] + B[i[0]] + A[j[0]] + B[j[0]])
+    apart, loop = crossing_spans(boundary, i, j)
+    crease = apart <= CREASE_SPAN * loop
+    k = int(np.argmax(crease)) if crease.any() else (None if creases_only else 0)
+    if k is None:
+        return None
+    if not crease[k]:               # (the search above stopped at a crease's span: the whole way for this one)
+        apart[k] = crossing_spans(boundary, i[k:k + 1], j[k:k + 1], limit=None)[0][0]
+    s, t = boundary.segments[i[k]], boundary.segments[j[k]]
+    near = 0.25 * (A[i[k]] + B[i[k]] + A[j[k]] + B[j[k]])
+    how = (f"a crease, {apart[k]:.3g} apart along a boundary of {loop[k]:.4g}" if crease[k] else
+           "an overlap, on separate boundaries" if not np.isfinite(apart[k]) else
+           f"an overlap, {apart[k]:.3g} apart along a boundary of {loop[k]:.4g}")
     return (f"boundary segments {int(s[0])}-{int(s[1])} and {int(t[0])}-{int(t[1])} cross "
-            f"near ({near[0]:.4g}, {near[1]:.4g})")
+            f"near ({near[0]:.4g}, {near[1]:.4g}): {how}")
 
 
-def crossings(model, poses) -> tuple:
+def crossing_spans(boundary: Boundary, i: np.ndarray, j: np.ndarray,
+                   limit: float | None = CREASE_SPAN) -> tuple[np.ndarray, np.ndarray]:
+    """For segment pairs (``i``, ``j``) of ``boundary``: the rest length
+    along the boundary between them (the shortest way from an end of one to
+    an end of the other; inf on separate loops, e.g. a hole's and the
+    outline's, and beyond ``limit`` times the longest of their loops) and
+    the rest length of the loop of ``i``."""
+    local, length = boundary.local, boundary.rest_length
+    n = len(boundary.nodes)
+    graph = sp.coo_matrix((np.r_[length, length], (np.r_[local[:, 0], local[:, 1]], np.r_[local[:, 1], local[:, 0]])),
+                          shape=(n, n)).tocsr()
+    _, label = connected_components(graph, directed=False)
+    loop = np.bincount(label[local[:, 0]], weights=length)[label[local[i, 0]]]
+    sources, row = np.unique(local[i].ravel(), return_inverse=True)
+    dist = dijkstra(graph, indices=sources, limit=np.inf if limit is None else limit * float(loop.max()) * 1.01)
+    row = row.reshape(-1, 2)
+    apart = np.min([dist[row[:, a], local[j, b]] for a in (0, 1) for b in (0, 1)], axis=0)
+    return apart, loop
+
+
+def crossings(model, poses, creases_only: bool = False) -> tuple:
     """Per flat pose of ``model`` in ``poses`` (None: no pose), where it
-    crosses itself (:func:`self_crossing`) or None, in a scene whose body
-    may pass through itself (no ``contact.self``); () in one whose may not.
-    The contact term's boundary is used where the model has one."""
+    crosses itself (:func:`self_crossing`; with ``creases_only``, where it
+    creases) or None, in a scene whose body may pass through itself (no
+    ``contact.self``); () in one whose may not. The contact term's
+    boundary is used where the model has one."""
     contact = model.contact
     if contact is not None and contact.self_contact:
         return ()
     boundary = contact.boundary if contact is not None else build_boundary(model.mesh)
-    return tuple(None if x is None else self_crossing(boundary, x) for x in poses)
+    return tuple(None if x is None else self_crossing(boundary, x, creases_only) for x in poses)

@@ -271,7 +271,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses),
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses, creases_only=True),
                  work=work.seconds if options.backend == "newton" else None)   # (IPOPT's own work is not counted)
 
 

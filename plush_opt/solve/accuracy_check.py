@@ -104,7 +104,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
                      + _said(eq, how, time.perf_counter() - t0, refuted is not None))
-        crossing = crossings(model, [eq.x]) if eq.converged else ()     # (what fold_at reads)
+        crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()     # (fold_at reads it)
         if eq.converged:
             here.append((lv.mesh, eq.x))
             folded = used is not None and (i == used or finer(lv, levels[used])) and \
@@ -150,7 +150,7 @@ def _crossing(scene: Scene, mesh, x) -> str | None:
     level that keeps none."""
     if scene.contact is not None and scene.contact.self_contact:
         return None
-    return self_crossing(build_boundary(mesh), x)
+    return self_crossing(build_boundary(mesh), x, creases_only=True)
 
 
 def _sweep_has(levels: list[Level], start, j: int) -> bool:
