@@ -271,16 +271,19 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     log.info("accuracy: %s max_area %.4g refined %d times, %d nodes, one solve %.3f s", scene.element,
              res.max_area, res.refinements, mesh.n_nodes, t_solve)
     return Level(scene.element, res, mesh, t_mesh, t_solve, cold.iterations, poses, np.array(ys),
-                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None, crossing=crossings(model, poses, creases_only=True),
+                 model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None,
+                 crossing=crossings(model, poses, creases_only=True),
                  work=work.seconds if options.backend == "newton" else None)   # (IPOPT's own work is not counted)
 
 
 def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:
     """Leave out of every level's estimates the contractions where some
-    level's pose crosses itself (a body folded through itself, which a
-    scene without self-contact allows: a fold has no length scale, so
-    its levels do not converge and say nothing of the mesh the other
-    contractions need), unless that is every contraction. ``left_out``
+    level's pose creases (a body folded through itself, which a scene
+    without self-contact allows: a crease has no length scale, so its
+    levels do not converge and say nothing of the mesh the other
+    contractions need; ``Level.crossing`` holds creases only, see
+    :data:`~plush_opt.fem.contact_boundary.CREASE_SPAN`), unless that is
+    every contraction. ``left_out``
     gets a row per contraction left out (its first crossing), and
     ``progress`` hears of each once."""
     first = {}

@@ -128,11 +128,12 @@ def _said(eq, how: str, seconds: float, refuted: bool) -> str:
 def fold_at(scene: Scene, levels: list[Level], used: Level) -> dict | None:
     """Where the pose of the cheapest of ``levels`` (as :func:`bounds_at`
     returns them: one pose each) that is ``used`` or :func:`finer` than it
-    crosses itself: ``{"element", "nodes", "where"}``, or None (none does,
-    or the scene has self-contact and its poses never cross). A body folded
-    through itself has no converged answer there (a fold has no length
-    scale: each finer mesh folds further), so no estimate made there means
-    anything."""
+    creases: ``{"element", "nodes", "where"}``, or None (none does, or the
+    scene has self-contact and its poses never cross). A body folded
+    through itself in a crease has no converged answer there (a crease has
+    no length scale: each finer mesh folds further), so no estimate made
+    there means anything; an overlap (:data:`~plush_opt.fem.contact_boundary.CREASE_SPAN`)
+    converges like any pose and is no fold."""
     for lv in sorted(levels, key=lambda lv: lv.cost):
         if lv.poses[0] is None or not (lv is used or finer(lv, used)):
             continue
@@ -144,8 +145,8 @@ def fold_at(scene: Scene, levels: list[Level], used: Level) -> dict | None:
 
 
 def _crossing(scene: Scene, mesh, x) -> str | None:
-    """Where the pose ``x`` on ``mesh`` crosses itself, or None (also in a
-    scene with self-contact, whose poses never do): what
+    """Where the pose ``x`` on ``mesh`` creases, or None (also in a scene
+    with self-contact, whose poses never cross): what
     :func:`~plush_opt.fem.contact_boundary.crossings` says of a model, for a
     level that keeps none."""
     if scene.contact is not None and scene.contact.self_contact:

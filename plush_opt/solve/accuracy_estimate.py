@@ -77,7 +77,7 @@ class Level:
     model: object = dataclasses.field(default=None, repr=False, compare=False)   # kept to be solved again (or None)
     # the path its one pose ends (plush_opt.solve.accuracy_path.path_key), or None
     along: bytes | None = dataclasses.field(default=None, repr=False, compare=False)
-    # per contraction, where its pose crosses itself (a scene without self-contact), or None; () unchecked
+    # per contraction, where its pose creases (contact_boundary.CREASE_SPAN; no contact.self), or None; () unchecked
     crossing: tuple = ()
     # the contractions (rows of y) the estimates and bounds leave out (plush_opt.solve.accuracy.planned_sweep)
     left_out: tuple = ()
