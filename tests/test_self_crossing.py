@@ -215,3 +215,22 @@ def test_a_result_whose_leg_folds_through_the_body_says_so(tmp_path):
     scene = load_scene(path)
     model = build_model(scene, build_mesh(scene))
     assert not model.admissible(x) and crossing_of(model, x) is None
+
+
+@pytest.mark.slow        # the strip's pose by continuation: about 3 s
+def test_the_thin_strip_curled_over_its_base_overlaps_and_does_not_crease():
+    """tests/data/thin_strip.yaml at 30 mm: the strip curls until its end
+    lies over its base (a scene without self-contact allows it). Its
+    levels converge there, so the accuracy check must not take it for a
+    fold: the two crossing parts are about a third of the outline apart."""
+    from plush_opt.fem.contact_boundary import crossings
+    from plush_opt.problem import load
+    from plush_opt.solve.equilibrium import EquilibriumOptions, solve_equilibrium
+    model = load(ROOT / "tests" / "data" / "thin_strip.yaml").model
+    eq = solve_equilibrium(model, [30.0], options=EquilibriumOptions(eigenvalue=False, continuation=4))
+    assert eq.converged, eq.status
+    (where,) = crossings(model, [eq.x])
+    assert where is not None and "an overlap" in where
+    apart = float(where.split("an overlap, ")[1].split(" apart")[0])
+    assert 90.0 <= apart <= 130.0 and "along a boundary of 306" in where
+    assert crossings(model, [eq.x], creases_only=True) == (None,)
