@@ -129,6 +129,33 @@ def test_self_contact_on_a_boundary_cut_finer_than_its_distance_is_said_to_push_
         level_model(scene, fine)
 
 
+@pytest.mark.slow        # a sweep of mesh levels: about 5 s
+def test_the_accuracy_sweep_stops_where_self_contact_would_push_at_rest():
+    """The strip with self-contact at d_hat 0.2 and a tolerance no level
+    meets: the sweep's finer levels cut the boundary finer than d_hat. It
+    ends at the levels that can be used and says which it did not use and
+    why, instead of failing after the coarse levels' work; where not even
+    the coarsest level can be used (d_hat 1), that is the error."""
+    from plush_opt.solve.accuracy import choose_levels
+    doc = json.loads(json.dumps(STRIP))
+    doc["contact"] = {"self": True, "distance": 0.2}
+    doc["targets"] = [{"at": [100, 2], "to": [80, 30]}]
+    said = []
+    best, computed, report = choose_levels(scene_from_dict(doc, "strip.yaml"), 1e-4, progress=said.append)
+    cut = report["not_admissible"]
+    assert not report["reached"] and cut and computed
+    assert all("pushes the unloaded body apart" in row["why"] for row in cut)
+    for row in cut:                 # every level used is coarser than the first one cut from its family
+        assert all(lv.mesh.n_nodes < row["nodes"] for lv in computed
+                   if lv.element == row["element"] and lv.resolution.family == row["family"])
+    assert "self-contact pushes in their rest pose" in report["stopped"]
+    assert "finer levels not used" in report["summary"] and "contact.distance" in report["summary"]
+    assert sum("not used, nor the finer ones of its family" in line for line in said) == len(cut)
+    doc["contact"]["distance"] = 1.0
+    with pytest.raises(SceneError, match=r"strip.yaml: accuracy: .*pushes the unloaded body apart"):
+        choose_levels(scene_from_dict(doc, "strip.yaml"), 1e-4)
+
+
 def test_obstacle_and_self_pairs_match_finite_differences():
     doc = json.loads(json.dumps(STRIP))
     # a peg 1.5 below the strip (within d_hat): the strip curls up, away from it

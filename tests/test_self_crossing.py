@@ -16,7 +16,7 @@ import pytest
 from plush_opt.fem.contact_boundary import build_boundary, self_crossing
 from plush_opt.fem.mesh import build_mesh
 from plush_opt.io.problem_file import load_scene, scene_from_dict
-from plush_opt.solve.accuracy import Level, Resolution, _leave_out_crossings, choose_levels
+from plush_opt.solve.accuracy import Level, Resolution, choose_levels, leave_out_creases
 from plush_opt.solve.accuracy_estimate import estimate_levels
 
 from shipped import ROOT
@@ -147,8 +147,8 @@ def test_a_contraction_where_a_level_crosses_itself_is_left_out_of_every_level_a
     estimate_levels(levels)
     assert levels[1].estimate == np.inf
     said, rows = [], []
-    _leave_out_crossings(levels, np.array([[0.0], [0.5]]), rows, said.append)
-    _leave_out_crossings(levels, np.array([[0.0], [0.5]]), rows, said.append)
+    leave_out_creases(levels, np.array([[0.0], [0.5]]), rows, said.append)
+    leave_out_creases(levels, np.array([[0.0], [0.5]]), rows, said.append)
     assert [lv.left_out for lv in levels] == [(1,)] * 3
     assert [row["contraction"] for row in rows] == [[0.5]] and rows[0]["nodes"] == 400
     assert len(said) == 1 and "[0.5]" in said[0] and "contact.self" in said[0]
@@ -160,7 +160,7 @@ def test_a_contraction_where_a_level_crosses_itself_is_left_out_of_every_level_a
 def test_where_every_contraction_crosses_itself_none_is_left_out():
     levels = [_level([[0, 0]], 100, ("a fold",)), _level([[1, 0]], 400, (None,))]
     rows = []
-    _leave_out_crossings(levels, np.array([[0.5]]), rows)
+    leave_out_creases(levels, np.array([[0.5]]), rows)
     assert [lv.left_out for lv in levels] == [(), ()] and rows == []
 
 
@@ -170,7 +170,7 @@ def test_the_standing_hexapod_sweep_leaves_out_the_one_legged_probes_where_a_leg
     assert sorted(row["contraction"] for row in report["left_out"]) == [[0.0, 10.0], [10.0, 0.0]]
     assert all(lv.left_out == (1, 2) for lv in computed)
     assert report["reached"] and report["estimated_error"] < 0.05
-    assert "crosses itself" in report["summary"]
+    assert "creases through itself" in report["summary"]
 
 
 @pytest.mark.slow        # control on the file's mesh, then a P2 solve of about 12,000 nodes

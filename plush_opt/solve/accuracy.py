@@ -49,7 +49,7 @@ import numpy as np
 # the estimate's names are also this module's (callers import them from here)
 from .accuracy_estimate import (EXPECTED_ORDER, MAX_RATIO, SAFETY, Level, Resolution,  # noqa: F401
                                 _json_number, bound_errors, cheapest_meeting, estimate_each_element,
-                                estimate_errors, estimate_levels, one_pose)
+                                estimate_errors, estimate_levels, leave_out_creases, one_pose)
 from .accuracy_sweep import EXTRA_BUDGET, Chain, Planner
 # carrying poses between levels (callers import these from here too)
 from .accuracy_carry import (BRANCH_ITERATIONS, BRANCH_PROGRESS, branch_options, carried_start,  # noqa: F401
@@ -198,17 +198,27 @@ def probe_contractions(scene: Scene) -> np.ndarray:
     return np.array(cs)
 
 
+class RestPushes(SceneError):
+    """An accuracy level whose self-contact pushes in the rest pose: its
+    boundary is cut finer than ``contact.distance`` allows, and every finer
+    level of its family is too (a refinement halves the segments)."""
+
+    def __init__(self, message: str, nodes: int):
+        super().__init__(message)
+        self.nodes = nodes
+
+
 def level_model(scene: Scene, mesh: Mesh) -> Model:
-    """The model of an accuracy level; :class:`SceneError` where its
+    """The model of an accuracy level; :class:`RestPushes` where its
     self-contact pushes in the rest pose (its boundary is cut finer than
     ``contact.distance``): its unloaded body would not be at rest, so its
     poses estimate nothing about the file's."""
     model = build_model(scene, mesh)
     pushes = rest_pushes(model.contact, model.X)
     if pushes is not None:
-        raise SceneError(f"{scene.source}: accuracy: on the {scene.element} mesh of {mesh.n_nodes:,} nodes, {pushes}; "
+        raise RestPushes(f"{scene.source}: accuracy: on the {scene.element} mesh of {mesh.n_nodes:,} nodes, {pushes}; "
                          "self-contact needs a contact.distance below the length of the boundary's segments "
-                         "on every mesh the accuracy sweep solves (a refinement halves them)")
+                         "on every mesh the accuracy sweep solves (a refinement halves them)", mesh.n_nodes)
     return model
 
 
@@ -274,36 +284,6 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
                  model=model if mesh.n_nodes <= KEEP_MODEL_NODES else None,
                  crossing=crossings(model, poses, creases_only=True),
                  work=work.seconds if options.backend == "newton" else None)   # (IPOPT's own work is not counted)
-
-
-def _leave_out_crossings(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:
-    """Leave out of every level's estimates the contractions where some
-    level's pose creases (a body folded through itself, which a scene
-    without self-contact allows: a crease has no length scale, so its
-    levels do not converge and say nothing of the mesh the other
-    contractions need; ``Level.crossing`` holds creases only, see
-    :data:`~plush_opt.fem.contact_boundary.CREASE_SPAN`), unless that is
-    every contraction. ``left_out``
-    gets a row per contraction left out (its first crossing), and
-    ``progress`` hears of each once."""
-    first = {}
-    for lv in computed:
-        for j, where in enumerate(lv.crossing):
-            if where is not None and j not in first:
-                first[j] = (lv, where)
-    out = () if len(first) == len(cs) else tuple(sorted(first))
-    for lv in computed:
-        lv.left_out = out
-    for j in out:
-        if any(row["contraction_index"] == j for row in left_out):
-            continue
-        lv, where = first[j]
-        left_out.append({"contraction_index": j, "contraction": np.asarray(cs[j]).tolist(), "element": lv.element,
-                         "nodes": lv.mesh.n_nodes, "where": where})
-        if progress is not None:
-            progress(f"accuracy: at contraction {np.asarray(cs[j]).tolist()} the body crosses itself on the "
-                     f"{lv.element} level of {lv.mesh.n_nodes:,} nodes ({where}; the scene has no contact.self): "
-                     "that contraction is left out of the mesh choice")
 
 
 def sweep(scene: Scene, element: str, levels, cs, points, tol: float, options,
@@ -377,9 +357,13 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             others = sorted((lv for lv in {id(lv): lv for lv in [*computed, *solved.values()]}.values()
                              if lv.on_branch), key=lambda lv: -lv.mesh.n_nodes) if follow else []
             t0 = time.perf_counter()
-            level = _solve_level(dataclasses.replace(scene, element=element), res, cs, points,
-                                 max(prev, key=lambda lv: lv.mesh.n_nodes) if follow and prev else
-                                 prev[-1] if prev else None, options, follow, others)
+            try:
+                level = _solve_level(dataclasses.replace(scene, element=element), res, cs, points,
+                                     max(prev, key=lambda lv: lv.mesh.n_nodes) if follow and prev else
+                                     prev[-1] if prev else None, options, follow, others)
+            except RestPushes as exc:     # this level and the finer ones of its family cannot be used
+                plan.inadmissible(chain, exc.nodes, str(exc), progress)
+                continue
             solved[(element, res)] = level
             if progress is not None:
                 progress(f"accuracy: {element} level of {level.mesh.n_nodes:,} nodes solved at {len(cs)} "
@@ -391,7 +375,7 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
             plan.extra_spent += level.cost
         plan.solved(chain, level)
         computed.append(level)
-        _leave_out_crossings(computed, cs, plan.left_out, progress)
+        leave_out_creases(computed, cs, plan.left_out, progress)
         estimate_each_element(computed)
         best = _cheapest_meeting(computed, tol)
     plan.stopped = _stopped(plan, best, tol)
@@ -410,10 +394,12 @@ def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
         return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
                 f"level left is predicted to cost less within {EXTRA_BUDGET:g} x its cost")
     first = plan.chains[0]
+    cut = "" if not plan.cut else ("; finer levels not used: self-contact pushes in their rest pose ("
+                                   + ", ".join(f"{row['element']} {row['nodes']:,} nodes" for row in plan.cut) + ")")
     return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
             f"met): the {first.element} levels of its first family solved to the finest, "
-            f"{first.solved[-1].mesh.n_nodes:,} nodes" if first.solved else
-            f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not met)")
+            f"{first.solved[-1].mesh.n_nodes:,} nodes{cut}" if first.solved else
+            f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not met){cut}")
 
 
 def _check_arguments(tol, levels, scene: Scene):
@@ -509,6 +495,8 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
             computed += sweep(scene, element, levels, cs, points, tol, options,
                               math.inf if best is None else best.cost, solved, progress)
             best = _cheapest_meeting(computed, tol)
+    if not computed and plan is not None and plan.cut:      # not even the coarsest level can be used
+        raise SceneError(plan.cut[0]["why"])
     reached = best is not None
     if not reached:
         best = _fallback(computed, elements)
@@ -526,6 +514,7 @@ def choose_levels(scene: Scene, tol: float, levels=None, contractions=None, poin
         report["not_solved"] = plan.not_solved()
         report["stopped"] = plan.stopped
         report["left_out"] = plan.left_out
+        report["not_admissible"] = plan.cut
     report["summary"] = summary(report)
     report["point_coordinates"] = points.tolist()
     return best, computed, report
@@ -566,7 +555,7 @@ def summary(report: dict) -> str:
     left = report.get("left_out") or []
     aside = "" if not left else \
         ("; left out of the mesh choice: contraction(s) " + ", ".join(str(r["contraction"]) for r in left)
-         + ", where the body crosses itself (the scene has no contact.self)")
+         + ", where the body creases through itself (the scene has no contact.self)")
     row = report["levels"][report["picked"]]
     refined = f" refined {report['refinements']}x" if report.get("refinements") else ""
     where = (f"{report['element']} elements, {report['nodes']} nodes (max_area {report['max_area']:.4g}"
@@ -587,5 +576,9 @@ def summary(report: dict) -> str:
                 f"{there} against tolerance {report['tolerance']:.3g}{aside}")
     bound = "no estimate (the levels do not converge)" if est is None else \
         f"estimated error {est:.3g} (bound from the level before it)"
+    cut = report.get("not_admissible") or []
+    if cut:
+        aside += (f"; finer levels not used (from {min(r['nodes'] for r in cut):,} nodes): self-contact pushes in "
+                  "their rest pose, their boundary cut finer than contact.distance")
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
             f"{where}; {bound}{aside}")

@@ -254,3 +254,32 @@ def one_pose(lv: Level, pose, y) -> Level:
     return dataclasses.replace(lv, poses=[pose], y=y, difference_to_next=None, ratio=None, estimate=None,
                                confirmed=False, withdrawn=False, bound=None, bound_via=None, along=None, crossing=(),
                                left_out=())
+
+
+def leave_out_creases(computed: list[Level], cs, left_out: list[dict], progress=None) -> None:
+    """Leave out of every level's estimates the contractions where some
+    level's pose creases (a body folded through itself, which a scene
+    without self-contact allows: a crease has no length scale, so its
+    levels do not converge and say nothing of the mesh the other
+    contractions need; ``Level.crossing`` holds creases only, see
+    :data:`~plush_opt.fem.contact_boundary.CREASE_SPAN`), unless that is
+    every contraction. ``left_out`` gets a row per contraction left out
+    (its first crease), and ``progress`` hears of each once."""
+    first = {}
+    for lv in computed:
+        for j, where in enumerate(lv.crossing):
+            if where is not None and j not in first:
+                first[j] = (lv, where)
+    out = () if len(first) == len(cs) else tuple(sorted(first))
+    for lv in computed:
+        lv.left_out = out
+    for j in out:
+        if any(row["contraction_index"] == j for row in left_out):
+            continue
+        lv, where = first[j]
+        left_out.append({"contraction_index": j, "contraction": np.asarray(cs[j]).tolist(), "element": lv.element,
+                         "nodes": lv.mesh.n_nodes, "where": where})
+        if progress is not None:
+            progress(f"accuracy: at contraction {np.asarray(cs[j]).tolist()} the body creases through itself on the "
+                     f"{lv.element} level of {lv.mesh.n_nodes:,} nodes ({where}; the scene has no contact.self): "
+                     "that contraction is left out of the mesh choice")

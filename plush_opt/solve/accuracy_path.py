@@ -28,7 +28,7 @@ from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
 from .accuracy import (GRADED, LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
-                       level_model, one_pose)
+                       RestPushes, level_model, one_pose)
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
@@ -132,7 +132,12 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         t0 = time.perf_counter()
         mesh = build_mesh(s, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=False)
         t_mesh = time.perf_counter() - t0
-        model = level_model(s, mesh)
+        try:
+            model = level_model(s, mesh)
+        except RestPushes as exc:     # this level and the finer ones cannot be used: the levels end here
+            if progress is not None:
+                progress(f"accuracy: {element} level of {mesh.n_nodes:,} nodes not used, nor the finer ones: {exc}")
+            break
         plant = make_plant(model)
         with counted(model) as work:
             cold = plant.equilibrium(scene.contraction, options=options)

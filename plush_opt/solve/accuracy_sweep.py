@@ -149,10 +149,23 @@ class Planner:
         self.stopped = ""             # why the sweep stopped (set by its driver)
         self.best_effort = False      # no chain could meet the tolerance: the first one solved to its end
         self.left_out: list[dict] = []  # contractions left out of the estimates, and why (set by its driver)
+        self.cut: list[dict] = []       # levels that cannot be used, and why (:meth:`inadmissible`)
 
     def solved(self, chain: Chain, level) -> None:
         chain.solved.append(level)
         self.cost.add(level.element, level.mesh.n_nodes, level.cost)
+
+    def inadmissible(self, chain: Chain, nodes: int, why: str, progress=None) -> None:
+        """The next level of ``chain`` (of ``nodes`` nodes) cannot be used,
+        nor any finer one of its family (``why``: its self-contact pushes in
+        the rest pose): the chain ends at the levels it has solved."""
+        res = chain.next
+        self.cut.append({"element": chain.element, "family": res.family, "refinements": res.refinements,
+                         "nodes": int(nodes), "why": why})
+        chain.resolutions = chain.resolutions[:len(chain.solved)]
+        if progress is not None:
+            progress(f"accuracy: {chain.element} level of {nodes:,} nodes not used, nor the finer ones of its "
+                     f"family: {why}")
 
     def _trend(self, element: str):
         """(nodes, estimate, ratio) of the finest level of ``element`` with a
