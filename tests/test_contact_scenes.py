@@ -148,8 +148,8 @@ def test_the_accuracy_sweep_stops_where_self_contact_would_push_at_rest():
     for row in cut:                 # every level used is coarser than the first one cut from its family
         assert all(lv.mesh.n_nodes < row["nodes"] for lv in computed
                    if lv.element == row["element"] and lv.resolution.family == row["family"])
-    assert "self-contact pushes in their rest pose" in report["stopped"]
-    assert "finer levels not used" in report["summary"] and "contact.distance" in report["summary"]
+    assert "levels not used (self-contact pushes in their rest pose)" in report["stopped"]
+    assert "levels not used: " in report["summary"] and "contact.distance" in report["summary"]
     assert sum("not used, nor the finer ones of its family" in line for line in said) == len(cut)
     doc["contact"]["distance"] = 1.0
     with pytest.raises(SceneError, match=r"strip.yaml: accuracy: .*pushes the unloaded body apart"):

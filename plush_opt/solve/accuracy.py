@@ -394,8 +394,9 @@ def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
         return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
                 f"level left is predicted to cost less within {EXTRA_BUDGET:g} x its cost")
     first = plan.chains[0]
-    cut = "" if not plan.cut else ("; finer levels not used: self-contact pushes in their rest pose ("
-                                   + ", ".join(f"{row['element']} {row['nodes']:,} nodes" for row in plan.cut) + ")")
+    cut = "" if not plan.cut else ("; levels not used (self-contact pushes in their rest pose): "
+                                   + ", ".join(f"{row['element']} {row['nodes']:,} nodes" for row in plan.cut)
+                                   + " and the finer ones of their families")
     return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
             f"met): the {first.element} levels of its first family solved to the finest, "
             f"{first.solved[-1].mesh.n_nodes:,} nodes{cut}" if first.solved else
@@ -578,7 +579,8 @@ def summary(report: dict) -> str:
         f"estimated error {est:.3g} (bound from the level before it)"
     cut = report.get("not_admissible") or []
     if cut:
-        aside += (f"; finer levels not used (from {min(r['nodes'] for r in cut):,} nodes): self-contact pushes in "
-                  "their rest pose, their boundary cut finer than contact.distance")
+        aside += ("; levels not used: " + ", ".join(f"{r['element']} {r['nodes']:,} nodes" for r in cut)
+                  + " and the finer ones of their families (self-contact pushes in their rest pose: their "
+                  "boundary is cut finer than contact.distance)")
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
             f"{where}; {bound}{aside}")
