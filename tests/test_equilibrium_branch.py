@@ -98,3 +98,37 @@ def test_a_symmetric_strip_buckles_through_its_bifurcation_on_the_branch():
     assert eq.saddle_escapes == 1
     tip = int(np.flatnonzero((mesh.X[:, 0] == 120) & (mesh.X[:, 1] == 0))[0])
     assert abs(eq.nodes[tip, 1]) > 5.0
+
+
+def test_a_held_force_balances_its_start_and_its_gradient_is_the_energys():
+    # the homotopy's first model: the scene plus the start's residual held
+    # fixed, so the start is its equilibrium; energy and gradient agree
+    from plush_opt.solve.accuracy_carry import WithForce
+    model, start = hexapod_p2()
+    c = np.array([A, 23.1])
+    r0 = model.evaluate(start.x, c, 1).gradient
+    held = WithForce(model, 0.5 * r0)
+    assert np.linalg.norm(r0) > 1e-3
+    ev = held.evaluate(start.x, c, 1)
+    assert np.allclose(ev.gradient, 0.5 * r0, rtol=0, atol=1e-12 * np.linalg.norm(r0))
+    dx = np.random.default_rng(3).standard_normal(model.n_dofs) * 1e-3
+    h = 1e-4
+    fd = (held.evaluate(start.x + h * dx, c, 0).energy - held.evaluate(start.x - h * dx, c, 0).energy) / (2 * h)
+    assert fd == pytest.approx(ev.gradient @ dx, rel=1e-6)
+    full = WithForce(model, r0).evaluate(start.x, c, 1)
+    assert np.linalg.norm(full.gradient) <= 1e-12 * np.linalg.norm(r0)
+
+
+def test_the_homotopy_reaches_the_branchs_equilibrium_and_says_where_the_branch_ends():
+    from plush_opt.solve.accuracy_carry import relieved_equilibrium
+    model, start = hexapod_p2()
+    # along the branch: the pose plain Newton and the branch's own move reach
+    near = solve_on_branch(model, start.contraction, start.x, [A, 23.1], options=TRIAL)
+    eq = relieved_equilibrium(model, [A, 23.1], start.x, TRIAL)
+    assert eq.converged and eq.positive_definite, eq.status
+    assert np.abs(eq.x - near.x).max() <= 1e-7 * body_size(model)
+    # past the limit point (23.2): not converged, and the status says so
+    # (plain Newton from the same start runs to its limit after the snap)
+    past = relieved_equilibrium(model, [A, 25.0], start.x, TRIAL)
+    assert not past.converged
+    assert past.status.startswith("homotopy stopped with ") and "of the start's residual held" in past.status

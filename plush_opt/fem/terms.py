@@ -241,20 +241,18 @@ class PinTerm(Term):
         return self.stiffness / 2 * ca.sumsqr(dp)
 
 
-class GravityTerm(Term):
-    """E = -f . x, with ``force`` f the nodal weights (n_dofs,): each
-    element's weight (density * thickness * area * g) shared among its
-    nodes by ``element.nodal_shares``."""
+class ForceTerm(Term):
+    """E = -f . x for a constant nodal force ``force`` f (n_dofs,): a
+    load, or a residual held fixed (a Newton homotopy,
+    plush_opt/solve/accuracy_carry.py)."""
 
-    name = "gravity"
+    name = "force"
     linear = True
 
-    def __init__(self, scene: Scene, mesh: Mesh, elem_weight: np.ndarray):
-        mass = mesh.element.nodal_shares(scene.material.density * elem_weight)
-        nodal = np.bincount(mesh.elements.ravel(), weights=mass.ravel(), minlength=mesh.n_nodes)
-        self.force = (nodal[:, None] * np.asarray(scene.gravity)[None, :]).reshape(-1)
+    def __init__(self, force: np.ndarray):
+        self.force = np.asarray(force, dtype=np.float64).reshape(-1)
         self._minus_force = -self.force
-        self._scale = np.linalg.norm(self.force)
+        self._scale = float(np.linalg.norm(self.force))
 
     def evaluate(self, x, c, order):
         energy = self._minus_force @ x
@@ -264,3 +262,16 @@ class GravityTerm(Term):
 
     def expression(self, x, c):
         return ca.dot(ca.DM(self._minus_force), x)
+
+
+class GravityTerm(ForceTerm):
+    """The weight: a :class:`ForceTerm` whose ``force`` is the nodal
+    weights (n_dofs,), each element's weight (density * thickness * area *
+    g) shared among its nodes by ``element.nodal_shares``."""
+
+    name = "gravity"
+
+    def __init__(self, scene: Scene, mesh: Mesh, elem_weight: np.ndarray):
+        mass = mesh.element.nodal_shares(scene.material.density * elem_weight)
+        nodal = np.bincount(mesh.elements.ravel(), weights=mass.ravel(), minlength=mesh.n_nodes)
+        super().__init__((nodal[:, None] * np.asarray(scene.gravity)[None, :]).reshape(-1))

@@ -6,7 +6,8 @@ branch of equilibria there (the levels of ``--accuracy``, docs/accuracy.md).
 admissible start; :func:`solve_on_branch` solves from it without leaving
 its branch: a level that has no equilibrium near the branch there says so
 after a few dozen Newton steps instead of reaching another branch by
-continuation.
+continuation; :func:`relieved_equilibrium` reaches the equilibrium of a
+start's state by a Newton homotopy where Newton alone walks into another.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 
 from ..base.geometry import locate_in_triangles
 from ..fem.mesh import Mesh
-from ..fem.model import Model
+from ..fem.model import HeldTerms, Model
+from ..fem.terms import ForceTerm
 from .equilibrium import Equilibrium, EquilibriumOptions, solve_equilibrium
 
 #: Newton iterations a level's solve at a returned contraction may take
@@ -46,6 +48,12 @@ BRANCH_PROGRESS = 0.1
 #: branch moves the body (the hexapod's folding legs above: about 1%).
 #: docs/notes/accuracy-measurements.md, 2026-12-06.
 BRANCH_DRIFT = 0.001
+
+
+#: Equal steps in which :func:`relieved_equilibrium` relieves its start's
+#: residual, and how often a step that fails may be halved.
+RELIEF_STEPS = 8
+RELIEF_HALVINGS = 4
 
 
 def branch_options(options: EquilibriumOptions) -> EquilibriumOptions:
@@ -136,3 +144,46 @@ def carried_start(model: Model, sources) -> np.ndarray | None:
             if model.admissible(x0):
                 return x0
     return None
+
+
+class WithForce(HeldTerms):
+    """``model``'s terms plus a constant ``force`` (a :class:`ForceTerm`)."""
+
+    def __init__(self, model: Model, force: np.ndarray):
+        super().__init__(model, model.terms + (ForceTerm(force),), model.hessian_layout, model.factorizer)
+
+
+def relieved_equilibrium(model: Model, contraction, x0, options: EquilibriumOptions,
+                         steps: int = RELIEF_STEPS) -> Equilibrium:
+    """The equilibrium at ``contraction`` in the state of the admissible
+    pose ``x0`` (one carried from another mesh), by a Newton homotopy:
+    ``x0`` balances the model plus the force r0 = grad E(x0) held fixed;
+    that force is taken away in ``steps`` equal steps (a step Newton does
+    not converge in is halved, at most :data:`RELIEF_HALVINGS` times),
+    each equilibrium solved from the one before (at most
+    :data:`BRANCH_ITERATIONS` Newton iterations), the last the model's own.
+    Newton from a start out of balance can walk from one stable state into
+    another (several can hold an object at the same contractions:
+    docs/notes/accuracy-measurements.md, gripper_object's two states);
+    here the pose moves with the force, continuously while the state
+    lasts. Where a step fails (the state ends on the way: a limit point)
+    the result is that step's, not converged, its status saying how much
+    of the residual was still held."""
+    c = np.asarray(contraction, dtype=np.float64)
+    held = branch_options(options)
+    x = np.asarray(x0, dtype=np.float64).reshape(-1)
+    r0 = model.evaluate(x, c, 1).gradient
+    share, step, halvings, iterations = 1.0, 1.0 / steps, 0, 0
+    while True:
+        trial = max(share - step, 0.0)
+        eq = solve_equilibrium(model if trial == 0.0 else WithForce(model, trial * r0), c, x, held)
+        iterations += eq.iterations
+        if eq.converged:
+            share, x = trial, eq.x
+            if share == 0.0:
+                return dataclasses.replace(eq, iterations=iterations)
+            continue
+        if halvings == RELIEF_HALVINGS:
+            why = f"homotopy stopped with {share:.3g} of the start's residual held: {eq.status}"
+            return dataclasses.replace(eq, converged=False, status=why, iterations=iterations)
+        step, halvings = step / 2.0, halvings + 1
