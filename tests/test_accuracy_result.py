@@ -257,35 +257,49 @@ def test_a_row_whose_process_fails_keeps_its_reason(tmp_path, monkeypatch):
     assert out.read_text().splitlines()[-1].endswith(f"| NO: {row['note']} |")
 
 
-def test_a_reference_level_that_leaves_the_state_is_solved_again_from_the_answer(monkeypatch):
+def test_a_reference_level_that_leaves_the_state_is_solved_again_by_the_homotopy_and_from_the_answer(monkeypatch):
     """Several stable states can hold at the returned contractions (the
     gripper's ball); a reference level whose solve from the level before
-    ends more than TOL from it is solved again from the answer carried
-    over, and the one that stayed is kept; where both leave, the nearer is
-    kept (and the row reports its jump); one that stays is not solved again."""
+    ends more than TOL from it is solved again from the same start by the
+    homotopy that keeps its state, then from the answer carried over (Newton,
+    then the homotopy), and the first that stayed is kept; where all leave,
+    the nearest is kept (and the row reports its jump); one that stays is
+    not solved again."""
     sys.path.insert(0, str(ROOT / "tools"))
     import accuracy_guarantee as guarantee
     import plush_opt.solve.accuracy as accuracy
+    import plush_opt.solve.accuracy_carry as carry
     solved = []
 
-    def fake_solve(model, contraction, x0, options):
-        solved.append(float(x0[0]))
+    def fake_newton(model, contraction, x0, options):
+        solved.append(("newton", float(x0[0])))
         return type("Eq", (), {"converged": True, "x": np.array([x0[0]])})()
 
-    monkeypatch.setattr(accuracy, "equilibrium_at", fake_solve)
+    def fake_homotopy(model, contraction, x0, options):       # it stays nearer its start's state
+        solved.append(("homotopy", float(x0[0])))
+        return type("Eq", (), {"converged": True, "x": np.array([x0[0] / 20])})()
+
+    monkeypatch.setattr(accuracy, "equilibrium_at", fake_newton)
+    monkeypatch.setattr(carry, "relieved_equilibrium", fake_homotopy)
     monkeypatch.setattr(accuracy, "carried_start", lambda model, sources: np.array([sources[0][1][0]]))
     model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})()})()
     y_of = lambda x: np.array([[x[0], 0.0]])                     # noqa: E731  (the pose's one point)
-    previous, answer = ("prev", np.array([10.0])), ("answer", np.array([0.5]))
-    eq = guarantee.same_state(model, [1.0], [previous, answer], y_of, np.array([[0.0, 0.0]]), 1.0)
-    assert eq.x[0] == 0.5 and solved == [10.0, 0.5]
+    origin = np.array([[0.0, 0.0]])
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([10.0])), ("answer", np.array([0.5]))], y_of,
+                              origin, 1.0)
+    assert eq.x[0] == 0.5 and solved == [("newton", 10.0), ("homotopy", 10.0)]
     solved.clear()
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([3.0])), ("answer", np.array([2.0]))], y_of,
-                              np.array([[0.0, 0.0]]), 1.0)
-    assert eq.x[0] == 2.0 and solved == [3.0, 2.0]
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([3.0])), ("answer", np.array([0.5]))], y_of,
+                              origin, 1.0)
+    assert eq.x[0] == 0.15 and solved == [("newton", 3.0), ("homotopy", 3.0)]
     solved.clear()
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), answer], y_of, np.array([[0.0, 0.0]]), 1.0)
-    assert eq.x[0] == 0.2 and solved == [0.2]
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([60.0])), ("answer", np.array([30.0]))], y_of,
+                              origin, 1.0)
+    assert eq.x[0] == 1.5 and solved == [("newton", 60.0), ("homotopy", 60.0), ("newton", 30.0), ("homotopy", 30.0)]
+    solved.clear()
+    eq = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), ("answer", np.array([0.5]))], y_of,
+                              origin, 1.0)
+    assert eq.x[0] == 0.2 and solved == [("newton", 0.2)]
 
 
 def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypatch):

@@ -20,10 +20,10 @@ For each scene and tolerance (one row, run in its own process, at most
    branch of equilibria; none coarser than the answer, which near a fold
    can settle in another state; carried admissibly,
    plush_opt.solve.accuracy_carry.carried_start; a level that ends more
-   than TOL from the one before is solved again from the answer carried
-   over and, where that ends as far, from both again by a Newton homotopy
-   that keeps its start's state (relieved_equilibrium), and the nearest
-   kept: where several stable states hold at the returned contractions,
+   than TOL from the one before is solved again from the same start by a
+   Newton homotopy that keeps its start's state (relieved_equilibrium),
+   then from the answer carried over, by Newton and the homotopy, and the
+   nearest kept: where several stable states hold at the returned contractions,
    the reference is the fine solve in the answer's state, `same_state`),
    refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
@@ -192,8 +192,8 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float):
     element or cross a contact, and equilibrium_at would then start from
     rest, in another state) and solved from, the next only while none has
     stayed within ``tol`` of ``y_prev`` (the level before at the compared
-    points, ``y_of(x)`` this level's); where none has, each start again by
-    the Newton homotopy that keeps its state
+    points, ``y_of(x)`` this level's), each by Newton and, where that ends
+    farther, again by the Newton homotopy that keeps its start's state
     (plush_opt.solve.accuracy_carry.relieved_equilibrium). Returns the
     first that stayed, else the converged one nearest ``y_prev`` (its jump
     is then reported), else the first."""
@@ -202,8 +202,9 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float):
     found = []
     starts = [(carried_start(model, [(m, x)]), m, x) for m, x in sources]
     starts = [(transfer_pose(m, x, model.mesh) if x0 is None else x0, x0 is not None) for x0, m, x in starts]
-    attempts = [(x0, "newton") for x0, _ in starts] + [(x0, "homotopy") for x0, ok in starts if ok]
-    for k, (x0, how) in enumerate(attempts):
+    attempts = [(x0, how, "the level before" if i == 0 else "the answer") for i, (x0, ok) in enumerate(starts)
+                for how in (("newton", "homotopy") if ok else ("newton",))]
+    for k, (x0, how, _) in enumerate(attempts):
         eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS) if how == "newton" else \
             relieved_equilibrium(model, contraction, x0, LEVEL_OPTIONS)
         d = float(np.linalg.norm(y_of(eq.x) - y_prev, axis=-1).max()) if eq.converged else math.inf
@@ -212,7 +213,7 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float):
         found.append((d, eq))
         if k + 1 < len(attempts):
             print(f"reference: P2 {model.mesh.n_nodes:,} nodes: {d:.3g} from the level before ({how}); "
-                  f"solving again ({attempts[k + 1][1]} from the next start)", file=sys.stderr, flush=True)
+                  "solving again: {1} from {2}".format(*attempts[k + 1]), file=sys.stderr, flush=True)
     d, eq = min(found, key=lambda f: f[0])
     return eq if math.isfinite(d) else found[0][1]
 
