@@ -21,7 +21,8 @@ HEADER = "| problem | nodes | method | final O |"
 def _rows():
     """(problem, nodes, method, objective text) of every row of the main table."""
     text = DOC.read_text()
-    lines = text[text.index(HEADER):].split("\n\n")[0].splitlines()[2:]
+    table = text[text.index(HEADER):].splitlines()
+    lines = table[2:next(k for k, line in enumerate(table) if not line.startswith("|"))]
     rows, problem, nodes = [], None, None
     for line in lines:
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
@@ -54,3 +55,47 @@ def test_the_objectives_of_the_main_table_are_the_codes(problem):
         result = p.control(method=method)
         assert result.objective == pytest.approx(float(shown), rel=1e-5), (
             f"{problem} {method}: O = {result.objective:.6g}, docs/comparison.md says {shown}")
+
+
+def _csv_row(problem, method, sweep, element, nodes, objective, model_error, t, status="stationary"):
+    return {"problem": problem, "method": method, "sweep": sweep, "tolerance": "default", "element": element,
+            "n_nodes": nodes, "objective": objective, "model_error": model_error, "fine_target_error": model_error,
+            "reference_difference": 0.01, "t_solve_s": t, "iterations": 5, "equilibrium_solves": 6,
+            "converged": 1, "stable": 1, "status": status}
+
+
+def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
+    """tools/comparison_doc.py writes the page's tables from a compare run's
+    results.csv: the main runs (a refused method as such), the least time
+    per accuracy and element ('-' where no run is that accurate), each
+    file's reference check and where the methods' objectives differ."""
+    import csv
+    import sys
+    sys.path.insert(0, str(ROOT / "tools"))
+    import comparison_doc
+    nan = float("nan")
+    rows = [_csv_row("a", "reparam", "main", "P1", 100, 2.0, 0.5, 0.10),
+            _csv_row("a", "clip", "main", "P1", 100, 2.0, 0.5, 0.12),
+            _csv_row("a", "bilevel", "main", "P1", 100, 1.5, 0.5, 0.05),
+            _csv_row("a", "reparam", "mesh", "P2", 300, 2.0, 0.2, 0.30),
+            _csv_row("a", "bilevel", "mesh", "P2", 300, 2.0, 0.04, 0.40),
+            _csv_row("b", "reparam", "main", "P1", 50, 1.0, 2.0, 0.01),
+            _csv_row("b", "clip", "main", "P1", 50, 1.0, 2.0, 0.01),
+            _csv_row("b", "bilevel", "main", "P1", 50, nan, nan, nan, status="error: friction")]
+    with open(tmp_path / "results.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    got = comparison_doc.read_rows(tmp_path)
+    main = comparison_doc.main_table(got).splitlines()
+    assert main[2] == "| a | 100 | reparam | 2 | 0.5 | 0.5 | 0.100 | 5 | 6 |"
+    assert main[-1] == "|  |  | bilevel | refused | - | - | - | - | - |"
+    least = comparison_doc.least_time_table(got).splitlines()
+    assert least[2] == "| a | reparam | 0.1 s / 0.3 s | - / 0.3 s | - / - |"
+    assert least[3] == "| a | bilevel | 0.05 s / 0.4 s | - / 0.4 s | - / 0.4 s |"
+    assert least[5] == "| b | bilevel | - / - | - / - | - / - |"
+    assert comparison_doc.checks(got) == "Reference checks of this run (mm): a 0.01, b 0.01."
+    facts = comparison_doc.facts(got).splitlines()
+    assert facts[0].endswith("on: none.")
+    assert "a (P1 100 nodes: 1.5 against 2)" in facts[1]
+    assert facts[2] == "- On the files' meshes `bilevel` took less time than `reparam` on: `a` (single samples)."
