@@ -285,21 +285,27 @@ def test_a_reference_level_that_leaves_the_state_is_solved_again_by_the_homotopy
     model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})()})()
     y_of = lambda x: np.array([[x[0], 0.0]])                     # noqa: E731  (the pose's one point)
     origin = np.array([[0.0, 0.0]])
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([10.0])), ("answer", np.array([0.5]))], y_of,
-                              origin, 1.0)
-    assert eq.x[0] == 0.5 and solved == [("newton", 10.0), ("homotopy", 10.0)]
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([10.0])), ("answer", np.array([0.5]))],
+                                        y_of, origin, 1.0)
+    assert eq.x[0] == 0.5 and relieved and solved == [("newton", 10.0), ("homotopy", 10.0)]
     solved.clear()
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([3.0])), ("answer", np.array([0.5]))], y_of,
-                              origin, 1.0)
-    assert eq.x[0] == 0.15 and solved == [("newton", 3.0), ("homotopy", 3.0)]
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([3.0])), ("answer", np.array([0.5]))],
+                                        y_of, origin, 1.0)
+    assert eq.x[0] == 0.15 and relieved and solved == [("newton", 3.0), ("homotopy", 3.0)]
     solved.clear()
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([60.0])), ("answer", np.array([30.0]))], y_of,
-                              origin, 1.0)
-    assert eq.x[0] == 1.5 and solved == [("newton", 60.0), ("homotopy", 60.0), ("newton", 30.0), ("homotopy", 30.0)]
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([60.0])), ("answer", np.array([30.0]))],
+                                        y_of, origin, 1.0)
+    assert eq.x[0] == 1.5 and relieved
+    assert solved == [("newton", 60.0), ("homotopy", 60.0), ("newton", 30.0), ("homotopy", 30.0)]
     solved.clear()
-    eq = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), ("answer", np.array([0.5]))], y_of,
-                              origin, 1.0)
-    assert eq.x[0] == 0.2 and solved == [("newton", 0.2)]
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([0.2])), ("answer", np.array([0.5]))],
+                                        y_of, origin, 1.0)
+    assert eq.x[0] == 0.2 and not relieved and solved == [("newton", 0.2)]
+    solved.clear()
+    # after a level the homotopy found (Newton walked there), the homotopy first
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([6.0])), ("answer", np.array([0.5]))],
+                                        y_of, origin, 1.0, relieved=True)
+    assert eq.x[0] == 0.3 and relieved and solved == [("homotopy", 6.0)]
 
 
 def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypatch):

@@ -22,8 +22,9 @@ For each scene and tolerance (one row, run in its own process, at most
    plush_opt.solve.accuracy_carry.carried_start; a level that ends more
    than TOL from the one before is solved again from the same start by a
    Newton homotopy that keeps its start's state (relieved_equilibrium),
-   then from the answer carried over, by Newton and the homotopy, and the
-   nearest kept: where several stable states hold at the returned contractions,
+   then from the answer carried over, by Newton and the homotopy (after a
+   level the homotopy alone found, the homotopy first), and the nearest
+   kept: where several stable states hold at the returned contractions,
    the reference is the fine solve in the answer's state, `same_state`),
    refined until it has at
    least REF_NODES_FACTOR x the returned mesh's nodes and its own estimated
@@ -136,6 +137,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     own = None
     jumps = []
     replayed = path_dependent(scene)
+    relieved = False                # whether the level before was reached by the homotopy alone
     for r in range(8):
         m = build_mesh(s, max_area=area, graded=GRADED, refinements=r, announce=False)
         if m.n_nodes > REF_MAX_NODES:
@@ -153,7 +155,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
             # (the level before at the points: the last level's, or the answer's before the first)
             y_prev = ys[-1] if ys else Targets.at_points(mesh_returned, points, points).y(x_returned)
             sources = [(prev_mesh, prev_x)] + ([(mesh_returned, x_returned)] if prev_mesh is not mesh_returned else [])
-            eq = same_state(model, contraction, sources, at.y, y_prev, tol)
+            eq, relieved = same_state(model, contraction, sources, at.y, y_prev, tol, relieved)
         if not eq.converged and m.n_nodes < nodes_returned:
             # (a coarser level only adds to the own estimate: without it, the levels from the answer's)
             print(f"reference: P2 {m.n_nodes:,} nodes not converged ({eq.status}): left out",
@@ -181,7 +183,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     return mesh, x, own, jumps
 
 
-def same_state(model, contraction, sources, y_of, y_prev, tol: float):
+def same_state(model, contraction, sources, y_of, y_prev, tol: float, relieved: bool = False):
     """A reference level's equilibrium at ``contraction`` in the state of
     the level before (several stable states can hold an object at the same
     contractions, and Newton from a carried pose can walk from one to
@@ -194,28 +196,31 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float):
     stayed within ``tol`` of ``y_prev`` (the level before at the compared
     points, ``y_of(x)`` this level's), each by Newton and, where that ends
     farther, again by the Newton homotopy that keeps its start's state
-    (plush_opt.solve.accuracy_carry.relieved_equilibrium). Returns the
-    first that stayed, else the converged one nearest ``y_prev`` (its jump
-    is then reported), else the first."""
+    (plush_opt.solve.accuracy_carry.relieved_equilibrium); with
+    ``relieved`` (the level before needed it: Newton walked there) each
+    start by the homotopy first. Returns (the first that stayed, else the
+    converged one nearest ``y_prev``, its jump then reported, else the
+    first; whether the homotopy found it)."""
     from plush_opt.solve.accuracy import LEVEL_OPTIONS, carried_start, equilibrium_at, transfer_pose
     from plush_opt.solve.accuracy_carry import relieved_equilibrium
     found = []
     starts = [(carried_start(model, [(m, x)]), m, x) for m, x in sources]
     starts = [(transfer_pose(m, x, model.mesh) if x0 is None else x0, x0 is not None) for x0, m, x in starts]
+    order = ("homotopy", "newton") if relieved else ("newton", "homotopy")
     attempts = [(x0, how, "the level before" if i == 0 else "the answer") for i, (x0, ok) in enumerate(starts)
-                for how in (("newton", "homotopy") if ok else ("newton",))]
+                for how in (order if ok else ("newton",))]
     for k, (x0, how, _) in enumerate(attempts):
         eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS) if how == "newton" else \
             relieved_equilibrium(model, contraction, x0, LEVEL_OPTIONS)
         d = float(np.linalg.norm(y_of(eq.x) - y_prev, axis=-1).max()) if eq.converged else math.inf
         if d <= tol:
-            return eq
-        found.append((d, eq))
+            return eq, how == "homotopy"
+        found.append((d, eq, how))
         if k + 1 < len(attempts):
             print(f"reference: P2 {model.mesh.n_nodes:,} nodes: {d:.3g} from the level before ({how}); "
                   "solving again: {1} from {2}".format(*attempts[k + 1]), file=sys.stderr, flush=True)
-    d, eq = min(found, key=lambda f: f[0])
-    return eq if math.isfinite(d) else found[0][1]
+    d, eq, how = min(found, key=lambda f: f[0])
+    return (eq, how == "homotopy") if math.isfinite(d) else (found[0][1], found[0][2] == "homotopy")
 
 
 def plain_cost(scene, element: str, max_area: float, graded: bool, refinements: int, given, method: str):

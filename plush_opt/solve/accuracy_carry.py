@@ -160,8 +160,10 @@ def relieved_equilibrium(model: Model, contraction, x0, options: EquilibriumOpti
     ``x0`` balances the model plus the force r0 = grad E(x0) held fixed;
     that force is taken away in ``steps`` equal steps (a step Newton does
     not converge in is halved, at most :data:`RELIEF_HALVINGS` times),
-    each equilibrium solved from the one before (at most
-    :data:`BRANCH_ITERATIONS` Newton iterations), the last the model's own.
+    each equilibrium solved from the one before (Newton, ``options``
+    without continuation: near a contact a step can take a hundred
+    iterations, its steps cut short where a node would cross), the last the
+    model's own.
     Newton from a start out of balance can walk from one stable state into
     another (several can hold an object at the same contractions:
     docs/notes/accuracy-measurements.md, gripper_object's two states);
@@ -170,7 +172,7 @@ def relieved_equilibrium(model: Model, contraction, x0, options: EquilibriumOpti
     the result is that step's, not converged, its status saying how much
     of the residual was still held."""
     c = np.asarray(contraction, dtype=np.float64)
-    held = branch_options(options)
+    held = dataclasses.replace(options, continuation=0)
     x = np.asarray(x0, dtype=np.float64).reshape(-1)
     r0 = model.evaluate(x, c, 1).gradient
     share, step, halvings, iterations = 1.0, 1.0 / steps, 0, 0
