@@ -161,9 +161,8 @@ def relieved_equilibrium(model: Model, contraction, x0, options: EquilibriumOpti
     that force is taken away in ``steps`` equal steps (a step Newton does
     not converge in is halved, at most :data:`RELIEF_HALVINGS` times),
     each equilibrium solved from the one before (Newton, ``options``
-    without continuation: near a contact a step can take a hundred
-    iterations, its steps cut short where a node would cross), the last the
-    model's own.
+    without continuation: the first step can take over a hundred
+    iterations, the others a few), the last the model's own.
     Newton from a start out of balance can walk from one stable state into
     another (several can hold an object at the same contractions:
     docs/notes/accuracy-measurements.md, gripper_object's two states);
