@@ -36,7 +36,7 @@ def read_rows(folder: Path) -> list[dict]:
     with open(folder / "results.csv", newline="") as f:
         for row in csv.DictReader(f):
             for key in ("objective", "model_error", "fine_target_error", "reference_difference",
-                        "t_solve_s", "n_nodes", "iterations", "equilibrium_solves", "converged", "stable"):
+                        "t_solve_s", "n_nodes", "iterations", "equilibrium_solves", "stable"):
                 row[key] = float(row[key]) if row[key] not in ("", "nan") else math.nan
             rows.append(row)
     return rows
@@ -131,15 +131,15 @@ def facts(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def made_by(folder: Path) -> str:
-    """Which run the figures are from: its date and wall time."""
+def made_by(folder: Path, rows: list[dict]) -> str:
+    """Which run the figures are from: its files, date and wall time."""
     stamp = (folder / "results.csv").stat().st_mtime
     date = datetime.datetime.fromtimestamp(stamp, datetime.timezone.utc).strftime("%Y-%m-%d")
     found = re.search(r"Total wall time ([0-9.]+) s", (folder / "report.md").read_text())
     if found is None:
         raise SystemExit(f"{folder / 'report.md'}: no 'Total wall time' line (not a compare report?)")
     wall_minutes = float(found.group(1)) / 60.0
-    return (f"Made by the Python call above (ten files, one repeat, default settings) on {date}, "
+    return (f"Made by the Python call above ({len(problems(rows))} files, one repeat, default settings) on {date}, "
             f"{wall_minutes:.0f} minutes wall on a shared two-core machine with one BLAS thread; "
             "`python tools/comparison_doc.py DIR --write-doc` wrote the figures of this page from its "
             "`results.csv`. Times are single samples.")
@@ -154,7 +154,7 @@ def main(argv=None) -> int:
     ap.add_argument("--write-doc", action="store_true")
     args = ap.parse_args(argv)
     rows = read_rows(args.folder)
-    blocks = {name: (made_by(args.folder) if fn is None else fn(rows)) for name, fn in BLOCKS.items()}
+    blocks = {name: (made_by(args.folder, rows) if fn is None else fn(rows)) for name, fn in BLOCKS.items()}
     for name, text in blocks.items():
         print(f"<!-- compare-{name} -->\n{text}\n")
     if args.write_doc:

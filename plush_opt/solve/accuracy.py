@@ -388,15 +388,19 @@ def planned_sweep(scene: Scene, tol: float, elements, cs, points, options, solve
     return best, computed, plan
 
 
+def _not_used(cut: list[dict]) -> str:
+    """The levels a sweep could not use (``Planner.cut`` rows), in words."""
+    levels = ", ".join(f"{row['element']} {row['nodes']:,} nodes" for row in cut)
+    return f"{levels} and the finer ones of their families"
+
+
 def _stopped(plan: Planner, best: Level | None, tol: float) -> str:
     """Why the planned sweep stopped, in words."""
     if best is not None:
         return (f"stopped: the {best.element} level of {best.mesh.n_nodes:,} nodes meets {tol:g}, and no "
                 f"level left is predicted to cost less within {EXTRA_BUDGET:g} x its cost")
     first = plan.chains[0]
-    cut = "" if not plan.cut else ("; levels not used (self-contact pushes in their rest pose): "
-                                   + ", ".join(f"{row['element']} {row['nodes']:,} nodes" for row in plan.cut)
-                                   + " and the finer ones of their families")
+    cut = "" if not plan.cut else f"; levels not used (self-contact pushes in their rest pose): {_not_used(plan.cut)}"
     return (f"stopped: no level is predicted to meet {tol:g} within the default levels (tolerance not "
             f"met): the {first.element} levels of its first family solved to the finest, "
             f"{first.solved[-1].mesh.n_nodes:,} nodes{cut}" if first.solved else
@@ -579,8 +583,7 @@ def summary(report: dict) -> str:
         f"estimated error {est:.3g} (bound from the level before it)"
     cut = report.get("not_admissible") or []
     if cut:
-        aside += ("; levels not used: " + ", ".join(f"{r['element']} {r['nodes']:,} nodes" for r in cut)
-                  + " and the finer ones of their families (self-contact pushes in their rest pose: their "
+        aside += (f"; levels not used: {_not_used(cut)} (self-contact pushes in their rest pose: their "
                   "boundary is cut finer than contact.distance)")
     return (f"tolerance {report['tolerance']:.3g} NOT met within the mesh levels: using the finest, "
             f"{where}; {bound}{aside}")
