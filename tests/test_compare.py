@@ -96,3 +96,37 @@ def test_settings_are_validated():
         CompareSettings(mesh_factors=(4.0, 2.0), main_factor=1.0)
     with pytest.raises(ValueError, match="tolerances"):
         CompareSettings(tolerances=("loose",))
+
+
+@pytest.mark.slow
+def test_a_reference_that_creases_measures_no_errors():
+    """finger_bound's answer (flex at its bound 20) is not folded on the
+    file's P1 mesh, but P2 levels crease there: the finger's phalanges pass
+    through each other at the joint. The run gets where, and no errors
+    (there is no converged answer to measure them against); a run at a
+    small flex is measured as before."""
+    import numpy as np
+
+    from plush_opt.apps.compare.runner import _Problem, _reference
+    from plush_opt.apps.compare.settings import Run
+    from plush_opt.io import load_scene
+    from plush_opt.problem import from_scene
+
+    path = ROOT / "problems" / "compare" / "finger_bound.yaml"
+    scene = load_scene(path)
+    p = from_scene(scene)
+    runs = []
+    for flex in (20.0, 2.0):
+        c = np.array([flex, 0.0])
+        eq = p.equilibrium(dict(zip(scene.winch_names, c)))
+        run = Run(scene.name, "reparam", "main", "default", scene.element, 1.0, scene.max_area,
+                  p.mesh.n_nodes, len(p.mesh.triangles), contraction=c, x=eq.x, mesh=p.mesh)
+        runs.append(run)
+    problem = _Problem(path, scene, {}, scene.contraction.copy(), scene.frozen.copy())
+    _reference(problem, runs, CompareSettings(reference_factor=1.0, check_factor=2.0))
+    folded, modest = runs
+    assert "creases" in folded.reference_crease and "boundary segments" in folded.reference_crease
+    assert np.isnan(folded.model_error) and np.isnan(folded.fine_target_error)
+    assert np.isnan(folded.reference_difference)
+    assert modest.reference_crease == ""
+    assert 0 < modest.model_error < 1 and modest.reference_difference < modest.model_error

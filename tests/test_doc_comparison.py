@@ -57,11 +57,11 @@ def test_the_objectives_of_the_main_table_are_the_codes(problem):
             f"{problem} {method}: O = {result.objective:.6g}, docs/comparison.md says {shown}")
 
 
-def _csv_row(problem, method, sweep, element, nodes, objective, model_error, t, status="stationary"):
+def _csv_row(problem, method, sweep, element, nodes, objective, model_error, t, status="stationary", crease=""):
     return {"problem": problem, "method": method, "sweep": sweep, "tolerance": "default", "element": element,
             "n_nodes": nodes, "objective": objective, "model_error": model_error, "fine_target_error": model_error,
             "reference_difference": 0.01, "t_solve_s": t, "iterations": 5, "equilibrium_solves": 6,
-            "converged": 1, "stable": 1, "status": status}
+            "converged": 1, "stable": 1, "status": status, "reference_crease": crease}
 
 
 def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
@@ -81,7 +81,10 @@ def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
             _csv_row("a", "bilevel", "mesh", "P2", 300, 2.0, 0.04, 0.40),
             _csv_row("b", "reparam", "main", "P1", 50, 1.0, 2.0, 0.01),
             _csv_row("b", "clip", "main", "P1", 50, 1.0, 2.0, 0.01),
-            _csv_row("b", "bilevel", "main", "P1", 50, nan, nan, nan, status="error: friction")]
+            _csv_row("b", "bilevel", "main", "P1", 50, nan, nan, nan, status="error: friction"),
+            _csv_row("c", "reparam", "main", "P1", 70, 3.0, nan, 0.02, crease="the P2 level of 900 nodes creases"),
+            _csv_row("c", "clip", "main", "P1", 70, 3.0, nan, 0.02, crease="the P2 level of 900 nodes creases"),
+            _csv_row("c", "bilevel", "main", "P1", 70, 3.0, 0.3, 0.03)]
     with open(tmp_path / "results.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
@@ -89,12 +92,15 @@ def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
     got = comparison_doc.read_rows(tmp_path)
     main = comparison_doc.main_table(got).splitlines()
     assert main[2] == "| a | 100 | reparam | 2 | 0.5 | 0.5 | 0.100 | 5 | 6 |"
-    assert main[-1] == "|  |  | bilevel | refused | - | - | - | - | - |"
+    assert main[7] == "|  |  | bilevel | refused | - | - | - | - | - |"
+    # a run whose reference creases has no errors (the page says why)
+    assert main[8] == "| c | 70 | reparam | 3 | - | creases | 0.020 | 5 | 6 |"
     least = comparison_doc.least_time_table(got).splitlines()
     assert least[2] == "| a | reparam | 0.1 s / 0.3 s | - / 0.3 s | - / - |"
     assert least[3] == "| a | bilevel | 0.05 s / 0.4 s | - / 0.4 s | - / 0.4 s |"
     assert least[5] == "| b | bilevel | - / - | - / - | - / - |"
-    assert comparison_doc.checks(got) == "Reference checks of this run (mm): a 0.01, b 0.01."
+    assert comparison_doc.checks(got) == ("Reference checks of this run (mm): a 0.01, b 0.01, c 0.01 (the "
+                                          "reference creases at 2 of 3 runs' contractions: no errors there).")
     facts = comparison_doc.facts(got).splitlines()
     assert facts[0].endswith("on: none.")
     assert "a (P1 100 nodes: 1.5 against 2)" in facts[1]

@@ -25,7 +25,10 @@ reported:
   run's contractions: the best available prediction of what the robot
   would do. The speed-against-error Pareto front uses this one;
 * ``reference_difference`` - RMS distance of the target points between the
-  reference and its check level at the run's contractions.
+  reference and its check level at the run's contractions;
+* ``reference_crease`` - where the reference or its check level creases
+  (folds through itself) at the run's contractions: the model has no
+  converged answer there, and the three errors above are left out (nan).
 
 Times are wall-clock seconds of the solve (from the starting equilibrium to
 the returned pose); building IPOPT's problem is setup, reported separately

@@ -15,7 +15,7 @@ from .settings import METHODS, TOLERANCES, CompareSettings
 CSV_FIELDS = ("problem", "method", "sweep", "tolerance", "element", "mesh_factor", "max_area", "n_nodes",
               "n_elems", "converged", "stable", "saddle_flagged", "objective", "rms_target_error",
               "model_error", "fine_target_error", "reference_difference", "t_solve_s", "t_setup_s", "iterations",
-              "equilibrium_solves", "bound_violation", "pareto", "contractions", "status")
+              "equilibrium_solves", "bound_violation", "pareto", "contractions", "status", "reference_crease")
 
 
 def _fmt(v, spec=".6g"):
@@ -43,7 +43,7 @@ def write_outputs(out: Path, problems, runs, settings, t_total) -> list[Path]:
                     repr(r.objective), repr(r.rms_target_error), repr(r.model_error),
                     repr(r.fine_target_error), repr(r.reference_difference), f"{r.t_solve:.6f}", f"{r.t_setup:.6f}", r.iterations,
                     r.equilibrium_solves, repr(r.bound_violation), int(r.pareto),
-                    _contraction_text(by_name[r.problem], r), r.status])
+                    _contraction_text(by_name[r.problem], r), r.status, r.reference_crease])
     files = [write_text_atomic(out / "results.csv", buf.getvalue())]
 
     buf = io.StringIO()
@@ -435,6 +435,19 @@ REFERENCE_MARGIN = 0.1
 ERROR_LEVELS = (1.0, 0.25, 0.05)
 
 
+def _creases(runs) -> list[str]:
+    """The report's paragraph on runs whose reference creases, if any."""
+    creased = [r for r in runs if r.reference_crease]
+    if not creased:
+        return []
+    at = sorted({r.reference_crease for r in creased})
+    return [f"**No errors for {len(creased)} of {len(runs)} runs**: at their contractions the reference "
+            f"folds through itself ({at[0]}" + (f"; and {len(at) - 1} more" if len(at) > 1 else "") +
+            "). The model has no converged answer there (refinement folds the body further), so there is "
+            "nothing to measure their errors against; `contact: {self: true}` forbids the fold "
+            "(docs/accuracy.md).", ""]
+
+
 def accuracy_section(problem, runs) -> list[str]:
     """The P2 reference, its own check, and the time each method and element
     needs to reach a given model error."""
@@ -455,7 +468,7 @@ def accuracy_section(problem, runs) -> list[str]:
             f": **the reference is not converged to {1 / REFERENCE_MARGIN:g} x below the errors "
             "measured** (the check level is the sweep's finest P2 mesh, so the smallest error "
             "measured is at most the check itself; docs/accuracy.md); errors below its check "
-            "difference are not resolved."), "",
+            "difference are not resolved."), ""] + _creases(runs) + [
          "Least solve time (s) of a stable run whose model error is at most the column's "
          "(default tolerances, any mesh; '-' = no run that accurate):", "",
          "| method | element | " + " | ".join(f"<= {e:g}" for e in ERROR_LEVELS) + " |",

@@ -20,6 +20,7 @@ from ...base.errors import PlushError, SceneError
 from ...batch import run_batch
 from ...problem import from_scene
 from ...io import load_scene
+from ...fem.contact_boundary import crossings
 from ...fem.mesh import build_mesh
 from ...fem.objective import Targets
 from .report import write_outputs
@@ -178,7 +179,9 @@ def _resolve_iterates(model, targets, t_start, history) -> list:
 def _reference(problem: _Problem, runs: list, settings: CompareSettings) -> None:
     """Model error, reference target error and the reference's own check of
     each run: the P2 reference's pose (and its coarser check level's) at the
-    run's contractions, from the run's pose carried over."""
+    run's contractions, from the run's pose carried over. Where either
+    creases (the body folded through itself: no converged answer to measure
+    against) the run gets ``reference_crease`` and no errors."""
     scene = problem.scene
     if problem.reference is None:
         if scene.outline is None:       # an explicit mesh cannot be refined: it is its own reference
@@ -199,15 +202,24 @@ def _reference(problem: _Problem, runs: list, settings: CompareSettings) -> None
             for p in (ref, chk):
                 eq = equilibrium_at(p.model, run.contraction, transfer_pose(run.mesh, run.x, p.mesh))
                 xs.append(eq.x if eq.converged else None)
-            cache[key] = xs
-        x_ref, x_chk = cache[key]
+            cache[key] = xs + [_crease(ref, xs[0]) or _crease(chk, xs[1])]
+        x_ref, x_chk, crease = cache[key]
         if x_ref is None:
+            continue
+        if crease:
+            run.reference_crease = crease
             continue
         own = Targets.from_mesh(run.mesh, scene)
         run.model_error = _rms(own.y(run.x) - ref.targets.y(x_ref))
         run.fine_target_error = float(ref.targets.rms_error(x_ref))
         if x_chk is not None:
             run.reference_difference = _rms(ref.targets.y(x_ref) - chk.targets.y(x_chk))
+
+
+def _crease(level, x) -> str:
+    """Where the P2 level's pose ``x`` creases (none: \"\"), in words."""
+    where = next(iter(crossings(level.model, [x], creases_only=True)), None) if x is not None else None
+    return f"the P2 level of {level.mesh.n_nodes} nodes creases ({where})" if where else ""
 
 
 def _rms(d) -> float:
@@ -261,13 +273,13 @@ def reference_errors(job: tuple, settings: CompareSettings) -> tuple[list, tuple
     """One input of the comparison's second batch: the P2 reference of one
     problem file and the errors against it of runs (path, runs) that ended
     at the same contractions. Returns per run (model_error,
-    fine_target_error, reference_difference) and the (reference, check)
-    meshes."""
+    fine_target_error, reference_difference, reference_crease) and the
+    (reference, check) meshes."""
     path, runs = job
     scene = load_scene(path)
     problem = _Problem(Path(path), scene, {}, scene.contraction.copy(), scene.frozen.copy())
     _reference(problem, runs, settings)
-    return ([(r.model_error, r.fine_target_error, r.reference_difference) for r in runs],
+    return ([(r.model_error, r.fine_target_error, r.reference_difference, r.reference_crease) for r in runs],
             (_MeshOf(problem.reference.mesh), _MeshOf(problem.check.mesh)))
 
 
@@ -420,9 +432,10 @@ def _run_references(paths, scenes, runs_of, failed, settings, jobs, scheduler, p
             failed.setdefault(k, f"{item.status}" + (f": {item.error}" if item.error else ""))
             continue
         errors, meshes[k] = item.value
-        for i, (model_error, fine, difference) in zip(group, errors):
+        for i, (model_error, fine, difference, crease) in zip(group, errors):
             run = runs_of[k][i]
             run.model_error, run.fine_target_error, run.reference_difference = model_error, fine, difference
+            run.reference_crease = crease
     all_runs, problems = [], []
     for k, scene in enumerate(scenes):
         if k in failed:

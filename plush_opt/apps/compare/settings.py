@@ -134,6 +134,7 @@ class Run:
     model_error: float = math.nan
     fine_target_error: float = math.nan
     reference_difference: float = math.nan           # RMS, reference against its check level
+    reference_crease: str = ""                      # where the reference (or its check) creases: no errors
     pareto: bool = False
     curve: list = field(default_factory=list)      # (t, O, dispatchable)
     resolved: list = field(default_factory=list)   # bilevel iterates re-solved: (t, O)
