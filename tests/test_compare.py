@@ -130,3 +130,21 @@ def test_a_reference_that_creases_measures_no_errors():
     assert np.isnan(folded.reference_difference)
     assert modest.reference_crease == ""
     assert 0 < modest.model_error < 1 and modest.reference_difference < modest.model_error
+
+
+@pytest.mark.slow
+def test_crease_scan_names_the_fold_and_refuses_an_unknown_winch(capsys):
+    """tools/crease_scan.py (the command the notes quote for where a scene
+    folds): finger_bound curled to its bound crosses itself on a P2 mesh
+    finer than its file's, not at a tenth of the way; a winch it does not
+    have is named."""
+    import sys
+    sys.path.insert(0, str(ROOT / "tools"))
+    import crease_scan
+    crease_scan.main([str(ROOT / "problems" / "compare" / "finger_bound.yaml"), "flex=20",
+                      "--factors", "1", "--uniform", "--steps", "10"])
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 10 and lines[0].endswith("  -")
+    assert "a crease" in lines[-1] and lines[-1].startswith("927 nodes  1.00  O ")
+    with pytest.raises(SystemExit, match="no winch named thumb"):
+        crease_scan.main([str(ROOT / "problems" / "compare" / "finger_bound.yaml"), "thumb=1"])
