@@ -389,9 +389,10 @@ def report_text(problems, runs, settings, t_total) -> str:
                   "| method | element | max_area | nodes | final O (own mesh) | model error | reference "
                   "target error | time s | setup s |", "|---|---|---|---|---|---|---|---|---|"]
             for r in sorted(mesh_runs, key=lambda r: (METHODS.index(r.method), r.element, -r.mesh_factor)):
+                errors = ("creases | -" if r.reference_crease else
+                          f"{_fmt(r.model_error, '.3g')} | {_fmt(r.fine_target_error, '.4g')}")
                 L.append(f"| {r.method} | {r.element} | {_fmt(r.max_area, '.4g')} | {r.n_nodes} | {_fmt(r.objective)} | "
-                         f"{_fmt(r.model_error, '.3g')} | {_fmt(r.fine_target_error, '.4g')} | "
-                         f"{r.t_solve:.3f} | {r.t_setup:.2f} |")
+                         f"{errors} | {r.t_solve:.3f} | {r.t_setup:.2f} |")
             L.append("")
         front = sorted((r for r in rs if r.pareto), key=lambda r: r.t_solve)
         if front:
