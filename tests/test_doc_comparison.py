@@ -84,7 +84,7 @@ def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
             _csv_row("b", "bilevel", "main", "P1", 50, nan, nan, nan, status="error: friction"),
             _csv_row("c", "reparam", "main", "P1", 70, 3.0, nan, 0.02, crease="the P2 level of 900 nodes creases"),
             _csv_row("c", "clip", "main", "P1", 70, 3.0, nan, 0.02, crease="the P2 level of 900 nodes creases"),
-            _csv_row("c", "bilevel", "main", "P1", 70, 3.0, 0.3, 0.03)]
+            _csv_row("c", "bilevel", "main", "P1", 70, 3.5, 0.3, 0.03)]
     with open(tmp_path / "results.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
@@ -104,4 +104,5 @@ def test_the_pages_figures_come_from_a_compare_runs_csv(tmp_path):
     facts = comparison_doc.facts(got).splitlines()
     assert facts[0].endswith("on: none.")
     assert "a (P1 100 nodes: 1.5 against 2)" in facts[1]
+    assert "c (P1 70 nodes: 3.5 against 3, a reference that creases)" in facts[1]
     assert facts[2] == "- On the files' meshes `bilevel` took less time than `reparam` on: `a` (single samples)."

@@ -127,8 +127,9 @@ def facts(rows: list[dict]) -> str:
                       and s["n_nodes"] == r["n_nodes"]), None)
             if o is None or _refused(o) or _refused(r) or not _o_differs(r["objective"], o["objective"]):
                 continue
+            creased = ", a reference that creases" if r["reference_crease"] or o["reference_crease"] else ""
             differs.append(f"{r['problem']} ({r['element']} {int(r['n_nodes']):,} nodes: "
-                           f"{o['objective']:.6g} against {r['objective']:.6g})")
+                           f"{o['objective']:.6g} against {r['objective']:.6g}{creased})")
         where = "; ".join(dict.fromkeys(differs)) if differs else "none"
         lines.append(f"- `{other}`'s final O differs from `reparam`'s by more than 1 % on: {where}.")
     faster = [p for p in problems(rows) if not _refused(_main(rows, p, "bilevel"))
