@@ -51,7 +51,7 @@ def scan(path: str, contraction: dict, factors, element: str, graded: bool, step
             x = eq.x
             where = crossings(p.model, [x])
             print(f"{p.model.n_nodes} nodes  {s:.2f}  O {p.targets.value(x):.6g}  "
-                  f"{(where[0] if where else 'self-contact: never') or '-'}", flush=True)
+                  f"{(where[0] if where else '- (self-contact: it cannot cross itself)') or '-'}", flush=True)
 
 
 def main(argv=None) -> None:
