@@ -93,10 +93,11 @@ def contact_block(model: Model, eq: Equilibrium) -> dict:
     return block
 
 
-def crossing_of(model: Model, x) -> str | None:
-    """Where pose ``x`` crosses itself, in words, in a scene whose body may
-    (no ``contact.self``); None where it does not or may not."""
-    return next(iter(crossings(model, [x])), None)
+def crossing_of(model: Model, x, creases_only: bool = False) -> str | None:
+    """Where pose ``x`` crosses itself (with ``creases_only``: creases), in
+    words, in a scene whose body may (no ``contact.self``); None where it
+    does not or may not."""
+    return next(iter(crossings(model, [x], creases_only)), None)
 
 
 def result_dict(model: Model, targets: Targets, eq: Equilibrium, *, method: str,

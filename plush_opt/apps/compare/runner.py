@@ -16,11 +16,11 @@ import numpy as np
 from ...solve.accuracy import base_area, equilibrium_at, transfer_pose
 from ...control import BilevelOptions, ControlOptions, run_control
 from ...solve.equilibrium import EquilibriumOptions, solve_equilibrium
+from ...solve.result_file import crossing_of
 from ...base.errors import PlushError, SceneError
 from ...batch import run_batch
 from ...problem import from_scene
 from ...io import load_scene
-from ...fem.contact_boundary import crossings
 from ...fem.mesh import build_mesh
 from ...fem.objective import Targets
 from .report import write_outputs
@@ -218,7 +218,7 @@ def _reference(problem: _Problem, runs: list, settings: CompareSettings) -> None
 
 def _crease(level, x) -> str:
     """Where the P2 level's pose ``x`` creases (none: \"\"), in words."""
-    where = next(iter(crossings(level.model, [x], creases_only=True)), None) if x is not None else None
+    where = crossing_of(level.model, x, creases_only=True) if x is not None else None
     return f"the P2 level of {level.mesh.n_nodes} nodes creases ({where})" if where else ""
 
 
