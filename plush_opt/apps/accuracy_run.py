@@ -21,9 +21,13 @@ import numpy as np
 from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
-from ..solve.accuracy import ELEMENT_ORDER, Resolution, cheapest_meeting, choose_levels, default_levels, summary
+from ..fem.mesh import build_mesh
+from ..solve.accuracy import (ELEMENT_ORDER, GRADED, Resolution, cheapest_meeting, choose_levels, default_levels,
+                              level_model, summary)
 from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, fold_at, seed_level
+from ..solve.accuracy_carry import carried_start
 from ..solve.accuracy_path import extend_along, levels_along
+from ..solve.fold_limit import FoldLimit, fold_limit, held_winches
 from ..solve.plant import path_dependent
 
 log = logging.getLogger("plush_opt")
@@ -31,6 +35,9 @@ log = logging.getLogger("plush_opt")
 #: Re-solves on another level at most: each starts at the previous answer,
 #: whose contractions the new level was chosen for, so one normally suffices.
 MAX_RESOLVES = 2
+#: Control runs again with winches held short of a fold at most this many
+#: times (a finer level can fold earlier than the one that set the limit).
+MAX_FOLD_LIMITS = 3
 
 
 class AccurateSolve:
@@ -66,7 +73,8 @@ class AccurateSolve:
     def check(self, solved, resolve, start=None):
         """``solved`` = (problem, equilibrium, result document, history) of
         a solve on :attr:`problem`; ``resolve(problem, contraction by winch
-        name)`` solves again on another level from there. ``start``: the
+        name, x0)`` solves again on another level from there (``x0``: a
+        first pose on its mesh, or None). ``start``: the
         contractions by winch name the first solve started from (default:
         the file's); a P1 answer that no P2 level can follow (every P2 level
         solved has no equilibrium near it) is left for a solve on a P2 level
@@ -75,8 +83,8 @@ class AccurateSolve:
         check's levels)."""
         if self.levels is None:
             return solved
-        rounds, resolves = [], 0
-        for attempt in range(MAX_RESOLVES + 1):
+        rounds, resolves, limits = [], 0, []
+        for attempt in range(MAX_RESOLVES + MAX_FOLD_LIMITS + 1):
             p, eq, doc, history = solved
             here = dict(zip(p.winch_names, eq.contraction.tolist()))
             if not eq.converged:            # no certified pose: nothing to estimate at, and nothing claimed
@@ -86,8 +94,21 @@ class AccurateSolve:
                 break
             found = self._estimate_at(p, eq, doc.get("method"), history)
             rounds.append(found["round"])
-            # (a fold there: finer levels fold further, and no level resolves the answer)
-            if found["round"]["met"] or attempt == MAX_RESOLVES or "crosses_itself" in found["round"]:
+            if found["round"]["met"]:
+                break
+            if "crosses_itself" in found["round"]:
+                # a fold there: finer levels fold further, and no level resolves the answer; control
+                # again with the winches it drove to their upper bounds held short of the fold
+                limit = None if len(limits) == MAX_FOLD_LIMITS or doc.get("method") == "forward" else \
+                    self._fold_limit(p, eq, doc, found)
+                if limit is None:
+                    break
+                limits.append(limit)
+                resolves += 1
+                self.scene = limit.applied(self.scene)
+                solved = self._again(resolve, self.index, _clipped(here, limit.bounds), (p.mesh, eq.x))
+                continue
+            if resolves - len(limits) == MAX_RESOLVES:
                 break
             k, again, extended, why = self._next_level(found, here, start)
             if k is None:
@@ -102,12 +123,14 @@ class AccurateSolve:
             self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes {why}: solving again "
                           f"on the {self.levels[k].element} level of {self.levels[k].mesh.n_nodes:,} nodes"
                           + (" from the start" if again is not here else ""))
-            solved = resolve(self._problem(k), again)
+            solved = self._again(resolve, k, again, (p.mesh, eq.x) if again is here else None)
         p, eq, doc, history = solved
         if rounds:
             last = rounds[-1]
             at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
             at_result["resolves"] = resolves
+            if limits:
+                at_result["fold_limits"] = [limit.row() for limit in limits]
             for key in ("path", "crosses_itself"):
                 if key in last:
                     at_result[key] = last[key]
@@ -118,6 +141,65 @@ class AccurateSolve:
             doc["accuracy"]["at_result"] = at_result
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
+
+    def _again(self, resolve, k: int, contraction: dict, answer):
+        """``resolve`` on level ``k`` from ``contraction`` (by winch name),
+        its first pose the ``answer`` (mesh, flat pose) carried to the
+        level's mesh where it is given and carries over admissibly: Newton
+        from rest can land on another branch of the same contractions (a
+        body that may pass through itself has creased ones)."""
+        problem = self._problem(k)
+        x0 = None if answer is None else carried_start(problem.model, [answer])
+        return resolve(problem, contraction, x0)
+
+    def _fold_limit(self, p, eq, doc: dict, found: dict) -> FoldLimit | None:
+        """Upper bounds short of the fold ``found`` (:meth:`_estimate_at`) at
+        the answer ``eq`` of a control run on ``p`` for the winches it drove
+        to their upper bounds (or, where none is, for every winch it moved:
+        :func:`~plush_opt.solve.fold_limit.held_winches`,
+        :func:`~plush_opt.solve.fold_limit.fold_limit`), scanned on the
+        level that folds and, where that is P1, on the cheapest
+        :data:`CHECK_ELEMENT` level (P1 locks in bending and folds later).
+        None where no winch moved or there is no room short of the fold."""
+        frozen = set(doc.get("control", {}).get("frozen", ())) | \
+            {n for n, f in zip(p.winch_names, self.scene.frozen) if f}
+        held = held_winches(p.model, eq.contraction, frozen)
+        if not held.any():
+            return None
+        fold = found["round"]["crosses_itself"]
+        levels = [next(lv for lv in found["at"] if (lv.element, lv.mesh.n_nodes) == (fold["element"], fold["nodes"]))]
+        if fold["element"] != CHECK_ELEMENT:
+            levels.append(min((lv for lv in found["at"] if lv.element == CHECK_ELEMENT), key=lambda lv: lv.cost,
+                              default=None) or self._check_resolution())
+        names = ", ".join(n for n, h in zip(p.winch_names, held) if h)
+        self.progress(f"accuracy: the body folds at the answer: scanning {names} for the last contraction "
+                      f"short of the fold on {len(levels)} level(s)")
+        models = [self._model_of(lv) for lv in levels]
+        limit, why = fold_limit(models, eq.contraction, held)
+        if limit is None:
+            self.progress(f"accuracy: no limit short of the fold: {why}")
+            return None
+        self.progress(f"accuracy: the {limit.element} level of {limit.nodes:,} nodes folds beyond "
+                      f"{limit.fraction:.3g} of the way there; control again with "
+                      + ", ".join(f"{n} <= {b:.4g}" for n, b in limit.bounds.items()))
+        return limit
+
+    def _model_of(self, level):
+        """The model of ``level`` (a :class:`Level`, or a :class:`Resolution`
+        of :data:`CHECK_ELEMENT` not solved yet, meshed here)."""
+        if isinstance(level, Resolution):
+            scene = dataclasses.replace(self.scene, element=CHECK_ELEMENT)
+            mesh = build_mesh(scene, max_area=level.max_area, graded=GRADED, refinements=level.refinements)
+            return level_model(scene, mesh)
+        return level.model if level.model is not None else \
+            level_model(dataclasses.replace(self.scene, element=level.element), level.mesh)
+
+    def _check_resolution(self) -> Resolution:
+        """The coarsest :data:`CHECK_ELEMENT` level of the sweep (solved or not)."""
+        first = [Resolution(r["family"], 0, r["family"]) for r in self.report.get("not_solved", ())
+                 if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
+        return max(first, key=lambda res: res.max_area, default=None) or \
+            default_levels(self.scene, CHECK_ELEMENT)[0]
 
     def _estimate_at(self, p, eq, method: str, history) -> dict:
         """The levels solved at the contractions of the answer ``eq`` (on
@@ -212,10 +294,7 @@ class AccurateSolve:
         refuted (``self.refuted``), or None if it could not be made)."""
         used = at[self.index]
         seeds = {(lv.element, lv.resolution): lv for lv in at if lv.element == CHECK_ELEMENT and lv.on_branch}
-        first = [Resolution(r["family"], 0, r["family"]) for r in self.report.get("not_solved", ())
-                 if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
-        first = max(first, key=lambda res: res.max_area, default=None) or \
-            default_levels(self.scene, CHECK_ELEMENT)[0]
+        first = self._check_resolution()
         self.progress(f"accuracy: checking the {used.element} level of {used.mesh.n_nodes:,} nodes against "
                       f"{CHECK_ELEMENT} levels at the returned contractions")
         c = np.asarray(contraction, dtype=np.float64)
@@ -335,6 +414,10 @@ def at_result_summary(at_result: dict, tol: float) -> str:
         again += (f"; no {cross['element']} level with an estimate to check it against" if cross["bound"] is None
                   else f"; {cross['distance']:.3g} from a {cross['element']} level of {cross['nodes']:,} nodes, "
                   f"bound through it {cross['bound']:.3g}")
+    for limit in at_result.get("fold_limits", ()):
+        again += ("; " + ", ".join(f"{n} held at most {b:.4g}" for n, b in limit["bounds"].items())
+                  + f" (at its bound the body folds through itself on the {limit['element']} level of "
+                  f"{limit['nodes']:,} nodes)")
     if at_result["met"]:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
                 f"on {where}{again}")
@@ -344,6 +427,11 @@ def at_result_summary(at_result: dict, tol: float) -> str:
         value += (f" (the body crosses itself there on the {fold['element']} level of {fold['nodes']:,} nodes, "
                   "and no mesh resolves a fold: add `self: true` under `contact:` to forbid it)")
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
+
+
+def _clipped(contraction: dict, bounds: dict) -> dict:
+    """``contraction`` (by winch name) with the winches of ``bounds`` at most those."""
+    return {n: min(v, bounds[n]) if n in bounds else v for n, v in contraction.items()}
 
 
 def _number(v):

@@ -121,9 +121,10 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
         raise SceneError(f"{p.source}: targets: --method {method} needs targets; the file has none")
     extra = {} if p.mesh_report is None else accuracy_record(p.mesh_report)
 
-    def solve(p, contraction):
+    def solve(p, contraction, x0=None):
         return _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
-                             ipopt_print_level, t0, {} if p.mesh_report is None else accuracy_record(p.mesh_report))
+                             ipopt_print_level, t0, {} if p.mesh_report is None else accuracy_record(p.mesh_report),
+                             x0)
     try:
         solved = solve(p, contraction)
         # --accuracy: the estimate at the returned contractions (and a finer level if needed)
@@ -148,8 +149,9 @@ def solve_loaded(p, contraction_pairs=(), method=None):
 
 
 def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
-                  ipopt_print_level, t0, extra):
-    """:func:`solve_problem` once the problem is loaded and its names checked."""
+                  ipopt_print_level, t0, extra, x0=None):
+    """:func:`solve_problem` once the problem is loaded and its names checked
+    (``x0``: a pose near the control run's first equilibrium, or None)."""
     from ..control import BilevelOptions, ControlOptions
     from ..solve.equilibrium import EquilibriumOptions
     from ..solve.result_file import control_result_dict, result_dict
@@ -182,7 +184,7 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     if max_time is not None:
         options = dataclasses.replace(options, max_time=max_time)
     try:
-        res = p.control(method, contraction, freeze, options=options)
+        res = p.control(method, contraction, freeze, x0=x0, options=options)
     except KeyboardInterrupt as exc:
         # a signal: the run so far (the loop's last accepted iterate), for --out
         partial = getattr(exc, "partial_result", None)

@@ -30,7 +30,11 @@ from ..fem.objective import Targets
 from ..io.scene import Scene
 from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
                        estimate_each_element, one_pose, solve_on_branch)
-from .equilibrium import EquilibriumOptions
+from .equilibrium import EquilibriumOptions, continuation
+
+#: Continuation steps from rest to a returned contraction where the pose
+#: carried from the answer creases (:func:`_unfolded`).
+UNFOLD_STEPS = 4
 
 
 def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
@@ -94,6 +98,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             src = sources[0]
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
             eq = follow(model, c, sources, options)
+        carried = bool(here) and eq is not None and src[0] is not lv.mesh     # (not the answer on its own mesh)
         if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
             if not eq.converged:
@@ -101,10 +106,12 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
                                  f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
         if not eq.converged and used is not None and finer(lv, levels[used]):
             refuted = lv
+        crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()     # (fold_at reads it)
+        if carried and any(where is not None for where in crossing):
+            eq, how, crossing = _unfolded(model, eq, how, crossing, options)
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
                      + _said(eq, how, time.perf_counter() - t0, refuted is not None))
-        crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()     # (fold_at reads it)
         if eq.converged:
             here.append((lv.mesh, eq.x))
             folded = used is not None and (i == used or finer(lv, levels[used])) and \
@@ -113,6 +120,24 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             np.full((1, len(points), 2), np.nan)
         out[i] = dataclasses.replace(one_pose(lv, eq.x if eq.converged else None, y), crossing=crossing)
     return estimate_each_element(out)
+
+
+def _unfolded(model, eq, how: str, crossing, options):
+    """A level's pose at the answer's contractions that creases where it was
+    carried from a pose that does not (Newton from a carried start can jump
+    to a creased branch: the body may pass through itself, and a pose
+    folded through itself is an equilibrium too): the pose reached from rest
+    by continuation in the contraction instead, as the answer was reached
+    through the control run's iterates, where it does not crease. Returns
+    (pose, how it was solved, its crossings)."""
+    steps = dataclasses.replace(options, continuation=UNFOLD_STEPS)
+    again = continuation(model, dataclasses.replace(eq, status=f"the pose {how} creases"), None, steps)
+    if not again.converged:
+        return eq, how, crossing
+    found = crossings(model, [again.x], creases_only=True)
+    if any(where is not None for where in found):
+        return eq, how, crossing
+    return again, f"by continuation from rest (the pose {how} creases: another branch)", found
 
 
 def _said(eq, how: str, seconds: float, refuted: bool) -> str:
