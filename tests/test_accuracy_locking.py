@@ -46,9 +46,9 @@ def _checked_at(contraction):
     said = []
     acc = AccurateSolve(CRESCENT, 0.5, progress=said.append)
 
-    def forward(problem, contraction):
+    def forward(problem, contraction, x0=None):
         c = np.array([contraction[n] for n in problem.winch_names])
-        return problem, equilibrium_at(problem.model, c, None, LEVEL_OPTIONS), \
+        return problem, equilibrium_at(problem.model, c, x0, LEVEL_OPTIONS), \
             {"accuracy": {}, "mesh_accuracy": {}}, ()
 
     return said, acc.check(forward(acc.problem, contraction), forward)

@@ -118,7 +118,7 @@ def test_where_no_level_meets_at_the_returned_contraction_the_sweep_goes_on_ther
                         lambda *a, **k: solved_here.append(a[1]) or real_solve(*a, **k))
     resolved = []
 
-    def resolve(problem, contraction):
+    def resolve(problem, contraction, x0=None):
         resolved.append(problem)
         again = solve_equilibrium(problem.model, [contraction[problem.winch_names[0]]])
         return problem, again, {"accuracy": {}, "mesh_accuracy": {}}, ()

@@ -80,3 +80,71 @@ def test_the_winches_a_fold_is_laid_to(crescent):
     # none at an upper bound: every winch the run moved
     assert held_winches(coarse, [8.0, 3.0], frozen=()).tolist() == [True, True]
     assert held_winches(coarse, [8.0, 0.0], frozen=()).tolist() == [True, False]
+
+
+def _accurate(said):
+    """An AccurateSolve on the coarse crescent's file mesh (P1), its sweep
+    left out: the levels the check uses are the tests' own."""
+    from types import SimpleNamespace
+    from plush_opt.apps.accuracy_run import AccurateSolve
+    from plush_opt.problem import load
+    p = load(CRESCENT)
+    acc = object.__new__(AccurateSolve)
+    acc.tol, acc.progress, acc.scene, acc.refuted, acc.path_dependent = 1.0, said.append, p.scene, False, False
+    acc.levels, acc.index, acc.report = [SimpleNamespace(element="P1", mesh=p.mesh)], 0, {"picked": 0}
+    return acc, p
+
+
+def _control_doc(method="reparam"):
+    return {"method": method, "control": {"frozen": []}, "accuracy": {}, "mesh_accuracy": {}}
+
+
+@pytest.mark.parametrize("method", ["reparam", "forward"])
+def test_control_runs_again_with_the_winches_held_short_of_the_fold(monkeypatch, method):
+    """The check's rounds: the first answer (lower at its bound, 12) folds on
+    a P2 level; control runs again on the answer's level with lower's upper
+    bound the limit, from the answer's contractions clipped to it and its
+    pose carried over; the second answer meets the tolerance, and the
+    result keeps the limit and says it. A forward solve (the user's
+    contractions) is never limited: it ends not met, as before."""
+    from types import SimpleNamespace
+    import plush_opt.apps.accuracy_run as run
+    from plush_opt.solve.fold_limit import FoldLimit
+    said, scanned, resolved = [], [], []
+    acc, p = _accurate(said)
+    fine = SimpleNamespace(element="P2", mesh=SimpleNamespace(n_nodes=4027), model="the P2 model", cost=1.0)
+    where = "boundary segments 445-1515 and 1386-407 cross near (-1.639, -30.13): a crease"
+    rounds = iter([{"crosses_itself": {"element": "P2", "nodes": 4027, "where": where},
+                    "estimated_error": None, "met": False},
+                   {"estimated_error": 0.3, "met": True}])
+
+    def estimate_at(p, eq, method, history):
+        found = {"contraction": dict(zip(p.winch_names, eq.contraction.tolist())), "element": "P1",
+                 "nodes": p.mesh.n_nodes, "levels": [], **next(rounds)}
+        return {"round": found, "at": [fine], "used": None}
+
+    limit = FoldLimit({"lower": 8.0}, 0.72, "P2", 4027, where)
+    monkeypatch.setattr(acc, "_estimate_at", estimate_at)
+    monkeypatch.setattr(run, "fold_limit", lambda models, c, held: scanned.append((models, held.tolist())) or
+                        (limit, None))
+
+    def resolve(problem, contraction, x0=None):
+        resolved.append((problem, contraction, x0))
+        eq = SimpleNamespace(converged=True, contraction=np.array([contraction["upper"], 8.0]), x=problem.model.X)
+        return problem, eq, _control_doc(method), ()
+
+    eq = SimpleNamespace(converged=True, contraction=np.array([8.0, 12.0]), x=p.model.X)
+    _, last, doc, _ = acc.check((p, eq, _control_doc(method), ()), resolve)
+    at = doc["accuracy"]["at_result"]
+    if method == "forward":
+        assert resolved == [] and scanned == [] and at["met"] is False and "fold_limits" not in at
+        assert "crosses_itself" in at
+        return
+    assert scanned == [(["the P2 model"], [False, True])]          # lower alone: at its bound
+    (problem, contraction, x0), = resolved
+    assert contraction == {"upper": 8.0, "lower": 8.0}
+    assert problem.model.upper.tolist() == [12.0, 8.0] and problem.mesh is p.mesh
+    assert x0 is not None and np.array_equal(x0, p.model.X)         # the answer, carried (here: the same mesh)
+    assert at["met"] is True and at["resolves"] == 1 and at["fold_limits"] == [limit.row()]
+    assert "lower held at most 8" in at["summary"] and "P2 level of 4,027 nodes" in at["summary"]
+    assert any("control again with lower <= 8" in line for line in said)

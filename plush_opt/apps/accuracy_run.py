@@ -99,8 +99,8 @@ class AccurateSolve:
             if "crosses_itself" in found["round"]:
                 # a fold there: finer levels fold further, and no level resolves the answer; control
                 # again with the winches it drove to their upper bounds held short of the fold
-                limit = None if len(limits) == MAX_FOLD_LIMITS or doc.get("method") == "forward" else \
-                    self._fold_limit(p, eq, doc, found)
+                limit = None if len(limits) == MAX_FOLD_LIMITS or doc.get("method", "forward") == "forward" else \
+                    limit_short_of_fold(self.scene, self.report, p, eq, doc, found, self.progress)
                 if limit is None:
                     break
                 limits.append(limit)
@@ -151,55 +151,6 @@ class AccurateSolve:
         problem = self._problem(k)
         x0 = None if answer is None else carried_start(problem.model, [answer])
         return resolve(problem, contraction, x0)
-
-    def _fold_limit(self, p, eq, doc: dict, found: dict) -> FoldLimit | None:
-        """Upper bounds short of the fold ``found`` (:meth:`_estimate_at`) at
-        the answer ``eq`` of a control run on ``p`` for the winches it drove
-        to their upper bounds (or, where none is, for every winch it moved:
-        :func:`~plush_opt.solve.fold_limit.held_winches`,
-        :func:`~plush_opt.solve.fold_limit.fold_limit`), scanned on the
-        level that folds and, where that is P1, on the cheapest
-        :data:`CHECK_ELEMENT` level (P1 locks in bending and folds later).
-        None where no winch moved or there is no room short of the fold."""
-        frozen = set(doc.get("control", {}).get("frozen", ())) | \
-            {n for n, f in zip(p.winch_names, self.scene.frozen) if f}
-        held = held_winches(p.model, eq.contraction, frozen)
-        if not held.any():
-            return None
-        fold = found["round"]["crosses_itself"]
-        levels = [next(lv for lv in found["at"] if (lv.element, lv.mesh.n_nodes) == (fold["element"], fold["nodes"]))]
-        if fold["element"] != CHECK_ELEMENT:
-            levels.append(min((lv for lv in found["at"] if lv.element == CHECK_ELEMENT), key=lambda lv: lv.cost,
-                              default=None) or self._check_resolution())
-        names = ", ".join(n for n, h in zip(p.winch_names, held) if h)
-        self.progress(f"accuracy: the body folds at the answer: scanning {names} for the last contraction "
-                      f"short of the fold on {len(levels)} level(s)")
-        models = [self._model_of(lv) for lv in levels]
-        limit, why = fold_limit(models, eq.contraction, held)
-        if limit is None:
-            self.progress(f"accuracy: no limit short of the fold: {why}")
-            return None
-        self.progress(f"accuracy: the {limit.element} level of {limit.nodes:,} nodes folds beyond "
-                      f"{limit.fraction:.3g} of the way there; control again with "
-                      + ", ".join(f"{n} <= {b:.4g}" for n, b in limit.bounds.items()))
-        return limit
-
-    def _model_of(self, level):
-        """The model of ``level`` (a :class:`Level`, or a :class:`Resolution`
-        of :data:`CHECK_ELEMENT` not solved yet, meshed here)."""
-        if isinstance(level, Resolution):
-            scene = dataclasses.replace(self.scene, element=CHECK_ELEMENT)
-            mesh = build_mesh(scene, max_area=level.max_area, graded=GRADED, refinements=level.refinements)
-            return level_model(scene, mesh)
-        return level.model if level.model is not None else \
-            level_model(dataclasses.replace(self.scene, element=level.element), level.mesh)
-
-    def _check_resolution(self) -> Resolution:
-        """The coarsest :data:`CHECK_ELEMENT` level of the sweep (solved or not)."""
-        first = [Resolution(r["family"], 0, r["family"]) for r in self.report.get("not_solved", ())
-                 if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
-        return max(first, key=lambda res: res.max_area, default=None) or \
-            default_levels(self.scene, CHECK_ELEMENT)[0]
 
     def _estimate_at(self, p, eq, method: str, history) -> dict:
         """The levels solved at the contractions of the answer ``eq`` (on
@@ -294,7 +245,7 @@ class AccurateSolve:
         refuted (``self.refuted``), or None if it could not be made)."""
         used = at[self.index]
         seeds = {(lv.element, lv.resolution): lv for lv in at if lv.element == CHECK_ELEMENT and lv.on_branch}
-        first = self._check_resolution()
+        first = check_resolution(self.scene, self.report)
         self.progress(f"accuracy: checking the {used.element} level of {used.mesh.n_nodes:,} nodes against "
                       f"{CHECK_ELEMENT} levels at the returned contractions")
         c = np.asarray(contraction, dtype=np.float64)
@@ -416,7 +367,7 @@ def at_result_summary(at_result: dict, tol: float) -> str:
                   f"bound through it {cross['bound']:.3g}")
     for limit in at_result.get("fold_limits", ()):
         again += ("; " + ", ".join(f"{n} held at most {b:.4g}" for n, b in limit["bounds"].items())
-                  + f" (at its bound the body folds through itself on the {limit['element']} level of "
+                  + f" (beyond, the body folds through itself on the {limit['element']} level of "
                   f"{limit['nodes']:,} nodes)")
     if at_result["met"]:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
@@ -427,6 +378,56 @@ def at_result_summary(at_result: dict, tol: float) -> str:
         value += (f" (the body crosses itself there on the {fold['element']} level of {fold['nodes']:,} nodes, "
                   "and no mesh resolves a fold: add `self: true` under `contact:` to forbid it)")
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
+
+
+def limit_short_of_fold(scene, report: dict, p, eq, doc: dict, found: dict, progress) -> FoldLimit | None:
+    """Upper bounds short of the fold ``found`` (:meth:`AccurateSolve._estimate_at`)
+    at the answer ``eq`` (its result document ``doc``) of a control run on
+    ``p`` for the winches it drove to their upper bounds (or, where none
+    is, for every winch it moved: :func:`~plush_opt.solve.fold_limit.held_winches`,
+    :func:`~plush_opt.solve.fold_limit.fold_limit`), scanned on the level
+    that folds and, where that is P1, on the cheapest :data:`CHECK_ELEMENT`
+    level of the sweep ``report`` (P1 locks in bending and folds later).
+    None where no winch moved or there is no room short of the fold;
+    ``progress(line)`` hears which."""
+    frozen = set(doc.get("control", {}).get("frozen", ())) | {n for n, f in zip(p.winch_names, scene.frozen) if f}
+    held = held_winches(p.model, eq.contraction, frozen)
+    if not held.any():
+        return None
+    fold = found["round"]["crosses_itself"]
+    levels = [next(lv for lv in found["at"] if (lv.element, lv.mesh.n_nodes) == (fold["element"], fold["nodes"]))]
+    if fold["element"] != CHECK_ELEMENT:
+        levels.append(min((lv for lv in found["at"] if lv.element == CHECK_ELEMENT), key=lambda lv: lv.cost,
+                          default=None) or check_resolution(scene, report))
+    names = ", ".join(n for n, h in zip(p.winch_names, held) if h)
+    progress(f"accuracy: the body folds at the answer: scanning {names} for the last contraction "
+             f"short of the fold on {len(levels)} level(s)")
+    limit, why = fold_limit([level_model_of(scene, lv) for lv in levels], eq.contraction, held)
+    if limit is None:
+        progress(f"accuracy: no limit short of the fold: {why}")
+        return None
+    progress(f"accuracy: the {limit.element} level of {limit.nodes:,} nodes folds beyond {limit.fraction:.3g} "
+             "of the way there; control again with " + ", ".join(f"{n} <= {b:.4g}" for n, b in limit.bounds.items()))
+    return limit
+
+
+def check_resolution(scene, report: dict) -> Resolution:
+    """The coarsest :data:`CHECK_ELEMENT` level of the sweep ``report`` of
+    ``scene`` (solved or not)."""
+    first = [Resolution(r["family"], 0, r["family"]) for r in report.get("not_solved", ())
+             if r["element"] == CHECK_ELEMENT and r["refinements"] == 0]
+    return max(first, key=lambda res: res.max_area, default=None) or default_levels(scene, CHECK_ELEMENT)[0]
+
+
+def level_model_of(scene, level):
+    """The model of ``level`` of ``scene`` (a :class:`Level`, or a
+    :class:`Resolution` of :data:`CHECK_ELEMENT` not solved yet, meshed here)."""
+    if isinstance(level, Resolution):
+        scene = dataclasses.replace(scene, element=CHECK_ELEMENT)
+        mesh = build_mesh(scene, max_area=level.max_area, graded=GRADED, refinements=level.refinements)
+        return level_model(scene, mesh)
+    return level.model if level.model is not None else \
+        level_model(dataclasses.replace(scene, element=level.element), level.mesh)
 
 
 def _clipped(contraction: dict, bounds: dict) -> dict:

@@ -151,7 +151,8 @@ def solve_loaded(p, contraction_pairs=(), method=None):
 def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, max_time, direction,
                   ipopt_print_level, t0, extra, x0=None):
     """:func:`solve_problem` once the problem is loaded and its names checked
-    (``x0``: a pose near the control run's first equilibrium, or None)."""
+    (``x0``: a pose near the first equilibrium, the forward solve's or the
+    control run's, or None)."""
     from ..control import BilevelOptions, ControlOptions
     from ..solve.equilibrium import EquilibriumOptions
     from ..solve.result_file import control_result_dict, result_dict
@@ -163,7 +164,7 @@ def _solve_loaded(p, contraction, freeze, method, equilibrium, max_iterations, m
     roundoff = ACCURACY_ROUNDOFF if p.mesh_report is not None and p.mesh_report.get("levels") else 0.0
     if method == "forward":
         t_solve = time.perf_counter()
-        eq = p.equilibrium(contraction, options=EquilibriumOptions(
+        eq = p.equilibrium(contraction, x0=x0, options=EquilibriumOptions(
             backend=equilibrium, ipopt=eq_ipopt, continuation=_continuation_steps(p), roundoff=roundoff))
         t_end = time.perf_counter()
         doc = result_dict(p.model, p.targets, eq, method="forward", converged=eq.converged,

@@ -79,8 +79,7 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     folded = False                    # ... or one (or the one in use) whose pose crosses itself
     # a probe contraction: the sweep's poses serve, unless the answer is another pose than the sweep's
     # on its own level (solved again from elsewhere, e.g. from rest: possibly another branch)
-    swept = gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near))
-    if swept:
+    if gap[near] == 0.0 and (start is None or _sweep_has(levels, start, near)):
         return estimate_each_element([one_pose(lv, lv.poses[near], lv.y[near:near + 1]) for lv in levels])
     out = [None] * len(levels)
     for i in sorted(range(len(levels)), key=lambda i: levels[i].cost):
@@ -98,17 +97,15 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
             src = sources[0]
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
             eq = follow(model, c, sources, options)
-        carried = bool(here) and eq is not None and src[0] is not lv.mesh     # (not the answer on its own mesh)
+        carried = here and eq is not None and src[0] is not lv.mesh     # (not the answer on its own mesh)
         if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
             if not eq.converged:
                 raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
                                  f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
-        if not eq.converged and used is not None and finer(lv, levels[used]):
-            refuted = lv
+        refuted = lv if not eq.converged and used is not None and finer(lv, levels[used]) else refuted
         crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()     # (fold_at reads it)
-        if carried and any(where is not None for where in crossing):
-            eq, how, crossing = _unfolded(model, eq, how, crossing, options)
+        eq, how, crossing = _unfolded(model, eq, how, crossing, options) if carried else (eq, how, crossing)
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
                      + _said(eq, how, time.perf_counter() - t0, refuted is not None))
@@ -129,7 +126,10 @@ def _unfolded(model, eq, how: str, crossing, options):
     folded through itself is an equilibrium too): the pose reached from rest
     by continuation in the contraction instead, as the answer was reached
     through the control run's iterates, where it does not crease. Returns
-    (pose, how it was solved, its crossings)."""
+    (pose, how it was solved, its crossings): those given where they do
+    not crease."""
+    if not any(where is not None for where in crossing):
+        return eq, how, crossing
     steps = dataclasses.replace(options, continuation=UNFOLD_STEPS)
     again = continuation(model, dataclasses.replace(eq, status=f"the pose {how} creases"), None, steps)
     if not again.converged:
