@@ -40,7 +40,7 @@ def crescent():
 
 def test_the_limit_is_the_last_contraction_short_of_the_crease(crescent):
     scene, coarse, fine = crescent
-    s, where = crease_free_fraction(fine, CURLED, LOWER)
+    s, where, x_limit = crease_free_fraction(fine, CURLED, LOWER)
     assert 0.5 < s < 0.9 and "a crease" in where
     start = np.array([CURLED[0], 0.0])
 
@@ -50,11 +50,11 @@ def test_the_limit_is_the_last_contraction_short_of_the_crease(crescent):
         return eq.x, crossings(fine, [eq.x], creases_only=True)[0] is not None
 
     x, folded = creases(s, None)
-    assert not folded
+    assert not folded and np.allclose(x, x_limit, atol=1e-6)
     _, folded = creases(s + 2.0 ** -FOLD_BISECTIONS, x)     # one bisection step on: the crease
     assert folded
     # the coarse level does not crease there: it sets no limit, and the finer one does
-    assert crease_free_fraction(coarse, CURLED, LOWER) == (1.0, None)
+    assert crease_free_fraction(coarse, CURLED, LOWER)[:2] == (1.0, None)
     limit, why = fold_limit([coarse, fine], CURLED, LOWER)
     assert why is None and limit.nodes == fine.n_nodes and limit.element == "P2"
     assert limit.bounds == {"lower": pytest.approx((s - FOLD_CLEARANCE) * 12.0)}
@@ -65,10 +65,15 @@ def test_the_limit_is_the_last_contraction_short_of_the_crease(crescent):
     assert limit.row()["where"] == where
 
 
-def test_no_limit_where_nothing_creases(crescent):
-    _, coarse, _ = crescent
+def test_where_nothing_creases_on_the_way_no_bounds_but_the_pose_reached(crescent):
+    """Nothing to limit; the pose reached along the way is the start for a
+    control run again where the answer's own pose folded (another branch)."""
+    scene, coarse, _ = crescent
     limit, why = fold_limit([coarse], CURLED, LOWER)
-    assert limit is None and "no level scanned creases" in why
+    assert limit.bounds == {} and "no level scanned creases" in why and limit.applied(scene) == scene
+    eq = equilibrium_at(coarse, CURLED, limit.start)
+    assert eq.converged and eq.iterations <= 1 and crossings(coarse, [limit.start], creases_only=True) == (None,)
+    assert limit.row()["from_rest"] is True
 
 
 def test_the_winches_a_fold_is_laid_to(crescent):
@@ -148,3 +153,38 @@ def test_control_runs_again_with_the_winches_held_short_of_the_fold(monkeypatch,
     assert at["met"] is True and at["resolves"] == 1 and at["fold_limits"] == [limit.row()]
     assert "lower held at most 8" in at["summary"] and "P2 level of 4,027 nodes" in at["summary"]
     assert any("control again with lower <= 8" in line for line in said)
+
+
+def test_an_answer_folded_on_another_branch_runs_again_from_the_path_from_rest(monkeypatch):
+    """The answer's own pose folds, but the path to its contractions from
+    the winches' lower bounds does not: control runs again at the same
+    contractions and bounds, from the pose that path reaches."""
+    from types import SimpleNamespace
+    import plush_opt.apps.accuracy_run as run
+    from plush_opt.solve.fold_limit import FoldLimit
+    said, resolved = [], []
+    acc, p = _accurate(said)
+    own = SimpleNamespace(element="P1", mesh=p.mesh, model=p.model, cost=1.0)
+    rounds = iter([{"crosses_itself": {"element": "P1", "nodes": p.mesh.n_nodes, "where": "a crease"},
+                    "estimated_error": None, "met": False},
+                   {"estimated_error": 0.3, "met": True}])
+    monkeypatch.setattr(acc, "_estimate_at", lambda p, eq, method, history: {
+        "round": {"contraction": {}, "element": "P1", "nodes": p.mesh.n_nodes, "levels": [], **next(rounds)},
+        "at": [own], "used": own})
+    path_pose = p.model.X + 0.01
+    limit = FoldLimit({}, 1.0, "P1", p.mesh.n_nodes, None, start=path_pose)
+    monkeypatch.setattr(run, "fold_limit", lambda models, c, held: (limit, "no level scanned creases on the way"))
+
+    def resolve(problem, contraction, x0=None):
+        resolved.append((problem, contraction, x0))
+        return problem, SimpleNamespace(converged=True, contraction=np.array([7.0, 0.0]), x=x0), _control_doc(), ()
+
+    eq = SimpleNamespace(converged=True, contraction=np.array([7.0, 0.0]), x=p.model.X)
+    _, _, doc, _ = acc.check((p, eq, _control_doc(), ()), resolve)
+    (problem, contraction, x0), = resolved
+    assert contraction == {"upper": 7.0, "lower": 0.0} and problem.model.upper.tolist() == [12.0, 12.0]
+    assert np.array_equal(x0, path_pose)
+    at = doc["accuracy"]["at_result"]
+    assert at["met"] is True and at["fold_limits"][0]["from_rest"] is True
+    assert "control again from the pose free of creases" in at["summary"]
+    assert any("another branch" in line for line in said)

@@ -106,7 +106,8 @@ class AccurateSolve:
                 limits.append(limit)
                 resolves += 1
                 self.scene = limit.applied(self.scene)
-                solved = self._again(resolve, self.index, _clipped(here, limit.bounds), (p.mesh, eq.x))
+                solved = self._again(resolve, self.index, _clipped(here, limit.bounds),
+                                     (p.mesh, eq.x if limit.start is None else limit.start))
                 continue
             if resolves - len(limits) == MAX_RESOLVES:
                 break
@@ -368,7 +369,9 @@ def at_result_summary(at_result: dict, tol: float) -> str:
     for limit in at_result.get("fold_limits", ()):
         again += ("; " + ", ".join(f"{n} held at most {b:.4g}" for n, b in limit["bounds"].items())
                   + f" (beyond, the body folds through itself on the {limit['element']} level of "
-                  f"{limit['nodes']:,} nodes)")
+                  f"{limit['nodes']:,} nodes)" if limit["bounds"] else
+                  f"; control again from the pose free of creases the path from rest reaches on the "
+                  f"{limit['element']} level of {limit['nodes']:,} nodes (the answer's had folded)")
     if at_result["met"]:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
                 f"on {where}{again}")
@@ -403,9 +406,14 @@ def limit_short_of_fold(scene, report: dict, p, eq, doc: dict, found: dict, prog
     progress(f"accuracy: the body folds at the answer: scanning {names} for the last contraction "
              f"short of the fold on {len(levels)} level(s)")
     limit, why = fold_limit([level_model_of(scene, lv) for lv in levels], eq.contraction, held)
-    if limit is None:
+    own = (fold["element"], fold["nodes"]) == (str(p.model.element), p.mesh.n_nodes)
+    if limit is None or not (limit.bounds or own):
         progress(f"accuracy: no limit short of the fold: {why}")
         return None
+    if not limit.bounds:        # the answer's own pose folded; the path there from rest does not
+        progress(f"accuracy: {why}: the answer's pose is on another branch; control again from the pose "
+                 "that path reaches")
+        return limit
     progress(f"accuracy: the {limit.element} level of {limit.nodes:,} nodes folds beyond {limit.fraction:.3g} "
              "of the way there; control again with " + ", ".join(f"{n} <= {b:.4g}" for n, b in limit.bounds.items()))
     return limit

@@ -44,17 +44,20 @@ class FoldLimit:
     ``fraction``: the last fraction of the segment (from the winches' lower
     bounds to the answer's contractions) found free of creases, on the
     level of ``element`` with ``nodes`` nodes; ``where``: the first crease
-    beyond it, in words."""
+    beyond it, in words. With no ``bounds``: nothing creases on that
+    segment, and ``start`` is the pose reached along it at the answer's
+    contractions (on the first level scanned) to run control again from."""
 
     bounds: dict
     fraction: float
     element: str
     nodes: int
-    where: str
+    where: str | None
+    start: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def row(self) -> dict:
         return {"bounds": dict(self.bounds), "fraction": self.fraction, "element": self.element,
-                "nodes": self.nodes, "where": self.where}
+                "nodes": self.nodes, "where": self.where, "from_rest": self.start is not None}
 
     def applied(self, scene: Scene) -> Scene:
         """``scene`` with these upper bounds (and its forward contractions
@@ -71,9 +74,10 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
     lower bounds (s = 0) to ``contraction`` itself (s = 1) at which the
     pose of ``model`` does not crease, to 2**-:data:`FOLD_BISECTIONS`
     (each pose solved from the last one found free of creases). Returns
-    (s, where the first crease beyond it lies, in words); (None, why) where
-    the pose at s = 0 creases or has no certified equilibrium; (1.0, None)
-    where the pose at ``contraction`` does not crease."""
+    (s, where the first crease beyond it lies, in words, the pose at s);
+    (None, why, None) where the pose at s = 0 creases or has no certified
+    equilibrium; (1.0, None, the pose there) where the pose at
+    ``contraction`` reached so does not crease."""
     options = options or LEVEL_OPTIONS
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     held = np.asarray(held, dtype=bool)
@@ -87,10 +91,10 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
 
     x_lo, where = at(0.0, None)
     if x_lo is None or where is not None:
-        return None, where
+        return None, where, None
     x_hi, where_hi = at(1.0, x_lo)
     if x_hi is not None and where_hi is None:
-        return 1.0, None
+        return 1.0, None, x_hi
     lo, hi = 0.0, 1.0
     for _ in range(FOLD_BISECTIONS):
         mid = 0.5 * (lo + hi)
@@ -99,7 +103,7 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
             lo, x_lo = mid, x
         else:                         # creased (or no pose there): the limit lies below
             hi, where_hi = mid, where
-    return lo, where_hi
+    return lo, where_hi, x_lo
 
 
 def held_winches(model: Model, contraction, frozen) -> np.ndarray:
@@ -123,20 +127,25 @@ def fold_limit(models, contraction, held, options: EquilibriumOptions | None = N
     ``contraction``: the least of their :func:`crease_free_fraction`, less
     :data:`FOLD_CLEARANCE`. Returns (:class:`FoldLimit`, None), or (None,
     why not, in words): a level creases (or has no pose) with the held
-    winches at their lower bounds, none creases on the way, or there is no
-    room short of the crease."""
+    winches at their lower bounds, none creases on the way (then the
+    :class:`FoldLimit` has no ``bounds`` and its ``start`` is the pose of
+    the first of ``models`` reached there, free of creases: the pose that
+    folded is on another branch than the path from the lower bounds
+    reaches), or there is no room short of the crease."""
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     held = np.asarray(held, dtype=bool)
-    found = None
+    found, first = None, None
     for model in models:
-        s, where = crease_free_fraction(model, c, held, options)
+        s, where, x = crease_free_fraction(model, c, held, options)
         if s is None:
             return None, (f"the {model.element} level of {model.n_nodes:,} nodes has no pose free of creases "
                           f"with those winches at their lower bounds ({where})")
+        first = x if first is None else first
         if s < 1.0 and (found is None or s < found[0]):
             found = (s, where, model)
     if found is None:
-        return None, "no level scanned creases on the way there from those winches' lower bounds"
+        return FoldLimit({}, 1.0, str(models[0].element), models[0].n_nodes, None, start=first), \
+            "no level scanned creases on the way there from those winches' lower bounds"
     s, where, model = found
     keep = s - FOLD_CLEARANCE
     if keep <= 0.0:
