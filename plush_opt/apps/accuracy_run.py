@@ -35,9 +35,12 @@ log = logging.getLogger("plush_opt")
 #: Re-solves on another level at most: each starts at the previous answer,
 #: whose contractions the new level was chosen for, so one normally suffices.
 MAX_RESOLVES = 2
-#: Control runs again with winches held short of a fold at most this many
-#: times (a finer level can fold earlier than the one that set the limit).
-MAX_FOLD_LIMITS = 3
+#: Control runs again with winches held short of a fold (or from the pose
+#: the path from rest reaches, where the answer's own pose folded) at most
+#: this many times: a finer level can fold earlier than the one that set the
+#: limit, and a run can land on a folded branch again (the crescent at 1
+#: took a limit, a new start, a limit and a new start).
+MAX_FOLD_LIMITS = 5
 
 
 class AccurateSolve:
