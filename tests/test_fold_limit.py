@@ -188,3 +188,29 @@ def test_an_answer_folded_on_another_branch_runs_again_from_the_path_from_rest(m
     assert at["met"] is True and at["fold_limits"][0]["from_rest"] is True
     assert "control again from the pose free of creases" in at["summary"]
     assert any("another branch" in line for line in said)
+
+
+def test_a_level_carried_onto_a_folded_branch_is_solved_again_from_rest(crescent):
+    """A body that may pass through itself keeps a fold once it has one: the
+    coarse crescent's P2 level curled to lower 12 (creased) and brought
+    back to 8 stays creased, where the path from rest to 8 does not crease.
+    The check at the returned contractions (a level carried from a pose
+    that lands it there) takes the pose the path from rest reaches; at 10,
+    where that path creases too, it keeps the fold it found."""
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    from plush_opt.solve.accuracy_check import _unfolded
+    _, _, fine = crescent
+    x = None
+    for lower in (4.0, 8.0, 12.0):                       # curled hard: creased at 12
+        x = equilibrium_at(fine, np.array([8.0, lower]), x).x
+    assert crossings(fine, [x], creases_only=True)[0] is not None
+    for lower, unfolds in ((10.0, False), (8.0, True)):
+        eq = equilibrium_at(fine, np.array([8.0, lower]), x)
+        crossing = crossings(fine, [eq.x], creases_only=True)
+        assert eq.converged and crossing[0] is not None          # brought back: still creased
+        again, how, found = _unfolded(fine, eq, "from the pose before", crossing, LEVEL_OPTIONS)
+        if unfolds:
+            assert found == (None,) and again.converged and how.startswith("by continuation from rest")
+            assert crossings(fine, [again.x], creases_only=True) == (None,)
+        else:
+            assert again is eq and found == crossing and how == "from the pose before"
