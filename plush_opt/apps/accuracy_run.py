@@ -101,7 +101,8 @@ class AccurateSolve:
                 break
             if "crosses_itself" in found["round"]:
                 # a fold there: finer levels fold further, and no level resolves the answer; control
-                # again with the winches it drove to their upper bounds held short of the fold
+                # again with the winches that led there held short of the fold (or from the pose the
+                # path from rest reaches, where that does not fold)
                 limit = None if len(limits) == MAX_FOLD_LIMITS or doc.get("method", "forward") == "forward" else \
                     limit_short_of_fold(self.scene, self.report, p, eq, doc, found, self.progress)
                 if limit is None:

@@ -1,6 +1,6 @@
-"""How far winches held at their upper bounds can go before the body folds
-through itself: the limit ``--accuracy`` sets on them when a control run's
-answer creases (:mod:`plush_opt.apps.accuracy_run`).
+"""How far winches can go before the body folds through itself: the limit
+``--accuracy`` sets on them when a control run's answer creases
+(:mod:`plush_opt.apps.accuracy_run`).
 
 A control run that drives a winch to its upper bound can leave the body
 creased there on fine meshes (the crescent's lower arm at 12 mm: its inner
@@ -8,7 +8,8 @@ edge folds through itself, and a fold has no converged answer). Where the
 winch is at its bound the objective was still falling towards it, so the
 run would not have stopped short of the crease by itself; the limit found
 here (the last contraction short of it at which the pose is free of
-creases) becomes the winch's upper bound for a control run again.
+creases) becomes the winch's upper bound for a control run again. Where no
+winch is at its bound, the winches the run moved are limited together.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ AT_BOUND = 1e-4
 
 @dataclasses.dataclass(frozen=True)
 class FoldLimit:
-    """Where winches held at their upper bounds stop short of a crease.
+    """Where winches stop short of a crease.
 
     ``bounds``: the new upper bound of each held winch, by name;
     ``fraction``: the last fraction of the segment (from the winches' lower
