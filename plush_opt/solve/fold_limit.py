@@ -18,11 +18,11 @@ import dataclasses
 
 import numpy as np
 
-from ..fem.contact_boundary import crossings
 from ..fem.model import Model
 from ..io.scene import Scene
 from .accuracy import LEVEL_OPTIONS, equilibrium_at
 from .equilibrium import EquilibriumOptions
+from .result_file import crossing_of
 
 #: Bisection steps on the segment from the held winches' lower bounds to the
 #: answer's contractions (the limit to 1/64 of that segment).
@@ -88,7 +88,7 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
         eq = equilibrium_at(model, start + s * (c - start), x0, options)
         if not eq.converged:
             return None, f"no certified equilibrium ({eq.status})"
-        return eq.x, crossings(model, [eq.x], creases_only=True)[0]
+        return eq.x, crossing_of(model, eq.x, creases_only=True)
 
     x_lo, where = at(0.0, None)
     if x_lo is None or where is not None:
