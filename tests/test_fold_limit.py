@@ -214,3 +214,24 @@ def test_a_level_carried_onto_a_folded_branch_is_solved_again_from_rest(crescent
             assert crossings(fine, [again.x], creases_only=True) == (None,)
         else:
             assert again is eq and found == crossing and how == "from the pose before"
+
+
+def test_a_winch_the_caller_froze_is_never_limited_whatever_the_method(monkeypatch):
+    """``--freeze lower`` on a bilevel run (whose result has no gradient
+    loop's ``control`` block) with `lower` at its upper bound: the fold
+    limit is laid to the winch the run moved, never to the frozen one."""
+    from types import SimpleNamespace
+    import plush_opt.apps.accuracy_run as run
+    said, scanned = [], []
+    acc, p = _accurate(said)
+    fine = SimpleNamespace(element="P2", mesh=SimpleNamespace(n_nodes=4027), model="the P2 model", cost=1.0)
+    monkeypatch.setattr(acc, "_estimate_at", lambda p, eq, method, history: {
+        "round": {"contraction": {}, "element": "P1", "nodes": p.mesh.n_nodes, "levels": [], "met": False,
+                  "estimated_error": None, "crosses_itself": {"element": "P2", "nodes": 4027, "where": "a crease"}},
+        "at": [fine], "used": None})
+    monkeypatch.setattr(run, "fold_limit", lambda models, c, held: scanned.append(held.tolist()) or
+                        (None, "no room"))
+    eq = SimpleNamespace(converged=True, contraction=np.array([8.0, 12.0]), x=p.model.X)
+    doc = {"method": "bilevel", "accuracy": {}, "mesh_accuracy": {}}
+    acc.check((p, eq, doc, ()), lambda *a: pytest.fail("solved again"), frozen=("lower",))
+    assert scanned == [[True, False]]

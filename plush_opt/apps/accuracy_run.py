@@ -73,7 +73,7 @@ class AccurateSolve:
         p = from_scene(dataclasses.replace(self.scene, element=lv.element), lv.mesh)
         return Problem(p.scene, p.mesh, p.model, p.targets, repick(self.report, self.levels, k))
 
-    def check(self, solved, resolve, start=None):
+    def check(self, solved, resolve, start=None, frozen=()):
         """``solved`` = (problem, equilibrium, result document, history) of
         a solve on :attr:`problem`; ``resolve(problem, contraction by winch
         name, x0)`` solves again on another level from there (``x0``: a
@@ -81,9 +81,10 @@ class AccurateSolve:
         contractions by winch name the first solve started from (default:
         the file's); a P1 answer that no P2 level can follow (every P2 level
         solved has no equilibrium near it) is left for a solve on a P2 level
-        from there. Returns the same four of the last solve, its document's
-        ``accuracy`` with ``at_result`` (and ``mesh_accuracy`` with each
-        check's levels)."""
+        from there. ``frozen``: the winches held besides the scene's (by
+        name; a fold limit never lowers theirs). Returns the same four of
+        the last solve, its document's ``accuracy`` with ``at_result`` (and
+        ``mesh_accuracy`` with each check's levels)."""
         if self.levels is None:
             return solved
         rounds, resolves, limits = [], 0, []
@@ -104,7 +105,7 @@ class AccurateSolve:
                 # again with the winches that led there held short of the fold (or from the pose the
                 # path from rest reaches, where that does not fold)
                 limit = None if len(limits) == MAX_FOLD_LIMITS or doc.get("method", "forward") == "forward" else \
-                    limit_short_of_fold(self.scene, self.report, p, eq, doc, found, self.progress)
+                    limit_short_of_fold(self.scene, self.report, p, eq, frozen, found, self.progress)
                 if limit is None:
                     break
                 limits.append(limit)
@@ -387,17 +388,17 @@ def at_result_summary(at_result: dict, tol: float) -> str:
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
 
 
-def limit_short_of_fold(scene, report: dict, p, eq, doc: dict, found: dict, progress) -> FoldLimit | None:
+def limit_short_of_fold(scene, report: dict, p, eq, frozen, found: dict, progress) -> FoldLimit | None:
     """Upper bounds short of the fold ``found`` (:meth:`AccurateSolve._estimate_at`)
-    at the answer ``eq`` (its result document ``doc``) of a control run on
-    ``p`` for the winches it drove to their upper bounds (or, where none
-    is, for every winch it moved: :func:`~plush_opt.solve.fold_limit.held_winches`,
+    at the answer ``eq`` of a control run on ``p`` (``frozen``: the winches
+    it held besides the scene's, by name) for the winches it drove to their
+    upper bounds (or, where none is, for every winch it moved: :func:`~plush_opt.solve.fold_limit.held_winches`,
     :func:`~plush_opt.solve.fold_limit.fold_limit`), scanned on the level
     that folds and, where that is P1, on the cheapest :data:`CHECK_ELEMENT`
     level of the sweep ``report`` (P1 locks in bending and folds later).
     None where no winch moved or there is no room short of the fold;
     ``progress(line)`` hears which."""
-    frozen = set(doc.get("control", {}).get("frozen", ())) | {n for n, f in zip(p.winch_names, scene.frozen) if f}
+    frozen = set(frozen) | {n for n, f in zip(p.winch_names, scene.frozen) if f}
     held = held_winches(p.model, eq.contraction, frozen)
     if not held.any():
         return None

@@ -128,7 +128,7 @@ def solve_problem(problem: Path, contraction_pairs=(), freeze=(), method=None, e
     try:
         solved = solve(p, contraction)
         # --accuracy: the estimate at the returned contractions (and a finer level if needed)
-        return solved if accurate is None else accurate.check(solved, solve, contraction)
+        return solved if accurate is None else accurate.check(solved, solve, contraction, freeze)
     except SolverError as exc:
         if isinstance(exc, SettingError):      # bad input (exit 2), not a solve that failed
             raise
