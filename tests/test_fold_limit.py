@@ -235,3 +235,80 @@ def test_a_winch_the_caller_froze_is_never_limited_whatever_the_method(monkeypat
     doc = {"method": "bilevel", "accuracy": {}, "mesh_accuracy": {}}
     acc.check((p, eq, doc, ()), lambda *a: pytest.fail("solved again"), frozen=("lower",))
     assert scanned == [[True, False]]
+
+
+def test_the_scan_walks_the_path_and_solves_the_answer_last(monkeypatch):
+    """The bisection's poses are each solved from the last one free of
+    creases, so it walks the path from the lower bounds in ever smaller
+    steps; the answer's contractions are solved last, and only where every
+    step on the way was free of creases (a jump there from the lower bounds
+    lands across the fold: the crescent's 79,625-node level spent minutes
+    in it)."""
+    from types import SimpleNamespace
+    import plush_opt.solve.fold_limit as fl
+    model = SimpleNamespace(lower=np.array([0.0, 0.0]))
+    for onset, expected in ((0.7, np.floor(0.7 * 2 ** FOLD_BISECTIONS) / 2 ** FOLD_BISECTIONS), (2.0, 1.0)):
+        solved = []
+
+        def solve(model, c, x0, options):
+            solved.append((float(c[1]) / 10.0, None if x0 is None else float(x0[0])))
+            return SimpleNamespace(converged=True, x=np.array([float(c[1]) / 10.0]), status="converged")
+
+        monkeypatch.setattr(fl, "creased_or_solved", solve)
+        monkeypatch.setattr(fl, "crossing_of", lambda model, x, creases_only: "a crease" if x[0] > onset else None)
+        s, where, x = fl.crease_free_fraction(model, np.array([5.0, 10.0]), np.array([False, True]))
+        assert s == pytest.approx(expected) and x[0] == pytest.approx(expected)
+        assert solved[0] == (0.0, None) and len(solved) == FOLD_BISECTIONS + 1 + (onset > 1)
+        kept = 0.0
+        for fraction, start in solved[1:]:           # each from the last pose found free of creases
+            assert start == pytest.approx(kept)
+            kept = fraction if fraction <= onset else kept
+        assert (solved[-1][0] == 1.0) == (onset > 1) and (where is None) == (onset > 1)
+
+
+def test_newton_that_creases_on_the_way_stops_early(crescent, monkeypatch):
+    """Newton from a pose that does not crease, not converged after its
+    first iterations (``BRANCH_ITERATIONS`` on a branch, ``CREASE_WATCH`` in
+    the scan) and creased there, is on its way to a fold: the solve on a
+    branch does not go on (``CREASED_ON_THE_WAY``), a step of the scan
+    counts as creased; with nothing creasing the watch changes nothing."""
+    import plush_opt.solve.accuracy_carry as carry
+    import plush_opt.solve.fold_limit as fl
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    _, coarse, _ = crescent
+    X = coarse.X.copy()
+    plain = carry.solve_on_branch(coarse, CURLED, X, LEVEL_OPTIONS)
+    assert plain.converged and plain.iterations > 2
+    monkeypatch.setattr(carry, "BRANCH_ITERATIONS", 2)
+    monkeypatch.setattr(carry, "BRANCH_PROGRESS", np.inf)     # (on its way, as the crescent's level was)
+    monkeypatch.setattr(fl, "CREASE_WATCH", 2)
+    creased = carry.solve_on_branch(coarse, CURLED, X, LEVEL_OPTIONS,
+                                    lambda x: None if np.array_equal(x, X) else "a crease")
+    assert not creased.converged and creased.iterations == 2
+    assert creased.status == carry.CREASED_ON_THE_WAY + ": a crease"
+    watched = carry.solve_on_branch(coarse, CURLED, X, LEVEL_OPTIONS, lambda x: None)
+    assert watched.converged and np.max(np.abs(watched.x - plain.x)) <= 1e-6 * coarse.mesh.diameter
+    monkeypatch.setattr(fl, "crossing_of", lambda model, x, creases_only: None if np.array_equal(x, X) else "a crease")
+    assert fl.creased_or_solved(coarse, CURLED, X, LEVEL_OPTIONS) == "a crease"
+    monkeypatch.setattr(fl, "crossing_of", lambda model, x, creases_only: None)
+    again = fl.creased_or_solved(coarse, CURLED, X, LEVEL_OPTIONS)
+    assert again.converged and np.max(np.abs(again.x - plain.x)) <= 1e-6 * coarse.mesh.diameter
+
+
+def test_a_level_stopped_creased_on_the_way_takes_the_path_from_rest(crescent):
+    """The check's level whose Newton from the answer stopped creased on
+    the way: the path from rest decides (crease-free: its pose; creased
+    too: its creased pose, the fold the check reports)."""
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    from plush_opt.solve.accuracy_carry import CREASED_ON_THE_WAY
+    from plush_opt.solve.accuracy_check import _unfolded
+    _, _, fine = crescent
+    for lower, unfolds in ((10.0, False), (8.0, True)):
+        stopped = dataclasses.replace(equilibrium_at(fine, np.array([8.0, 0.0])), converged=False,
+                                      contraction=np.array([8.0, lower]),
+                                      status=f"{CREASED_ON_THE_WAY}: a crease")
+        again, how, found = _unfolded(fine, stopped, "from the answer", (), LEVEL_OPTIONS)
+        assert again.converged and how.startswith("by continuation from rest (Newton from the answer creased")
+        assert np.allclose(again.contraction, [8.0, lower])
+        assert (found == (None,)) == unfolds and (crossings(fine, [again.x], creases_only=True) == (None,)) == unfolds
+        assert ("and so does the path" in how) != unfolds

@@ -30,6 +30,7 @@ from ..fem.objective import Targets
 from ..io.scene import Scene
 from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_start, equilibrium_at,
                        estimate_each_element, one_pose, solve_on_branch)
+from .accuracy_carry import CREASED_ON_THE_WAY
 from .equilibrium import EquilibriumOptions, continuation
 
 #: Continuation steps from rest to a returned contraction where the pose
@@ -96,16 +97,16 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
                 sources.insert(0, start)
             src = sources[0]
             how = "from the answer" if src is start else f"from the {src[0].n_nodes:,}-node pose there"
-            eq = follow(model, c, sources, options)
+            eq = follow(model, c, sources, options, _crease_watch(scene, model))
         carried = here and eq is not None and src[0] is not lv.mesh     # (not the answer on its own mesh)
         if not here or eq is None:    # nothing to follow: from the probe's pose, by continuation where that fails
             eq, how = equilibrium_at(model, c, lv.poses[near], options), "from the nearest probe's pose"
             if not eq.converged:
                 raise SceneError(f"{scene.source}: accuracy: no certified equilibrium at contraction {c.tolist()} "
                                  f"on the {lv.element} mesh of {lv.mesh.n_nodes} nodes: {eq.status}")
-        refuted = lv if not eq.converged and used is not None and finer(lv, levels[used]) else refuted
         crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()     # (fold_at reads it)
         eq, how, crossing = _unfolded(model, eq, how, crossing, options) if carried else (eq, how, crossing)
+        refuted = lv if not eq.converged and used is not None and finer(lv, levels[used]) else refuted
         if progress is not None:
             progress(f"accuracy: {lv.element} level of {lv.mesh.n_nodes:,} nodes at the returned contractions "
                      + _said(eq, how, time.perf_counter() - t0, refuted is not None))
@@ -119,25 +120,41 @@ def bounds_at(scene: Scene, levels: list[Level], probes, contraction, points,
     return estimate_each_element(out)
 
 
+def _crease_watch(scene: Scene, model):
+    """``creases(x)`` for :func:`follow` on ``model`` (where the flat pose
+    x creases, or None), or None in a scene with self-contact (its poses
+    never cross)."""
+    if scene.contact is not None and scene.contact.self_contact:
+        return None
+    return lambda x: next(iter(crossings(model, [x], creases_only=True)), None)
+
+
 def _unfolded(model, eq, how: str, crossing, options):
     """A level's pose at the answer's contractions that creases where it was
     carried from a pose that does not (Newton from a carried start can jump
     to a creased branch: the body may pass through itself, and a pose
-    folded through itself is an equilibrium too): the pose reached from rest
-    by continuation in the contraction instead, as the answer was reached
-    through the control run's iterates, where it does not crease. Returns
-    (pose, how it was solved, its crossings): those given where they do
-    not crease."""
-    if not any(where is not None for where in crossing):
+    folded through itself is an equilibrium too), or whose Newton stopped
+    creased on the way there (:data:`~plush_opt.solve.accuracy_carry.CREASED_ON_THE_WAY`):
+    the pose reached from rest by continuation in the contraction instead,
+    as the answer was reached through the control run's iterates, where it
+    does not crease. Returns (pose, how it was solved, its crossings): those
+    given where they do not crease (where Newton stopped on the way, the
+    path's creased pose: the fold is real)."""
+    on_the_way = not eq.converged and eq.status.startswith(CREASED_ON_THE_WAY)
+    if not (on_the_way or any(where is not None for where in crossing)):
         return eq, how, crossing
+    said = f"Newton {how} creased on the way" if on_the_way else f"the pose {how} creases"
     steps = dataclasses.replace(options, continuation=UNFOLD_STEPS)
-    again = continuation(model, dataclasses.replace(eq, status=f"the pose {how} creases"), None, steps)
+    again = continuation(model, dataclasses.replace(eq, status=said), None, steps)
     if not again.converged:
         return eq, how, crossing
     found = crossings(model, [again.x], creases_only=True)
-    if any(where is not None for where in found):
-        return eq, how, crossing
-    return again, f"by continuation from rest (the pose {how} creases: another branch)", found
+    if not any(where is not None for where in found):
+        return again, f"by continuation from rest ({said}: another branch)", found
+    # a crease on the path from rest too: the fold is real; where Newton stopped on the way to one, the
+    # path's pose shows it
+    return (again, f"by continuation from rest ({said}, and so does the path)", found) if on_the_way else \
+        (eq, how, crossing)
 
 
 def _said(eq, how: str, seconds: float, refuted: bool) -> str:
@@ -197,18 +214,19 @@ def finer(lv: Level, than: Level) -> bool:
     return n > m or (n == m and lv.element == "P2" and than.element == "P1")
 
 
-def follow(model, contraction, sources, options: EquilibriumOptions | None = None):
+def follow(model, contraction, sources, options: EquilibriumOptions | None = None, creases=None):
     """The equilibrium of ``model`` at ``contraction`` on the branch of the
     poses ``sources`` ((mesh, flat pose) pairs at ``contraction``, the
     finest first): Newton from the first of them carried to the model's
     mesh admissibly (:func:`~plush_opt.solve.accuracy_carry.carried_start`),
     :func:`~plush_opt.solve.accuracy_carry.solve_on_branch`. Its ``converged`` is False where the level has no
     equilibrium near that branch there; None where none carries over
-    admissibly (that says nothing of the branch)."""
+    admissibly (that says nothing of the branch). ``creases``: the watch
+    of :func:`~plush_opt.solve.accuracy_carry.solve_on_branch`."""
     x0 = carried_start(model, sources)
     if x0 is None:
         return None
-    return solve_on_branch(model, contraction, x0, options or LEVEL_OPTIONS)
+    return solve_on_branch(model, contraction, x0, options or LEVEL_OPTIONS, creases)
 
 
 #: The element whose levels check a P1 answer: P1 triangles lock in the

@@ -21,9 +21,15 @@ import numpy as np
 from ..fem.model import Model
 from ..io.scene import Scene
 from .accuracy import LEVEL_OPTIONS, equilibrium_at
-from .equilibrium import EquilibriumOptions
+from .accuracy_carry import branch_options
+from .equilibrium import EquilibriumOptions, solve_equilibrium
 from .result_file import crossing_of
 
+#: A step of the scan whose Newton has not converged after this many
+#: iterations and whose pose creases there counts as creased
+#: (:func:`creased_or_solved`): a step across the fold onset walks to the
+#: folded pose, which on a fine level can take a hundred iterations.
+CREASE_WATCH = 20
 #: Bisection steps on the segment from the held winches' lower bounds to the
 #: answer's contractions (the limit to 1/64 of that segment).
 FOLD_BISECTIONS = 6
@@ -74,10 +80,13 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
     ((n_winches,)) with the winches ``held`` ((n_winches,) bool) at their
     lower bounds (s = 0) to ``contraction`` itself (s = 1) at which the
     pose of ``model`` does not crease, to 2**-:data:`FOLD_BISECTIONS`
-    (each pose solved from the last one found free of creases). Returns
-    (s, where the first crease beyond it lies, in words, the pose at s);
-    (None, why, None) where the pose at s = 0 creases or has no certified
-    equilibrium; (1.0, None, the pose there) where the pose at
+    (each pose solved from the last one found free of creases, so the
+    bisection walks the path from s = 0 in ever smaller steps; s = 1 last,
+    where every step on the way was free of creases). A pose whose Newton
+    creases on the way (:func:`creased_or_solved`) counts as creased.
+    Returns (s, where the first crease beyond it lies, in words, the pose
+    at s); (None, why, None) where the pose at s = 0 creases or has no
+    certified equilibrium; (1.0, None, the pose there) where the pose at
     ``contraction`` reached so does not crease."""
     options = options or LEVEL_OPTIONS
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
@@ -85,7 +94,9 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
     start = np.where(held, model.lower, c)
 
     def at(s, x0):
-        eq = equilibrium_at(model, start + s * (c - start), x0, options)
+        eq = creased_or_solved(model, start + s * (c - start), x0, options)
+        if isinstance(eq, str):
+            return None, eq
         if not eq.converged:
             return None, f"no certified equilibrium ({eq.status})"
         return eq.x, crossing_of(model, eq.x, creases_only=True)
@@ -93,10 +104,7 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
     x_lo, where = at(0.0, None)
     if x_lo is None or where is not None:
         return None, where, None
-    x_hi, where_hi = at(1.0, x_lo)
-    if x_hi is not None and where_hi is None:
-        return 1.0, None, x_hi
-    lo, hi = 0.0, 1.0
+    lo, hi, where_hi = 0.0, 1.0, None
     for _ in range(FOLD_BISECTIONS):
         mid = 0.5 * (lo + hi)
         x, where = at(mid, x_lo)
@@ -104,7 +112,26 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
             lo, x_lo = mid, x
         else:                         # creased (or no pose there): the limit lies below
             hi, where_hi = mid, where
+    if hi == 1.0:                     # free of creases all the way so far: the last step
+        x, where = at(1.0, x_lo)
+        if x is not None and where is None:
+            return 1.0, None, x
+        where_hi = where
     return lo, where_hi, x_lo
+
+
+def creased_or_solved(model: Model, contraction, x0, options: EquilibriumOptions):
+    """The equilibrium at ``contraction`` from ``x0`` (None: rest) as
+    :func:`~plush_opt.solve.accuracy.equilibrium_at` finds it, or, from an
+    ``x0`` that does not crease, where its Newton creases after
+    :data:`CREASE_WATCH` iterations short of converging (a str)."""
+    if x0 is None or crossing_of(model, x0, creases_only=True) is not None:
+        return equilibrium_at(model, contraction, x0, options)
+    first = solve_equilibrium(model, contraction, x0, branch_options(options, CREASE_WATCH))
+    if first.converged or first.iterations < CREASE_WATCH:
+        return first if first.converged else equilibrium_at(model, contraction, x0, options)
+    where = crossing_of(model, first.x, creases_only=True)
+    return where if where is not None else equilibrium_at(model, contraction, first.x, options)
 
 
 def held_winches(model: Model, contraction, frozen) -> np.ndarray:
