@@ -234,3 +234,22 @@ def test_the_thin_strip_curled_over_its_base_overlaps_and_does_not_crease():
     apart = float(where.split("an overlap, ")[1].split(" apart")[0])
     assert 90.0 <= apart <= 130.0 and "along a boundary of 306" in where
     assert crossings(model, [eq.x], creases_only=True) == (None,)
+
+
+def test_a_mesh_boundary_is_built_once_while_the_mesh_lives():
+    """Crossing tests on one mesh share its boundary (building it costs
+    about 25 crossing tests); it goes with the mesh."""
+    import gc
+    from plush_opt.fem import contact_boundary as cb
+    from plush_opt.fem.mesh import build_mesh
+    from plush_opt.io import load_scene
+    from pathlib import Path
+    scene = load_scene(Path(__file__).resolve().parents[1] / "problems" / "gripper.yaml")
+    mesh = build_mesh(scene)
+    first = cb.boundary_of(mesh)
+    assert cb.boundary_of(mesh) is first
+    assert np.array_equal(first.segments, cb.build_boundary(mesh).segments)
+    key = id(mesh)
+    del mesh
+    gc.collect()
+    assert key not in cb._BOUNDARIES

@@ -15,6 +15,7 @@ each other).
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -92,6 +93,21 @@ def build_boundary(mesh: Mesh) -> Boundary:
                     near=near_arr)
 
 
+_BOUNDARIES: dict[int, Boundary] = {}     # boundary_of's, by id of a live mesh
+
+
+def boundary_of(mesh: Mesh) -> Boundary:
+    """:func:`build_boundary` of ``mesh``, built once while the mesh lives
+    (a crossing test with it costs a few per cent of building it: 1.3 ms
+    against 35 ms on a 10,000-node P1 mesh)."""
+    key = id(mesh)
+    found = _BOUNDARIES.get(key)
+    if found is None:
+        found = _BOUNDARIES[key] = build_boundary(mesh)
+        weakref.finalize(mesh, _BOUNDARIES.pop, key, None)
+    return found
+
+
 #: A crossing whose two segments are at most this fraction of their loop's
 #: rest length apart along the boundary is a crease. A crease has no length
 #: scale (each finer mesh folds further), an overlap converges like any
@@ -157,5 +173,5 @@ def crossings(model, poses, creases_only: bool = False) -> tuple:
     contact = model.contact
     if contact is not None and contact.self_contact:
         return ()
-    boundary = contact.boundary if contact is not None else build_boundary(model.mesh)
+    boundary = contact.boundary if contact is not None else boundary_of(model.mesh)
     return tuple(None if x is None else self_crossing(boundary, x, creases_only) for x in poses)

@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from ..base.errors import SceneError
-from ..fem.contact_boundary import build_boundary, crossings, self_crossing
+from ..fem.contact_boundary import boundary_of, crossings, self_crossing
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
@@ -193,7 +193,7 @@ def _crossing(scene: Scene, mesh, x) -> str | None:
     level that keeps none."""
     if scene.contact is not None and scene.contact.self_contact:
         return None
-    return self_crossing(build_boundary(mesh), x, creases_only=True)
+    return self_crossing(boundary_of(mesh), x, creases_only=True)
 
 
 def _sweep_has(levels: list[Level], start, j: int) -> bool:
