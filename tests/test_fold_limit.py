@@ -312,34 +312,3 @@ def test_a_level_stopped_creased_on_the_way_takes_the_path_from_rest(crescent):
         assert np.allclose(again.contraction, [8.0, lower])
         assert (found == (None,)) == unfolds and (crossings(fine, [again.x], creases_only=True) == (None,)) == unfolds
         assert ("and so does the path" in how) != unfolds
-
-
-def test_a_solve_again_starts_from_the_path_where_the_carried_answer_lands_creased(crescent, monkeypatch):
-    """Control again on another level from the answer carried over: where
-    Newton from that pose lands creased and the path from rest does not
-    (the crescent's P1 answer on its P2 level of 20,517 nodes: a whole
-    control run stayed on the folded branch), the run starts from the pose
-    the path reaches; where the path creases too, or nothing creases, from
-    the answer carried over."""
-    from plush_opt.solve.accuracy_check import unfolded_start
-    scene, coarse, fine = crescent
-    x = None
-    for lower in (4.0, 8.0, 12.0):                       # curled hard: creased at 12
-        x = equilibrium_at(fine, np.array([8.0, lower]), x).x
-    first, how = unfolded_start(scene, fine, np.array([8.0, 8.0]), x)
-    assert how is not None and how.startswith("by continuation from rest")
-    assert crossings(fine, [first], creases_only=True) == (None,)
-    assert np.allclose(first, equilibrium_at(fine, np.array([8.0, 8.0])).x, atol=1e-6 * fine.mesh.diameter)
-    assert unfolded_start(scene, fine, np.array([8.0, 10.0]), x) == (x, None)     # the path creases too
-    clean = equilibrium_at(fine, np.array([8.0, 4.0])).x
-    kept, how = unfolded_start(scene, fine, np.array([8.0, 4.5]), clean)
-    assert kept is clean and how is None
-    # AccurateSolve's solve again on another level takes it, and says so
-    import plush_opt.apps.accuracy_run as run
-    said, got = [], []
-    acc, p = _accurate(said)
-    monkeypatch.setattr(acc, "_problem", lambda k: p)
-    monkeypatch.setattr(run, "unfolded_start", lambda scene, model, c, x0: (np.full_like(x0, 7.0), "by the path"))
-    acc._again(lambda problem, contraction, x0: got.append(x0), 0, {"upper": 8.0, "lower": 8.0},
-               (fine.mesh, fine.X.copy()))
-    assert np.all(got[0] == 7.0) and "its first pose solved by the path" in said[-1]

@@ -24,8 +24,7 @@ from ..base.errors import SceneError
 from ..fem.mesh import build_mesh
 from ..solve.accuracy import (ELEMENT_ORDER, GRADED, Resolution, cheapest_meeting, choose_levels, default_levels,
                               level_model, summary)
-from ..solve.accuracy_check import (CHECK_ELEMENT, bound_through, bounds_at, finer, fold_at, seed_level,
-                                    unfolded_start)
+from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, fold_at, seed_level
 from ..solve.accuracy_carry import carried_start
 from ..solve.accuracy_path import extend_along, levels_along
 from ..solve.fold_limit import FoldLimit, fold_limit, held_winches
@@ -151,11 +150,13 @@ class AccurateSolve:
 
     def _again(self, resolve, k: int, contraction: dict, answer):
         """``resolve`` on level ``k`` from ``contraction`` (by winch name),
-        from :func:`first_pose` of the ``answer`` (mesh, flat pose) or
-        None."""
+        its first pose the ``answer`` (mesh, flat pose) carried to the
+        level's mesh where it is given and carries over admissibly: Newton
+        from rest can land on another branch of the same contractions (a
+        body that may pass through itself has creased ones)."""
         problem = self._problem(k)
-        return resolve(problem, contraction,
-                       first_pose(self.scene, problem, contraction, answer, self.progress, self.path_dependent))
+        x0 = None if answer is None else carried_start(problem.model, [answer])
+        return resolve(problem, contraction, x0)
 
     def _estimate_at(self, p, eq, method: str, history) -> dict:
         """The levels solved at the contractions of the answer ``eq`` (on
@@ -385,25 +386,6 @@ def at_result_summary(at_result: dict, tol: float) -> str:
         value += (f" (the body crosses itself there on the {fold['element']} level of {fold['nodes']:,} nodes, "
                   "and no mesh resolves a fold: add `self: true` under `contact:` to forbid it)")
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
-
-
-def first_pose(scene, problem: Problem, contraction: dict, answer, progress, path_dependent: bool = False):
-    """The first pose of a solve again on ``problem`` at ``contraction``
-    (by winch name): the ``answer`` (mesh, flat pose; or None) carried to
-    its mesh where it carries over admissibly, else None (Newton from rest
-    can land on another branch of the same contractions: a body that may
-    pass through itself has creased ones); from another level's mesh (a
-    history-free scene), :func:`~plush_opt.solve.accuracy_check.unfolded_start`
-    of that (said where it is not the answer carried over)."""
-    x0 = None if answer is None else carried_start(problem.model, [answer])
-    if x0 is None or answer[0] is problem.mesh or path_dependent:
-        return x0
-    c = np.array([contraction[name] for name in problem.winch_names])
-    x, how = unfolded_start(scene, problem.model, c, x0)
-    if how is not None:
-        progress(f"accuracy: the answer carried to the {problem.mesh.n_nodes:,}-node level creases there, the "
-                 f"path from rest does not: its first pose solved {how}")
-    return x
 
 
 def limit_short_of_fold(scene, report: dict, p, eq, frozen, found: dict, progress) -> FoldLimit | None:

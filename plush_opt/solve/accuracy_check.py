@@ -129,28 +129,6 @@ def _crease_watch(scene: Scene, model):
     return lambda x: next(iter(crossings(model, [x], creases_only=True)), None)
 
 
-def unfolded_start(scene: Scene, model, contraction, x0, options: EquilibriumOptions | None = None):
-    """A first pose at ``contraction`` ((n_winches,)) for a solve again on
-    ``model`` from ``x0`` (an answer carried over from another level): in
-    a scene whose body may pass through itself (no ``contact.self``),
-    where Newton from ``x0`` lands on a pose that creases (or stops
-    creased on its way there) and the path from rest does not
-    (:func:`_unfolded`), the pose that path reaches: a control run from a
-    creased pose stays on its folded branch. Returns (first pose, how it
-    was found), or (``x0``, None) where ``x0`` stays the first pose."""
-    watch = _crease_watch(scene, model)
-    if watch is None:
-        return x0, None
-    options = options or LEVEL_OPTIONS
-    c = np.asarray(contraction, dtype=np.float64).reshape(-1)
-    eq = solve_on_branch(model, c, x0, options, watch)
-    crossing = crossings(model, [eq.x], creases_only=True) if eq.converged else ()
-    again, how, found = _unfolded(model, eq, "from the answer carried over", crossing, options)
-    if again is eq or not again.converged or any(where is not None for where in found):
-        return x0, None
-    return again.x, how
-
-
 def _unfolded(model, eq, how: str, crossing, options):
     """A level's pose at the answer's contractions that creases where it was
     carried from a pose that does not (Newton from a carried start can jump
