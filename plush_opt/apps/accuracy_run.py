@@ -372,11 +372,13 @@ def at_result_summary(at_result: dict, tol: float) -> str:
                   else f"; {cross['distance']:.3g} from a {cross['element']} level of {cross['nodes']:,} nodes, "
                   f"bound through it {cross['bound']:.3g}")
     for limit in at_result.get("fold_limits", ()):
-        again += ("; " + ", ".join(f"{n} held at most {b:.4g}" for n, b in limit["bounds"].items())
-                  + f" (beyond, the body folds through itself on the {limit['element']} level of "
-                  f"{limit['nodes']:,} nodes)" if limit["bounds"] else
-                  f"; control again from the pose free of creases the path from rest reaches on the "
-                  f"{limit['element']} level of {limit['nodes']:,} nodes (the answer's had folded)")
+        level = f"the {limit['element']} level of {limit['nodes']:,} nodes"
+        if limit["bounds"]:
+            again += ("; " + ", ".join(f"{n} held at most {b:.4g}" for n, b in limit["bounds"].items())
+                      + f" (beyond, the body folds through itself on {level})")
+        else:
+            again += f"; control again from the pose free of creases the path from rest reaches on {level} " \
+                "(the answer's had folded)"
     if at_result["met"]:
         return (f"at the returned contractions: estimated error {est:.3g} <= tolerance {tol:.3g} "
                 f"on {where}{again}")

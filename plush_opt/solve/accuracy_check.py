@@ -32,6 +32,7 @@ from .accuracy import (LEVEL_OPTIONS, Level, Resolution, _solve_level, carried_s
                        estimate_each_element, one_pose, solve_on_branch)
 from .accuracy_carry import CREASED_ON_THE_WAY
 from .equilibrium import EquilibriumOptions, continuation
+from .result_file import crossing_of
 
 #: Continuation steps from rest to a returned contraction where the pose
 #: carried from the answer creases (:func:`_unfolded`).
@@ -126,7 +127,7 @@ def _crease_watch(scene: Scene, model):
     never cross)."""
     if scene.contact is not None and scene.contact.self_contact:
         return None
-    return lambda x: next(iter(crossings(model, [x], creases_only=True)), None)
+    return lambda x: crossing_of(model, x, creases_only=True)
 
 
 def _unfolded(model, eq, how: str, crossing, options):

@@ -121,11 +121,11 @@ def crease_free_fraction(model: Model, contraction, held, options: EquilibriumOp
 
 
 def creased_or_solved(model: Model, contraction, x0, options: EquilibriumOptions):
-    """The equilibrium at ``contraction`` from ``x0`` (None: rest) as
-    :func:`~plush_opt.solve.accuracy.equilibrium_at` finds it, or, from an
-    ``x0`` that does not crease, where its Newton creases after
+    """The equilibrium at ``contraction`` from ``x0`` (None: rest; else a
+    pose that does not crease) as :func:`~plush_opt.solve.accuracy.equilibrium_at`
+    finds it, or where its Newton from ``x0`` creases after
     :data:`CREASE_WATCH` iterations short of converging (a str)."""
-    if x0 is None or crossing_of(model, x0, creases_only=True) is not None:
+    if x0 is None:
         return equilibrium_at(model, contraction, x0, options)
     first = solve_equilibrium(model, contraction, x0, branch_options(options, CREASE_WATCH))
     if first.converged or first.iterations < CREASE_WATCH:
