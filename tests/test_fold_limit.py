@@ -71,8 +71,10 @@ def test_where_nothing_creases_on_the_way_no_bounds_but_the_pose_reached(crescen
     scene, coarse, _ = crescent
     limit, why = fold_limit([coarse], CURLED, LOWER)
     assert limit.bounds == {} and "no level scanned creases" in why and limit.applied(scene) == scene
-    eq = equilibrium_at(coarse, CURLED, limit.start)
-    assert eq.converged and eq.iterations <= 1 and crossings(coarse, [limit.start], creases_only=True) == (None,)
+    mesh, x = limit.start
+    eq = equilibrium_at(coarse, CURLED, x)
+    assert mesh is coarse.mesh
+    assert eq.converged and eq.iterations <= 1 and crossings(coarse, [x], creases_only=True) == (None,)
     assert limit.row()["from_rest"] is True
 
 
@@ -108,8 +110,10 @@ def _control_doc(method="reparam"):
 def test_control_runs_again_with_the_winches_held_short_of_the_fold(monkeypatch, method):
     """The check's rounds: the first answer (lower at its bound, 12) folds on
     a P2 level; control runs again on the answer's level with lower's upper
-    bound the limit, from the answer's contractions clipped to it and its
-    pose carried over; the second answer meets the tolerance, and the
+    bound the limit, from the answer's contractions clipped to it, from rest
+    (the scan found that path free of creases to there; the answer's pose,
+    at other contractions, can carry a run onto a folded branch: the
+    crescent's P2 level of 20,517 nodes did); the second answer meets the tolerance, and the
     result keeps the limit and says it. A forward solve (the user's
     contractions) is never limited: it ends not met, as before."""
     from types import SimpleNamespace
@@ -149,7 +153,7 @@ def test_control_runs_again_with_the_winches_held_short_of_the_fold(monkeypatch,
     (problem, contraction, x0), = resolved
     assert contraction == {"upper": 8.0, "lower": 8.0}
     assert problem.model.upper.tolist() == [12.0, 8.0] and problem.mesh is p.mesh
-    assert x0 is not None and np.array_equal(x0, p.model.X)         # the answer, carried (here: the same mesh)
+    assert x0 is None                                                # from rest
     assert at["met"] is True and at["resolves"] == 1 and at["fold_limits"] == [limit.row()]
     assert "lower held at most 8" in at["summary"] and "P2 level of 4,027 nodes" in at["summary"]
     assert any("control again with lower <= 8" in line for line in said)
@@ -172,7 +176,7 @@ def test_an_answer_folded_on_another_branch_runs_again_from_the_path_from_rest(m
         "round": {"contraction": {}, "element": "P1", "nodes": p.mesh.n_nodes, "levels": [], **next(rounds)},
         "at": [own], "used": own})
     path_pose = p.model.X + 0.01
-    limit = FoldLimit({}, 1.0, "P1", p.mesh.n_nodes, None, start=path_pose)
+    limit = FoldLimit({}, 1.0, "P1", p.mesh.n_nodes, None, start=(p.mesh, path_pose))
     monkeypatch.setattr(run, "fold_limit", lambda models, c, held: (limit, "no level scanned creases on the way"))
 
     def resolve(problem, contraction, x0=None):
@@ -235,6 +239,84 @@ def test_a_winch_the_caller_froze_is_never_limited_whatever_the_method(monkeypat
     doc = {"method": "bilevel", "accuracy": {}, "mesh_accuracy": {}}
     acc.check((p, eq, doc, ()), lambda *a: pytest.fail("solved again"), frozen=("lower",))
     assert scanned == [[True, False]]
+
+
+def _moving_to_a_p2_level(said, creased: bool):
+    """The check of a P1 answer at (8.112, 0) that P2 refuted: the P2 sweep
+    there picks a level of 20,517 nodes (its pose there creased or not)."""
+    from types import SimpleNamespace
+    acc, p = _accurate(said)
+    used = SimpleNamespace(element="P1", resolution="P1 0", mesh=p.mesh, cost=1.0)
+    fine = SimpleNamespace(element="P2", resolution="P2 1", mesh=SimpleNamespace(n_nodes=20517),
+                           model="the P2 model", cost=2.0, poses=[p.model.X + 0.5],
+                           crossing=["boundary segments 3919-13698 and 367-8371 cross: a crease" if creased else None])
+    rounds = iter([{"estimated_error": None, "met": False}, {"estimated_error": 0.02, "met": True}])
+    acc.levels = [used, fine]
+    acc._estimate_at = lambda p, eq, method, history: {
+        "round": {"contraction": {}, "element": "P1", "nodes": p.mesh.n_nodes, "levels": [], **next(rounds)},
+        "at": [used], "used": used}
+    acc._next_level = lambda found, here, start: (1, here, True, "is no estimate > 1 there")
+    return acc, p
+
+
+@pytest.mark.parametrize("path_creases", [True, False])
+def test_a_solve_again_on_a_level_that_creases_there_lays_the_limit_first(monkeypatch, path_creases):
+    """A refuted P1 answer moves to a P2 level whose pose at its
+    contractions creases: control started there would walk a folded branch
+    (the crescent's P2 level of 20,517 nodes at (8.112, 0): 144 s to a
+    creased answer, then a scan and a run again). The level is scanned
+    first; control runs on it with the winch held short of the fold, from
+    rest, or, where the path from rest reaches those contractions free of
+    creases, from that path's pose."""
+    from types import SimpleNamespace
+    import plush_opt.apps.accuracy_run as run
+    from plush_opt.solve.fold_limit import FoldLimit
+    said, scanned, again = [], [], []
+    acc, p = _moving_to_a_p2_level(said, creased=True)
+    path_pose = (p.mesh, p.model.X + 0.25)
+    limit = FoldLimit({"upper": 7.3}, 0.953, "P2", 20517, "a crease") if path_creases else \
+        FoldLimit({}, 1.0, "P2", 20517, None, start=path_pose)
+    monkeypatch.setattr(run, "fold_limit", lambda models, c, held: scanned.append((models, held.tolist())) or
+                        (limit, None if path_creases else "no level scanned creases on the way"))
+
+    def solve_again(resolve, k, contraction, answer):
+        again.append((k, contraction, answer))
+        eq = SimpleNamespace(converged=True, contraction=np.array([contraction["upper"], 0.0]), x=p.model.X)
+        return p, eq, _control_doc(), ()
+
+    acc._again = solve_again
+    eq = SimpleNamespace(converged=True, contraction=np.array([8.112, 0.0]), x=p.model.X)
+    _, _, doc, _ = acc.check((p, eq, _control_doc(), ()), None)
+    assert scanned == [(["the P2 model"], [True, False])]            # upper: the winch the run moved
+    (k, contraction, answer), = again
+    at = doc["accuracy"]["at_result"]
+    assert k == 1 and at["met"] is True and at["resolves"] == 1 and at["fold_limits"] == [limit.row()]
+    if path_creases:
+        assert contraction == {"upper": 7.3, "lower": 0.0} and answer is None and acc.scene.upper.tolist() == [7.3, 12]
+        assert "upper held at most 7.3" in at["summary"]
+        assert any("creases there: scanning upper" in line for line in said)
+    else:
+        assert contraction == {"upper": 8.112, "lower": 0.0} and answer is path_pose
+        assert acc.scene.upper.tolist() == [12.0, 12.0] and any("another branch" in line for line in said)
+
+
+def test_a_solve_again_on_a_level_free_of_creases_there_starts_from_the_answer(monkeypatch):
+    import plush_opt.apps.accuracy_run as run
+    from types import SimpleNamespace
+    said, again = [], []
+    acc, p = _moving_to_a_p2_level(said, creased=False)
+    monkeypatch.setattr(run, "fold_limit", lambda *a: pytest.fail("scanned"))
+
+    def solve_again(resolve, k, contraction, answer):
+        again.append((k, contraction, answer))
+        return p, SimpleNamespace(converged=True, contraction=np.array([8.112, 0.0]), x=p.model.X), _control_doc(), ()
+
+    acc._again = solve_again
+    eq = SimpleNamespace(converged=True, contraction=np.array([8.112, 0.0]), x=p.model.X + 1.0)
+    _, _, doc, _ = acc.check((p, eq, _control_doc(), ()), None)
+    (k, contraction, (mesh, x)), = again
+    assert contraction == {"upper": 8.112, "lower": 0.0} and mesh is p.mesh and np.array_equal(x, eq.x)
+    assert "fold_limits" not in doc["accuracy"]["at_result"]
 
 
 def test_the_scan_walks_the_path_and_solves_the_answer_last(monkeypatch):

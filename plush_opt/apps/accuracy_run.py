@@ -87,7 +87,7 @@ class AccurateSolve:
         ``mesh_accuracy`` with each check's levels)."""
         if self.levels is None:
             return solved
-        rounds, resolves, limits = [], 0, []
+        rounds, resolves, moves, limits = [], 0, 0, []
         for attempt in range(MAX_RESOLVES + MAX_FOLD_LIMITS + 1):
             p, eq, doc, history = solved
             here = dict(zip(p.winch_names, eq.contraction.tolist()))
@@ -111,10 +111,10 @@ class AccurateSolve:
                 limits.append(limit)
                 resolves += 1
                 self.scene = limit.applied(self.scene)
-                solved = self._again(resolve, self.index, _clipped(here, limit.bounds),
-                                     (p.mesh, eq.x if limit.start is None else limit.start))
+                # (with bounds: from rest, a path the scan found free of creases to them)
+                solved = self._again(resolve, self.index, _clipped(here, limit.bounds), limit.start)
                 continue
-            if resolves - len(limits) == MAX_RESOLVES:
+            if moves == MAX_RESOLVES:
                 break
             k, again, extended, why = self._next_level(found, here, start)
             if k is None:
@@ -125,26 +125,23 @@ class AccurateSolve:
                     self.index = k    # (its place among them: the sweep's levels replaced the ones before)
                     continue
                 break
-            resolves += 1
+            resolves, moves = resolves + 1, moves + 1
             self.progress(f"accuracy: the {used.element} level of {used.mesh.n_nodes:,} nodes {why}: solving again "
                           f"on the {self.levels[k].element} level of {self.levels[k].mesh.n_nodes:,} nodes"
                           + (" from the start" if again is not here else ""))
-            solved = self._again(resolve, k, again, (p.mesh, eq.x) if again is here else None)
+            answer = (p.mesh, eq.x) if again is here else None
+            limit = None if answer is None or len(limits) == MAX_FOLD_LIMITS or \
+                doc.get("method", "forward") == "forward" else \
+                limit_before_solving(self.scene, self.report, p, self.levels if extended else found["at"], k,
+                                     eq.contraction, frozen, self.progress)
+            if limit is not None:        # the run would start on a folded branch there
+                limits.append(limit)
+                self.scene = limit.applied(self.scene)
+                again, answer = _clipped(again, limit.bounds), limit.start
+            solved = self._again(resolve, k, again, answer)
         p, eq, doc, history = solved
         if rounds:
-            last = rounds[-1]
-            at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
-            at_result["resolves"] = resolves
-            if limits:
-                at_result["fold_limits"] = [limit.row() for limit in limits]
-            for key in ("path", "crosses_itself"):
-                if key in last:
-                    at_result[key] = last[key]
-            if "cross_check" in last:
-                at_result["cross_check"] = {k: last["cross_check"][k]
-                                            for k in ("element", "nodes", "distance", "bound", "agrees")}
-            at_result["summary"] = at_result_summary(at_result, self.tol)
-            doc["accuracy"]["at_result"] = at_result
+            doc["accuracy"]["at_result"] = at_result_of(rounds[-1], resolves, limits, self.tol)
             doc["mesh_accuracy"]["at_result"] = rounds
         return p, eq, doc, history
 
@@ -361,6 +358,24 @@ def repick(report: dict, levels, k: int) -> dict:
     return out
 
 
+def at_result_of(last: dict, resolves: int, limits, tol: float) -> dict:
+    """The result's ``accuracy.at_result`` from the ``last`` round of the
+    check (:meth:`AccurateSolve._estimate_at`), after ``resolves`` solves
+    again and the fold ``limits`` laid (:class:`FoldLimit`)."""
+    at_result = {k: last[k] for k in ("contraction", "element", "nodes", "estimated_error", "met")}
+    at_result["resolves"] = resolves
+    if limits:
+        at_result["fold_limits"] = [limit.row() for limit in limits]
+    for key in ("path", "crosses_itself"):
+        if key in last:
+            at_result[key] = last[key]
+    if "cross_check" in last:
+        at_result["cross_check"] = {k: last["cross_check"][k] for k in ("element", "nodes", "distance", "bound",
+                                                                        "agrees")}
+    at_result["summary"] = at_result_summary(at_result, tol)
+    return at_result
+
+
 def at_result_summary(at_result: dict, tol: float) -> str:
     """One line: the estimate at the returned contractions, honestly."""
     est = at_result["estimated_error"]
@@ -393,32 +408,62 @@ def at_result_summary(at_result: dict, tol: float) -> str:
 def limit_short_of_fold(scene, report: dict, p, eq, frozen, found: dict, progress) -> FoldLimit | None:
     """Upper bounds short of the fold ``found`` (:meth:`AccurateSolve._estimate_at`)
     at the answer ``eq`` of a control run on ``p`` (``frozen``: the winches
-    it held besides the scene's, by name) for the winches it drove to their
-    upper bounds (or, where none is, for every winch it moved: :func:`~plush_opt.solve.fold_limit.held_winches`,
+    it held besides the scene's, by name): :func:`lay_fold_limit` on the
+    level that folds. None where no winch moved or there is no room short
+    of the fold; ``progress(line)`` hears which."""
+    fold = found["round"]["crosses_itself"]
+    own = (fold["element"], fold["nodes"]) == (str(p.model.element), p.mesh.n_nodes)
+    return lay_fold_limit(scene, report, p.model, eq.contraction, frozen, fold, found["at"], own,
+                          "the body folds at the answer", progress)
+
+
+def limit_before_solving(scene, report: dict, p, levels, k: int, contraction, frozen, progress) -> FoldLimit | None:
+    """Upper bounds to lay before control runs again on ``levels[k]`` from
+    ``contraction`` (the answer of a run on ``p``; ``levels`` as solved
+    there): where that level's pose there creases, the run would start on a
+    folded branch (a body that may pass through itself can fold on a finer
+    mesh at contractions a coarser one reached unfolded), walk it and end
+    creased. :func:`lay_fold_limit` on that level; None where its pose
+    there does not crease, or no limit can be laid."""
+    fold = fold_at(scene, [levels[k]], levels[k])
+    if fold is None:
+        return None
+    return lay_fold_limit(scene, report, p.model, contraction, frozen, fold, levels, True,
+                          f"the {fold['element']} level of {fold['nodes']:,} nodes creases there", progress)
+
+
+def lay_fold_limit(scene, report: dict, model, contraction, frozen, fold: dict, levels, own: bool, what: str,
+                   progress) -> FoldLimit | None:
+    """Upper bounds short of ``fold`` (a crease at ``contraction`` on one of
+    ``levels``, :func:`~plush_opt.solve.accuracy_check.fold_at`) for the
+    winches of ``model`` (any level's) not ``frozen`` (by name, besides the
+    scene's) that a run drove to their upper bounds (or, where none is, for
+    every one it moved: :func:`~plush_opt.solve.fold_limit.held_winches`,
     :func:`~plush_opt.solve.fold_limit.fold_limit`), scanned on the level
     that folds and, where that is P1, on the cheapest :data:`CHECK_ELEMENT`
-    level of the sweep ``report`` (P1 locks in bending and folds later).
-    None where no winch moved or there is no room short of the fold;
-    ``progress(line)`` hears which."""
-    frozen = set(frozen) | {n for n, f in zip(p.winch_names, scene.frozen) if f}
-    held = held_winches(p.model, eq.contraction, frozen)
+    level of ``levels`` or the sweep ``report`` (P1 locks in bending and
+    folds later). Where nothing creases on the way, a limit without bounds
+    (control again from the pose the path reaches) if the fold is on the
+    level control runs on (``own``), else None. None too where no winch
+    moved or there is no room short of the fold; ``progress(line)`` hears
+    which (``what``: the fold, in words)."""
+    frozen = set(frozen) | {n for n, f in zip(model.winch_names, scene.frozen) if f}
+    held = held_winches(model, contraction, frozen)
     if not held.any():
         return None
-    fold = found["round"]["crosses_itself"]
-    levels = [next(lv for lv in found["at"] if (lv.element, lv.mesh.n_nodes) == (fold["element"], fold["nodes"]))]
+    scanned = [next(lv for lv in levels if (lv.element, lv.mesh.n_nodes) == (fold["element"], fold["nodes"]))]
     if fold["element"] != CHECK_ELEMENT:
-        levels.append(min((lv for lv in found["at"] if lv.element == CHECK_ELEMENT), key=lambda lv: lv.cost,
-                          default=None) or check_resolution(scene, report))
-    names = ", ".join(n for n, h in zip(p.winch_names, held) if h)
-    progress(f"accuracy: the body folds at the answer: scanning {names} for the last contraction "
-             f"short of the fold on {len(levels)} level(s)")
-    limit, why = fold_limit([level_model_of(scene, lv) for lv in levels], eq.contraction, held)
-    own = (fold["element"], fold["nodes"]) == (str(p.model.element), p.mesh.n_nodes)
+        scanned.append(min((lv for lv in levels if lv.element == CHECK_ELEMENT), key=lambda lv: lv.cost,
+                           default=None) or check_resolution(scene, report))
+    names = ", ".join(n for n, h in zip(model.winch_names, held) if h)
+    progress(f"accuracy: {what}: scanning {names} for the last contraction short of the fold on "
+             f"{len(scanned)} level(s)")
+    limit, why = fold_limit([level_model_of(scene, lv) for lv in scanned], contraction, held)
     if limit is None or not (limit.bounds or own):
         progress(f"accuracy: no limit short of the fold: {why}")
         return None
-    if not limit.bounds:        # the answer's own pose folded; the path there from rest does not
-        progress(f"accuracy: {why}: the answer's pose is on another branch; control again from the pose "
+    if not limit.bounds:        # the pose there folded; the path there from rest does not
+        progress(f"accuracy: {why}: the pose there is on another branch; control again from the pose "
                  "that path reaches")
         return limit
     progress(f"accuracy: the {limit.element} level of {limit.nodes:,} nodes folds beyond {limit.fraction:.3g} "

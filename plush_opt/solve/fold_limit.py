@@ -53,14 +53,15 @@ class FoldLimit:
     level of ``element`` with ``nodes`` nodes; ``where``: the first crease
     beyond it, in words. With no ``bounds``: nothing creases on that
     segment, and ``start`` is the pose reached along it at the answer's
-    contractions (on the first level scanned) to run control again from."""
+    contractions, (mesh, flat pose) of the first level scanned, to run
+    control again from."""
 
     bounds: dict
     fraction: float
     element: str
     nodes: int
     where: str | None
-    start: np.ndarray | None = dataclasses.field(default=None, repr=False, compare=False)
+    start: tuple | None = dataclasses.field(default=None, repr=False, compare=False)
 
     def row(self) -> dict:
         return {"bounds": dict(self.bounds), "fraction": self.fraction, "element": self.element,
@@ -156,9 +157,9 @@ def fold_limit(models, contraction, held, options: EquilibriumOptions | None = N
     :data:`FOLD_CLEARANCE`. Returns (:class:`FoldLimit`, None), or (None,
     why not, in words): a level creases (or has no pose) with the held
     winches at their lower bounds, none creases on the way (then the
-    :class:`FoldLimit` has no ``bounds`` and its ``start`` is the pose of
-    the first of ``models`` reached there, free of creases: the pose that
-    folded is on another branch than the path from the lower bounds
+    :class:`FoldLimit` has no ``bounds`` and its ``start`` is (mesh, pose)
+    of the first of ``models`` reached there, free of creases: the pose
+    that folded is on another branch than the path from the lower bounds
     reaches), or there is no room short of the crease."""
     c = np.asarray(contraction, dtype=np.float64).reshape(-1)
     held = np.asarray(held, dtype=bool)
@@ -168,7 +169,7 @@ def fold_limit(models, contraction, held, options: EquilibriumOptions | None = N
         if s is None:
             return None, (f"the {model.element} level of {model.n_nodes:,} nodes has no pose free of creases "
                           f"with those winches at their lower bounds ({where})")
-        first = x if first is None else first
+        first = (model.mesh, x) if first is None else first
         if s < 1.0 and (found is None or s < found[0]):
             found = (s, where, model)
     if found is None:
