@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 from plush_opt.fem.contact_boundary import crossings
-from plush_opt.fem.mesh import build_mesh
 from plush_opt.io import load_scene
-from plush_opt.solve.accuracy import GRADED, default_levels, equilibrium_at, level_model
+from plush_opt.solve.accuracy import default_levels, equilibrium_at, level_mesh, level_model
 from plush_opt.solve.fold_limit import (FOLD_BISECTIONS, FOLD_CLEARANCE, crease_free_fraction, fold_limit,
                                         held_winches)
 
@@ -29,7 +28,7 @@ LOWER = np.array([False, True])
 def _level(scene, element: str, index: int):
     res = default_levels(scene, element)[index]
     sc = dataclasses.replace(scene, element=element)
-    return level_model(sc, build_mesh(sc, max_area=res.max_area, graded=GRADED, refinements=res.refinements))
+    return level_model(sc, level_mesh(sc, res))
 
 
 @pytest.fixture(scope="module")

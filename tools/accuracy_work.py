@@ -20,10 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from plush_opt.base.linalg import NotPositiveDefinite
-from plush_opt.fem.mesh import build_mesh
 from plush_opt.fem.model import build_model
 from plush_opt.io import load_scene
-from plush_opt.solve.accuracy import GRADED, LEVEL_OPTIONS, default_levels
+from plush_opt.solve.accuracy import LEVEL_OPTIONS, default_levels, level_mesh
 from plush_opt.solve.equilibrium import solve_equilibrium
 from plush_opt.solve.plant import make_plant, path_dependent
 from plush_opt.solve.work import counted
@@ -37,8 +36,7 @@ def level_rows(path: Path, max_nodes: int, repeats: int):
     for element in ("P1", "P2"):
         scene = dataclasses.replace(load_scene(path), element=element)
         for res in default_levels(scene, element):
-            mesh = build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements,
-                              announce=False)
+            mesh = level_mesh(scene, res, announce=False)
             if mesh.n_nodes > max_nodes:
                 continue
             model = build_model(scene, mesh)

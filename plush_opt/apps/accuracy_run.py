@@ -21,9 +21,8 @@ import numpy as np
 from ..io import load_scene
 from ..problem import Problem, from_scene, load
 from ..base.errors import SceneError
-from ..fem.mesh import build_mesh
-from ..solve.accuracy import (ELEMENT_ORDER, GRADED, Resolution, cheapest_meeting, choose_levels, default_levels,
-                              level_model, summary)
+from ..solve.accuracy import (ELEMENT_ORDER, Resolution, cheapest_meeting, choose_levels, default_levels,
+                              level_mesh, level_model, summary)
 from ..solve.accuracy_check import CHECK_ELEMENT, bound_through, bounds_at, finer, fold_at, seed_level
 from ..solve.accuracy_carry import carried_start
 from ..solve.accuracy_path import extend_along, levels_along
@@ -484,8 +483,7 @@ def level_model_of(scene, level):
     :class:`Resolution` of :data:`CHECK_ELEMENT` not solved yet, meshed here)."""
     if isinstance(level, Resolution):
         scene = dataclasses.replace(scene, element=CHECK_ELEMENT)
-        mesh = build_mesh(scene, max_area=level.max_area, graded=GRADED, refinements=level.refinements)
-        return level_model(scene, mesh)
+        return level_model(scene, level_mesh(scene, level))
     return level.model if level.model is not None else \
         level_model(dataclasses.replace(scene, element=level.element), level.mesh)
 

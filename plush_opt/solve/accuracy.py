@@ -135,6 +135,11 @@ def equilibrium_at(model: Model, contraction, x0=None,
     return solve_equilibrium(model, c, x0, dataclasses.replace(options, continuation=steps))
 
 
+def level_mesh(scene: Scene, res: Resolution, announce: bool = True):
+    """The mesh of the level of resolution ``res`` of ``scene`` (of its element)."""
+    return build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=announce)
+
+
 def base_area(scene: Scene) -> float:
     """The max_area resolution sweeps scale: the problem file's, or 1/400 of
     the body area if the file leaves it to the mesher's angle bound."""
@@ -235,7 +240,7 @@ def _solve_level(scene: Scene, res: Resolution, cs, points, prev: Level | None,
     the branch (its pose None, ``y`` NaN) instead of solved by
     continuation."""
     t0 = time.perf_counter()
-    mesh = build_mesh(scene, max_area=res.max_area, graded=GRADED, refinements=res.refinements)
+    mesh = level_mesh(scene, res)
     t_mesh = time.perf_counter() - t0
     if res.family is None and prev is not None and mesh.n_nodes < MIN_REFINEMENT * prev.mesh.n_nodes:
         # not really finer (forced points and the angle bound dominate)

@@ -23,12 +23,11 @@ import time
 import numpy as np
 
 from ..base.errors import SceneError
-from ..fem.mesh import build_mesh
 from ..fem.model import build_model
 from ..fem.objective import Targets
 from ..io.scene import Scene
-from .accuracy import (GRADED, LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
-                       RestPushes, level_model, one_pose)
+from .accuracy import (LEVEL_OPTIONS, Level, cheapest_meeting, default_levels, estimate_each_element,
+                       RestPushes, level_mesh, level_model, one_pose)
 from .equilibrium import Equilibrium, EquilibriumOptions
 from .plant import make_plant
 from .plant_base import Plant
@@ -130,7 +129,7 @@ def extend_along(scene: Scene, at: list[Level], waypoints, contraction, points, 
         if (element, res) in done:
             continue
         t0 = time.perf_counter()
-        mesh = build_mesh(s, max_area=res.max_area, graded=GRADED, refinements=res.refinements, announce=False)
+        mesh = level_mesh(s, res, announce=False)
         t_mesh = time.perf_counter() - t0
         try:
             model = level_model(s, mesh)
