@@ -376,6 +376,25 @@ def test_newton_that_creases_on_the_way_stops_early(crescent, monkeypatch):
     assert again.converged and np.max(np.abs(again.x - plain.x)) <= 1e-6 * coarse.mesh.diameter
 
 
+def test_newton_that_fails_early_in_the_scan_is_not_run_again(crescent, monkeypatch):
+    """A step of the scan whose Newton from the last pose free of creases
+    fails within ``CREASE_WATCH`` iterations goes on by continuation from
+    rest at once: the same Newton from the same start would fail the same
+    way."""
+    from types import SimpleNamespace
+    import plush_opt.solve.fold_limit as fl
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS
+    _, coarse, _ = crescent
+    X = coarse.X.copy()
+    newton, continued = [], []
+    failed = SimpleNamespace(converged=False, iterations=3, x=X, status="line search failed")
+    monkeypatch.setattr(fl, "solve_equilibrium", lambda model, c, x0, options: newton.append(x0) or failed)
+    monkeypatch.setattr(fl, "continuation", lambda model, eq, x0, options: continued.append(
+        (eq, x0, options.continuation)) or "by continuation")
+    assert fl.creased_or_solved(coarse, CURLED, X, LEVEL_OPTIONS) == "by continuation"
+    assert len(newton) == 1 and continued == [(failed, X, fl.CONTINUATION_STEPS)]
+
+
 def test_a_level_stopped_creased_on_the_way_takes_the_path_from_rest(crescent):
     """The check's level whose Newton from the answer stopped creased on
     the way: the path from rest decides (crease-free: its pose; creased

@@ -90,6 +90,8 @@ INTERLEAVE = 2.0
 #: uniform levels converge there like h^1.1 whatever the element (and
 #: resolve a disc only below its radius), agreeing long before they are right.
 GRADED = True
+#: Continuation steps from rest where a level's Newton fails (:func:`equilibrium_at`).
+CONTINUATION_STEPS = 4
 #: A level counts as finer than the previous one only with this many times
 #: its nodes (explicit levels; family B is dropped below this).
 MIN_REFINEMENT = 1.3
@@ -123,7 +125,7 @@ PROBE_PATH_STEPS = 5
 
 
 def equilibrium_at(model: Model, contraction, x0=None,
-                   options: EquilibriumOptions | None = None, steps: int = 4) -> Equilibrium:
+                   options: EquilibriumOptions | None = None, steps: int = CONTINUATION_STEPS) -> Equilibrium:
     """Certified equilibrium at ``contraction`` from ``x0`` (default the rest
     pose); if that fails, by continuation from the rest contraction (0
     clipped to the bounds) in ``steps`` steps, each halved where it fails

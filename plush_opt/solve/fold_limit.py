@@ -20,9 +20,9 @@ import numpy as np
 
 from ..fem.model import Model
 from ..io.scene import Scene
-from .accuracy import LEVEL_OPTIONS, equilibrium_at
+from .accuracy import CONTINUATION_STEPS, LEVEL_OPTIONS, equilibrium_at
 from .accuracy_carry import branch_options
-from .equilibrium import EquilibriumOptions, solve_equilibrium
+from .equilibrium import EquilibriumOptions, continuation, solve_equilibrium
 from .result_file import crossing_of
 
 #: A step of the scan whose Newton has not converged after this many
@@ -125,12 +125,16 @@ def creased_or_solved(model: Model, contraction, x0, options: EquilibriumOptions
     """The equilibrium at ``contraction`` from ``x0`` (None: rest; else a
     pose that does not crease) as :func:`~plush_opt.solve.accuracy.equilibrium_at`
     finds it, or where its Newton from ``x0`` creases after
-    :data:`CREASE_WATCH` iterations short of converging (a str)."""
+    :data:`CREASE_WATCH` iterations short of converging (a str). (Newton
+    that failed from ``x0`` within those iterations is not run again: the
+    continuation from rest follows at once.)"""
     if x0 is None:
         return equilibrium_at(model, contraction, x0, options)
     first = solve_equilibrium(model, contraction, x0, branch_options(options, CREASE_WATCH))
-    if first.converged or first.iterations < CREASE_WATCH:
-        return first if first.converged else equilibrium_at(model, contraction, x0, options)
+    if first.converged:
+        return first
+    if first.iterations < CREASE_WATCH:        # (the same Newton from the same start fails the same way)
+        return continuation(model, first, x0, dataclasses.replace(options, continuation=CONTINUATION_STEPS))
     where = crossing_of(model, first.x, creases_only=True)
     return where if where is not None else equilibrium_at(model, contraction, first.x, options)
 
