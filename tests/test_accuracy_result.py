@@ -308,6 +308,38 @@ def test_a_reference_level_that_leaves_the_state_is_solved_again_by_the_homotopy
     assert eq.x[0] == 0.3 and relieved and solved == [("homotopy", 6.0)]
 
 
+def test_a_reference_level_is_not_solved_from_a_source_that_does_not_carry_over(monkeypatch):
+    """A source pose that carries over admissibly by neither interpolation
+    (an element of the finer level inverted: the gripper's 67,313-node pose
+    at its answer for TOL 0.25, carried to 267,745 nodes) is not solved
+    from (equilibrium_at would start from rest and walk the whole way, for
+    hours there): the next source is; only where none carries over is the
+    level solved from rest."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    import plush_opt.solve.accuracy as accuracy
+    solved = []
+
+    def fake_newton(model, contraction, x0, options):
+        solved.append(None if x0 is None else float(x0[0]))
+        return type("Eq", (), {"converged": True, "x": np.array([0.1 if x0 is None else x0[0]])})()
+
+    monkeypatch.setattr(accuracy, "equilibrium_at", fake_newton)
+    # a pose at a negative coordinate does not carry over
+    monkeypatch.setattr(accuracy, "carried_start",
+                        lambda model, sources: None if sources[0][1][0] < 0 else np.array([sources[0][1][0]]))
+    model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})()})()
+    y_of = lambda x: np.array([[x[0], 0.0]])                     # noqa: E731  (the pose's one point)
+    origin = np.array([[0.0, 0.0]])
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([-0.2])), ("answer", np.array([0.5]))],
+                                        y_of, origin, 1.0)
+    assert solved == [0.5] and eq.x[0] == 0.5 and not relieved
+    solved.clear()
+    eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([-0.2])), ("answer", np.array([-0.5]))],
+                                        y_of, origin, 1.0)
+    assert solved == [None] and eq.x[0] == 0.1 and not relieved
+
+
 def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypatch):
     """Where the pose depends on the path each reference level replays it
     from the start (no level carries another's pose): the levels coarser

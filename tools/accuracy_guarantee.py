@@ -200,15 +200,24 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float, relieved: 
     ``relieved`` (the level before needed it: Newton walked there) each
     start by the homotopy first. Returns (the first that stayed, else the
     converged one nearest ``y_prev``, its jump then reported, else the
-    first; whether the homotopy found it)."""
-    from plush_opt.solve.accuracy import LEVEL_OPTIONS, carried_start, equilibrium_at, transfer_pose
+    first; whether the homotopy found it). A source that carries over
+    admissibly by neither interpolation (an element of this level inverted:
+    the source's pose is nearly creased there) is not solved from (from
+    rest instead, Newton walks the whole way and can reach another state);
+    only where no source carries over is the level solved from rest (by
+    continuation, ``equilibrium_at``)."""
+    from plush_opt.solve.accuracy import LEVEL_OPTIONS, carried_start, equilibrium_at
     from plush_opt.solve.accuracy_carry import relieved_equilibrium
     found = []
-    starts = [(carried_start(model, [(m, x)]), m, x) for m, x in sources]
-    starts = [(transfer_pose(m, x, model.mesh) if x0 is None else x0, x0 is not None) for x0, m, x in starts]
+    starts = [(carried_start(model, [(m, x)]), "the level before" if i == 0 else "the answer")
+              for i, (m, x) in enumerate(sources)]
+    for x0, source in starts:
+        if x0 is None:
+            print(f"reference: P2 {model.mesh.n_nodes:,} nodes: the pose of {source} does not carry over "
+                  "admissibly: not solved from", file=sys.stderr, flush=True)
+    starts = [(x0, source) for x0, source in starts if x0 is not None] or [(None, "rest")]
     order = ("homotopy", "newton") if relieved else ("newton", "homotopy")
-    attempts = [(x0, how, "the level before" if i == 0 else "the answer") for i, (x0, ok) in enumerate(starts)
-                for how in (order if ok else ("newton",))]
+    attempts = [(x0, how, source) for x0, source in starts for how in (order if x0 is not None else ("newton",))]
     for k, (x0, how, _) in enumerate(attempts):
         eq = equilibrium_at(model, contraction, x0, LEVEL_OPTIONS) if how == "newton" else \
             relieved_equilibrium(model, contraction, x0, LEVEL_OPTIONS)
