@@ -308,7 +308,7 @@ def test_a_reference_level_that_leaves_the_state_is_solved_again_by_the_homotopy
     assert eq.x[0] == 0.3 and relieved and solved == [("homotopy", 6.0)]
 
 
-def test_a_reference_level_is_not_solved_from_a_source_that_does_not_carry_over(monkeypatch):
+def test_a_reference_level_is_not_solved_from_a_source_that_does_not_carry_over(monkeypatch, capsys):
     """A source pose that carries over admissibly by neither interpolation
     (an element of the finer level inverted: the gripper's 67,313-node pose
     at its answer for TOL 0.25, carried to 267,745 nodes) is not solved
@@ -318,6 +318,7 @@ def test_a_reference_level_is_not_solved_from_a_source_that_does_not_carry_over(
     sys.path.insert(0, str(ROOT / "tools"))
     import accuracy_guarantee as guarantee
     import plush_opt.solve.accuracy as accuracy
+    import plush_opt.solve.accuracy_carry as carry
     solved = []
 
     def fake_newton(model, contraction, x0, options):
@@ -328,12 +329,16 @@ def test_a_reference_level_is_not_solved_from_a_source_that_does_not_carry_over(
     # a pose at a negative coordinate does not carry over
     monkeypatch.setattr(accuracy, "carried_start",
                         lambda model, sources: None if sources[0][1][0] < 0 else np.array([sources[0][1][0]]))
-    model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})()})()
+    monkeypatch.setattr(carry, "transfer_pose_piecewise_linear", lambda m, x, to: x)
+    model = type("Model", (), {"mesh": type("Mesh", (), {"n_nodes": 1})(),
+                               "violation": staticmethod(lambda x: "element 0 is inverted")})()
     y_of = lambda x: np.array([[x[0], 0.0]])                     # noqa: E731  (the pose's one point)
     origin = np.array([[0.0, 0.0]])
     eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([-0.2])), ("answer", np.array([0.5]))],
                                         y_of, origin, 1.0)
     assert solved == [0.5] and eq.x[0] == 0.5 and not relieved
+    assert "the pose of the level before does not carry over admissibly (element 0 is inverted)" in \
+        capsys.readouterr().err
     solved.clear()
     eq, relieved = guarantee.same_state(model, [1.0], [("prev", np.array([-0.2])), ("answer", np.array([-0.5]))],
                                         y_of, origin, 1.0)

@@ -207,15 +207,17 @@ def same_state(model, contraction, sources, y_of, y_prev, tol: float, relieved: 
     only where no source carries over is the level solved from rest (by
     continuation, ``equilibrium_at``)."""
     from plush_opt.solve.accuracy import LEVEL_OPTIONS, carried_start, equilibrium_at
-    from plush_opt.solve.accuracy_carry import relieved_equilibrium
-    found = []
-    starts = [(carried_start(model, [(m, x)]), "the level before" if i == 0 else "the answer")
-              for i, (m, x) in enumerate(sources)]
-    for x0, source in starts:
+    from plush_opt.solve.accuracy_carry import relieved_equilibrium, transfer_pose_piecewise_linear
+    found, starts = [], []
+    for i, (m, x) in enumerate(sources):
+        x0, source = carried_start(model, [(m, x)]), "the level before" if i == 0 else "the answer"
         if x0 is None:
+            why = model.violation(transfer_pose_piecewise_linear(m, x, model.mesh))
             print(f"reference: P2 {model.mesh.n_nodes:,} nodes: the pose of {source} does not carry over "
-                  "admissibly: not solved from", file=sys.stderr, flush=True)
-    starts = [(x0, source) for x0, source in starts if x0 is not None] or [(None, "rest")]
+                  f"admissibly ({why}): not solved from", file=sys.stderr, flush=True)
+        else:
+            starts.append((x0, source))
+    starts = starts or [(None, "rest")]
     order = ("homotopy", "newton") if relieved else ("newton", "homotopy")
     attempts = [(x0, how, source) for x0, source in starts for how in (order if x0 is not None else ("newton",))]
     for k, (x0, how, _) in enumerate(attempts):

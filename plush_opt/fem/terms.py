@@ -137,6 +137,7 @@ class ElasticTerm(Term):
         XN = mesh.X
         Dm = np.stack([XN[tri[:, 1]] - XN[tri[:, 0]], XN[tri[:, 2]] - XN[tri[:, 0]]], axis=2)
         self.rest_area = np.linalg.det(Dm) / 2
+        self._rest_centre = XN[tri].mean(axis=1)         # (where a violation is, in words)
         Dinv = np.linalg.inv(Dm)
         # column-major 2x2 per element, one element per row
         self._Dinv = np.ascontiguousarray(Dinv.transpose(0, 2, 1).reshape(-1, 4))
@@ -166,7 +167,10 @@ class ElasticTerm(Term):
     def violation(self, x):
         J = self.jacobians(x)
         k = int(np.argmin(J))
-        return None if J[k] > 0 else f"element {k} is inverted or degenerate (J = {J[k]:.3g} <= 0)"
+        if J[k] > 0:
+            return None
+        at = ", ".join(f"{v:.4g}" for v in self._rest_centre[k])
+        return f"element {k} (at rest near ({at})) is inverted or degenerate (J = {J[k]:.3g} <= 0)"
 
     def evaluate(self, x, c, order):
         outs = self._by_order[order](x[self.elem_dofs], order + 1)
