@@ -185,8 +185,10 @@ BLOCKS = {"api-tour": (api_tour, True), "friction-sweep": (friction_sweep, True)
 #: numbers exactly, their decimals within ROUNDOFF_RTOL and their counts of
 #: factorisations and evaluations within ROUNDOFF_COUNTS times each other
 #: (QDLDL and CHOLMOD: 358 and 580 evaluations, loop areas 3.8785 and
-#: 3.8778 on 2026-12-05).
-ROUNDOFF_BLOCKS = ("friction-sweep",)
+#: 3.8778 on 2026-12-05); the hexapod's control loop with friction ends at
+#: its iteration limit, where one machine's round-off gives O = 9.976 and
+#: another's 9.977 with the same code and packages (2026-12-07).
+ROUNDOFF_BLOCKS = ("friction-sweep", "hexapod-friction")
 ROUNDOFF_RTOL, ROUNDOFF_COUNTS = 1e-3, 2.0
 _NUMBER = re.compile(r"\d[\d,]*(?:\.\d+)?")
 _COUNT = re.compile(r"\d[\d,]*(?= factorisations| evaluations)")
