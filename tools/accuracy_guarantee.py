@@ -19,7 +19,8 @@ For each scene and tolerance (one row, run in its own process, at most
    returned pose carried over, each finer one from the one before: the same
    branch of equilibria; none coarser than the answer, which near a fold
    can settle in another state; carried admissibly,
-   plush_opt.solve.accuracy_carry.carried_start; a level that ends more
+   plush_opt.solve.accuracy_carry.carried_start, and a pose that does not
+   carry over so is not started from (the next is); a level that ends more
    than TOL from the one before is solved again from the same start by a
    Newton homotopy that keeps its start's state (relieved_equilibrium),
    then from the answer carried over, by Newton and the homotopy (after a
