@@ -201,6 +201,22 @@ def test_a_row_whose_answer_folds_through_itself_says_so_and_wants_no_reference(
                     "(P2 level of 5,455 nodes): no converged answer, no reference")
 
 
+def test_a_row_whose_reference_creases_says_so_and_compares_nothing():
+    """Where a reference level's pose crosses itself in a crease
+    (gripper_object at 0.25: its right arm through the stem on the P2 level
+    of 67,313 nodes) that fine solve passes through itself and is no
+    reference: the row says where, not that the reference's own error is
+    unknown."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    import accuracy_guarantee as guarantee
+    row = {"tol": 0.25, "exit": 0, "met": True, "ratio": 1.7,
+           "ref_crease": {"nodes": 67313, "where": "boundary segments 1-2 and 3-4 cross near (14.43, 119.9)"}}
+    verdict, note = guarantee.verdict(row)
+    assert verdict == "NO"
+    assert note == ("the reference crosses itself at the returned contractions (P2 level of 67,313 nodes, "
+                    "boundary segments 1-2 and 3-4 cross near (14.43, 119.9)): no reference")
+
+
 def test_a_stopped_row_says_what_it_already_knew():
     """A row stopped in its reference (its time ran out) still names what
     rules it out already: gripper_object at 0.25 ended exit 3, not met."""
@@ -354,6 +370,7 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     out, and a jump between coarser levels is not the reference's."""
     sys.path.insert(0, str(ROOT / "tools"))
     import accuracy_guarantee as guarantee
+    import plush_opt.fem.contact_boundary as contact_boundary
     import plush_opt.fem.mesh as mesh_module
     import plush_opt.fem.model as model_module
     import plush_opt.fem.objective as objective
@@ -374,21 +391,29 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     monkeypatch.setattr(model_module, "build_model", lambda s, m: m.r)
     monkeypatch.setattr(plant, "make_plant", lambda model: model)
     monkeypatch.setattr(accuracy_path, "replay", fake_replay)
+    creased = set()                # the levels whose pose crosses itself in a crease
+    monkeypatch.setattr(contact_boundary, "crossings", lambda model, poses, creases_only=False:
+                        tuple("a crease near (1, 2)" if model in creased else None for _ in poses))
     monkeypatch.setattr(objective.Targets, "at_points",
                         staticmethod(lambda m, p, q: type("At", (), {"y": staticmethod(
                             lambda x: np.array([[x[0], 0.0]]))})()))
     heard = []
-    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [],
-                                              lambda n, d: heard.append((n, d)))
+    mesh, x, own, jumps, crease = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [],
+                                                      lambda n, d: heard.append((n, d)))
     assert replayed == [0, 1, 2, 3] and mesh.n_nodes == nodes(3)
     assert [n for n, _ in heard] == [nodes(r) for r in range(4)] and heard[0][1] is None
     assert heard[-1][1] == pytest.approx(at(2) - at(3))
-    assert own is not None and own <= 0.1 * 0.05 and jumps == []
+    assert own is not None and own <= 0.1 * 0.05 and jumps == [] and crease is None
     # the 4,000-node level left out: the estimate needs the levels after the answer's
     replayed.clear()
     failing.add(1)
-    mesh, x, own, jumps = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
+    mesh, x, own, jumps, crease = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
     assert replayed == [0, 1, 2, 3, 4] and mesh.n_nodes == nodes(4) and own <= 0.1 * 0.05
+    # a level whose pose creases (the fine solve passes through itself) is no reference: the levels stop there
+    replayed.clear()
+    creased.add(2)
+    mesh, x, own, jumps, crease = guarantee.reference(scene, [0.0], None, None, nodes(2), 0.05, [])
+    assert replayed == [0, 1, 2] and crease == (nodes(2), "a crease near (1, 2)") and own is None
 
 
 def test_the_same_level_after_the_sweep_went_on_is_estimated_again_in_its_place():

@@ -110,7 +110,11 @@ def parse_scene(spec: str) -> tuple[Path, list[str]]:
 def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int, tol: float, waypoints=None,
               heard=None):
     """The P2 reference at ``contraction``: (mesh, pose, own estimated error
-    or None, its jumps). See the module's docstring, step 2. Its jumps:
+    or None, its jumps, its crease or None). See the module's docstring,
+    step 2. Its crease: (nodes, where) of the first level whose pose crosses
+    itself in a crease (a scene without self-contact, the product's rule
+    for a fold, ``contact_boundary.crossings``): that fine solve passes
+    through itself, so it is no reference, and the levels stop there. Its jumps:
     (coarser nodes, finer nodes, distance at the points) of consecutive
     levels more than ``tol`` apart, all at least as fine as the answer's:
     there the reference left one state for another (several stable ones at
@@ -129,6 +133,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     from plush_opt.fem.objective import Targets
     from plush_opt.solve.accuracy import EXPECTED_ORDER, GRADED, MAX_RATIO, SAFETY, base_area, probe_points
     from plush_opt.base.errors import SceneError
+    from plush_opt.fem.contact_boundary import crossings
     s = dataclasses.replace(scene, element="P2")
     points, _ = probe_points(scene)
     area = base_area(scene) * 16.0          # the sweep's family A (plush_opt.solve.accuracy.COARSEST)
@@ -176,12 +181,16 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
                 jumps.append((prev_nodes, m.n_nodes, diffs[-1]))
         if heard is not None:
             heard(m.n_nodes, diffs[-1] if len(ys) >= 2 else None)
+        crease = crossings(model, [x], creases_only=True)
+        if crease and crease[0] is not None:
+            print(f"reference: P2 {m.n_nodes:,} nodes crosses itself: {crease[0]}", file=sys.stderr, flush=True)
+            return mesh, x, None, jumps, (m.n_nodes, crease[0])
         if len(diffs) >= 2 and diffs[-2] > 0:
             q = max(diffs[-1] / diffs[-2], floor_ratio)
             own = SAFETY * q * diffs[-1] / (1.0 - q) if q < MAX_RATIO else None
         if m.n_nodes >= REF_NODES_FACTOR * nodes_returned and own is not None and own <= REF_FRACTION * tol:
             break
-    return mesh, x, own, jumps
+    return mesh, x, own, jumps, None
 
 
 def same_state(model, contraction, sources, y_of, y_prev, tol: float, relieved: bool = False):
@@ -346,8 +355,12 @@ def run_row(path: Path, contraction_args: list[str], tol: float, partial=None) -
         row["ref_levels"].append([nodes, distance])
         partial(row, "the reference")
 
-    ref_mesh, x_ref, own, jumps = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints, heard)
+    ref_mesh, x_ref, own, jumps, crease = reference(scene, c, mesh, x, mesh.n_nodes, tol, waypoints, heard)
     row["ref_jumps"] = [list(j) for j in jumps]
+    if crease is not None:             # (the fine solve passes through itself: nothing to compare with)
+        row["ref_crease"] = {"nodes": crease[0], "where": crease[1]}
+        row["verdict"], row["note"] = verdict(row)
+        return row
     points, _ = probe_points(scene)
     y = Targets.at_points(mesh, points, points).y(x)
     y_ref = Targets.at_points(ref_mesh, points, points).y(x_ref)
@@ -393,7 +406,10 @@ def verdict(row: dict) -> tuple[str, str]:
                    f"{row['fold']['nodes']:,} nodes): no converged answer, no reference")
     if row.get("error_points") is not None and row["error_points"] > row["tol"]:
         why.append("error above TOL")
-    if row.get("ref_error") is None and row.get("fold") is None:
+    if row.get("ref_crease") is not None:
+        why.append(f"the reference crosses itself at the returned contractions (P2 level of "
+                   f"{row['ref_crease']['nodes']:,} nodes, {row['ref_crease']['where']}): no reference")
+    if row.get("ref_error") is None and row.get("fold") is None and row.get("ref_crease") is None:
         why.append("reference's own error unknown")
     elif row.get("error_points") is not None and row["error_points"] + row["ref_error"] > row["tol"] >= \
             row["error_points"]:
