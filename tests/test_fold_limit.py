@@ -412,3 +412,34 @@ def test_a_level_stopped_creased_on_the_way_takes_the_path_from_rest(crescent):
         assert np.allclose(again.contraction, [8.0, lower])
         assert (found == (None,)) == unfolds and (crossings(fine, [again.x], creases_only=True) == (None,)) == unfolds
         assert ("and so does the path" in how) != unfolds
+
+
+def test_a_p1_claim_checked_against_p2_levels_that_crease_is_not_met(monkeypatch):
+    """A P1 answer is checked against P2 levels at its contractions; where
+    one of them creases there (gripper_object at TOL 1: its right arm
+    through the stem on the P2 level of 4,349 nodes), the body folds at the
+    answer: not met, no estimate, the fold recorded and said, however well
+    the levels agree; and the limit short of it is laid on that P2 level."""
+    from types import SimpleNamespace
+    import plush_opt.apps.accuracy_run as run
+    said, laid = [], []
+    acc, p = _accurate(said)
+    used = SimpleNamespace(element="P1", mesh=SimpleNamespace(n_nodes=1135), bound_via=None, bound=0.5,
+                           on_branch=True, cost=1.0, meets=lambda tol: True, row=lambda: {})
+    checked = SimpleNamespace(element="P2", mesh=SimpleNamespace(n_nodes=4349), cost=2.0)
+    where = "boundary segments 571-1981 and 1557-442 cross near (8.346, 118.4): a crease"
+    monkeypatch.setattr(acc, "_levels_at", lambda p, eq, method, history: ([used], None))
+    monkeypatch.setattr(acc, "_cross_check", lambda at, c: (
+        {"element": "P2", "nodes": 4349, "agrees": True, "bound": 0.6}, (checked, [checked], {})))
+    monkeypatch.setattr(run, "fold_at", lambda scene, levels, lv: {"element": "P2", "nodes": 4349, "where": where}
+                        if checked in levels else None)
+    eq = SimpleNamespace(converged=True, contraction=np.array([8.0, 12.0]), x=p.model.X)
+    found = acc._estimate_at(p, eq, "reparam", ())
+    assert found["round"]["met"] is False and found["round"]["estimated_error"] is None
+    assert found["round"]["crosses_itself"] == {"element": "P2", "nodes": 4349, "where": where}
+    assert found["round"]["cross_check"]["agrees"] is True
+    assert any("crosses itself on the P2 level of 4,349 nodes" in line for line in said)
+    monkeypatch.setattr(run, "lay_fold_limit", lambda scene, report, model, c, frozen, fold, levels, own, what,
+                        progress: laid.append((levels, own)))
+    run.limit_short_of_fold(p.scene, {}, p, eq, (), found, said.append)
+    assert laid == [([used, checked], False)]

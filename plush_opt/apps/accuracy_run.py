@@ -172,20 +172,20 @@ class AccurateSolve:
         fold = fold_at(self.scene, at, used)
         lost = None if fold is not None else \
             min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.cost, default=None)
-        met, estimate = lost is None and used.meets(self.tol), None if lost is not None else _number(used.bound)
-        if fold is not None:
-            met, estimate = False, None
-            self.progress(f"accuracy: at the returned contractions the body crosses itself on the {fold['element']} "
-                          f"level of {fold['nodes']:,} nodes ({fold['where']}; the scene has no contact.self): "
-                          "a fold has no converged answer, nothing is estimated there")
+        met, estimate = lost is None and fold is None and used.meets(self.tol), \
+            None if lost is not None or fold is not None else _number(used.bound)
         cross = p2 = None
         via = used if used.bound_via is None else at[used.bound_via]
         if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
             # a claim resting on a P1 level's estimate (a P1 answer, or a P2 one
-            # bounded through P1): never without P2 levels agreeing
+            # bounded through P1): never without P2 levels agreeing, nor where they crease
             cross, p2 = self._cross_check(at, eq.contraction)
             met = cross["agrees"]
             estimate = max(estimate, cross["bound"]) if met else None
+            fold = None if p2 is None else fold_at(self.scene, p2[1], used)
+        if fold is not None:
+            met, estimate = False, None
+            self.progress(fold_said(fold))
         found = {"contraction": dict(zip(p.winch_names, eq.contraction.tolist())), "element": used.element,
                  "nodes": used.mesh.n_nodes, "estimated_error": estimate, "met": met,
                  "levels": [lv.row() for lv in at]}
@@ -404,15 +404,24 @@ def at_result_summary(at_result: dict, tol: float) -> str:
     return f"at the returned contractions: tolerance {tol:.3g} NOT met: {value} on {where}{again}"
 
 
+def fold_said(fold: dict) -> str:
+    """The progress line of a fold at the returned contractions (:func:`fold_at`)."""
+    return (f"accuracy: at the returned contractions the body crosses itself on the {fold['element']} "
+            f"level of {fold['nodes']:,} nodes ({fold['where']}; the scene has no contact.self): "
+            "a fold has no converged answer, nothing is estimated there")
+
+
 def limit_short_of_fold(scene, report: dict, p, eq, frozen, found: dict, progress) -> FoldLimit | None:
     """Upper bounds short of the fold ``found`` (:meth:`AccurateSolve._estimate_at`)
     at the answer ``eq`` of a control run on ``p`` (``frozen``: the winches
     it held besides the scene's, by name): :func:`lay_fold_limit` on the
-    level that folds. None where no winch moved or there is no room short
-    of the fold; ``progress(line)`` hears which."""
+    level that folds (one solved there, or one a P1 claim was checked
+    against). None where no winch moved or there is no room short of the
+    fold; ``progress(line)`` hears which."""
     fold = found["round"]["crosses_itself"]
     own = (fold["element"], fold["nodes"]) == (str(p.model.element), p.mesh.n_nodes)
-    return lay_fold_limit(scene, report, p.model, eq.contraction, frozen, fold, found["at"], own,
+    levels = list(found["at"]) + (list(found["p2"][1]) if found.get("p2") is not None else [])
+    return lay_fold_limit(scene, report, p.model, eq.contraction, frozen, fold, levels, own,
                           "the body folds at the answer", progress)
 
 
