@@ -6,6 +6,8 @@ the stalled status of a loop without that test)."""
 
 import json
 
+import pytest
+
 from cli_helpers import cli
 from shipped import ROOT
 
@@ -61,4 +63,12 @@ def test_a_winch_held_inside_its_bound_says_how_far():
                            gradient=np.array([1.0, 1e-3, -1e-12]), objective=1.0)
     # a on its bound; b held 0.08 inside with a gradient that matters; c's gradient is negligible
     assert _bound_note(last, model, 1e-7) == ("; bound active: a, b (held 0.08 inside its lower bound 0 "
+                                              "by the reparametrised bounds)")
+    # at a stop on O's round-off, b's gradient no larger than a free winch's stopped nothing: not held
+    from plush_opt.control.gradient import _unheld_gradient
+    free = SimpleNamespace(active_bounds=("b",), contraction=np.array([5.0, 0.08, 19.9]),
+                           gradient=np.array([2e-3, 1e-3, 0.0]), objective=1.0)
+    assert _unheld_gradient(free, model) == pytest.approx(2e-3 * 20.0)
+    assert _bound_note(free, model, 1e-7, _unheld_gradient(free, model)) == ""
+    assert _bound_note(free, model, 1e-7) == ("; bound active: b (held 0.08 inside its lower bound 0 "
                                               "by the reparametrised bounds)")

@@ -443,7 +443,8 @@ def _search_verdict(found, last: Iterate, model: Model, options: ControlOptions,
     ``roundoff``: O's round-off at ``last``). A step that vanished under
     the damping is a failed search, not one that moves no winch (on a
     path-dependent plant its stop is then tested at the kink, :mod:`.kink`)."""
-    note = _bound_note(last, model, options.gtol)
+    note = _bound_note(last, model, options.gtol, _unheld_gradient(last, model) if found.kind == "below_roundoff"
+                       else 0.0)
     if found.kind == "stationary":
         return True, "stationary", "stationary: every free winch is held at a bound" + note
     if found.kind == "below_roundoff":
@@ -480,12 +481,13 @@ def stalled_on(cause: str) -> str:
 AT_BOUND = 1e-9
 
 
-def _bound_note(last: Iterate, model: Model, gtol: float) -> str:
+def _bound_note(last: Iterate, model: Model, gtol: float, floor: float = 0.0) -> str:
     """``; bound active: NAMES``: the held winches at their bound, and those
     held inside it (the reparametrised bounds' blend zone) with how far,
-    where their gradient is not negligible (``gtol`` x O, as the loop's
-    stationarity test): one there with a negligible gradient is at an
-    interior stationary point, not held by its bound."""
+    where their gradient times their range is not negligible (above
+    ``gtol`` x O, as the loop's stationarity test, and above ``floor``):
+    one there with a negligible gradient is at an interior stationary
+    point, not held by its bound."""
     parts = []
     for name in last.active_bounds:
         w = model.winch_names.index(name)
@@ -494,9 +496,20 @@ def _bound_note(last: Iterate, model: Model, gtol: float) -> str:
         gap = abs(c - bound)
         if gap <= AT_BOUND * (hi - lo):
             parts.append(name)
-        elif abs(float(last.gradient[w])) * (hi - lo) > gtol * last.objective:
+        elif abs(float(last.gradient[w])) * (hi - lo) > max(gtol * last.objective, floor):
             parts.append(f"{name} (held {gap:.3g} inside its {side} bound {bound:g} by the reparametrised bounds)")
     return "; bound active: " + ", ".join(parts) if parts else ""
+
+
+def _unheld_gradient(last: Iterate, model: Model) -> float:
+    """The largest |dO/dc| times range of the winches no bound holds (a
+    frozen one's gradient is 0): where the loop stops on O's round-off, a
+    gradient of that size moved none of them, so a winch inside its bound
+    with one no larger is not held by the bound (the gripper's `right`
+    0.24 inside its lower bound, where clip ends too)."""
+    held = {model.winch_names.index(name) for name in last.active_bounds}
+    return max((abs(float(last.gradient[w])) * float(model.upper[w] - model.lower[w])
+                for w in range(len(model.winch_names)) if w not in held), default=0.0)
 
 
 def _verdict(rule: str, last: Iterate, options: ControlOptions, free_names: list[str], model: Model):
