@@ -370,12 +370,12 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     out, and a jump between coarser levels is not the reference's."""
     sys.path.insert(0, str(ROOT / "tools"))
     import accuracy_guarantee as guarantee
-    import plush_opt.fem.contact_boundary as contact_boundary
     import plush_opt.fem.mesh as mesh_module
     import plush_opt.fem.model as model_module
     import plush_opt.fem.objective as objective
     import plush_opt.solve.accuracy_path as accuracy_path
     import plush_opt.solve.plant as plant
+    import plush_opt.solve.result_file as result_file
     scene = load_scene(ROOT / "problems" / "gripper_friction.yaml")
     # level r: 1,000 x 4^r nodes; its pose's one point at 2 + 0.1 x 4^-r (its first level 3 away)
     nodes = lambda r: 1000 * 4 ** r                                   # noqa: E731
@@ -392,8 +392,8 @@ def test_a_replayed_reference_counts_its_levels_coarser_than_the_answer(monkeypa
     monkeypatch.setattr(plant, "make_plant", lambda model: model)
     monkeypatch.setattr(accuracy_path, "replay", fake_replay)
     creased = set()                # the levels whose pose crosses itself in a crease
-    monkeypatch.setattr(contact_boundary, "crossings", lambda model, poses, creases_only=False:
-                        tuple("a crease near (1, 2)" if model in creased else None for _ in poses))
+    monkeypatch.setattr(result_file, "crossing_of", lambda model, x, creases_only=False:
+                        "a crease near (1, 2)" if model in creased else None)
     monkeypatch.setattr(objective.Targets, "at_points",
                         staticmethod(lambda m, p, q: type("At", (), {"y": staticmethod(
                             lambda x: np.array([[x[0], 0.0]]))})()))

@@ -113,7 +113,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     or None, its jumps, its crease or None). See the module's docstring,
     step 2. Its crease: (nodes, where) of the first level whose pose crosses
     itself in a crease (a scene without self-contact, the product's rule
-    for a fold, ``contact_boundary.crossings``): that fine solve passes
+    for a fold, ``result_file.crossing_of``): that fine solve passes
     through itself, so it is no reference, and the levels stop there. Its jumps:
     (coarser nodes, finer nodes, distance at the points) of consecutive
     levels more than ``tol`` apart, all at least as fine as the answer's:
@@ -133,7 +133,7 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
     from plush_opt.fem.objective import Targets
     from plush_opt.solve.accuracy import EXPECTED_ORDER, GRADED, MAX_RATIO, SAFETY, base_area, probe_points
     from plush_opt.base.errors import SceneError
-    from plush_opt.fem.contact_boundary import crossings
+    from plush_opt.solve.result_file import crossing_of
     s = dataclasses.replace(scene, element="P2")
     points, _ = probe_points(scene)
     area = base_area(scene) * 16.0          # the sweep's family A (plush_opt.solve.accuracy.COARSEST)
@@ -181,10 +181,10 @@ def reference(scene, contraction, mesh_returned, x_returned, nodes_returned: int
                 jumps.append((prev_nodes, m.n_nodes, diffs[-1]))
         if heard is not None:
             heard(m.n_nodes, diffs[-1] if len(ys) >= 2 else None)
-        crease = crossings(model, [x], creases_only=True)
-        if crease and crease[0] is not None:
-            print(f"reference: P2 {m.n_nodes:,} nodes crosses itself: {crease[0]}", file=sys.stderr, flush=True)
-            return mesh, x, None, jumps, (m.n_nodes, crease[0])
+        where = crossing_of(model, x, creases_only=True)
+        if where is not None:
+            print(f"reference: P2 {m.n_nodes:,} nodes crosses itself: {where}", file=sys.stderr, flush=True)
+            return mesh, x, None, jumps, (m.n_nodes, where)
         if len(diffs) >= 2 and diffs[-2] > 0:
             q = max(diffs[-1] / diffs[-2], floor_ratio)
             own = SAFETY * q * diffs[-1] / (1.0 - q) if q < MAX_RATIO else None
