@@ -19,7 +19,11 @@ from plush_opt.apps.cli import main  # noqa: E402 - after the handlers above
 for _signum, _handler in _STARTING.items():
     signal.signal(_signum, _handler)
 
-code = main()
+try:
+    code = main()
+except KeyboardInterrupt:   # a Ctrl-C in the instant after main() put the default handler back
+    os.write(2, b"plush-opt: interrupted (SIGINT)\n")
+    code = 130
 # The command is done: a signal now changes nothing (at exit, CPython would
 # otherwise kill itself with a SIGINT that arrived late)
 for _signum in (signal.SIGINT, signal.SIGTERM):

@@ -155,6 +155,38 @@ def test_ctrl_c_inside_a_c_module_import_is_quiet(monkeypatch, capsys):
     assert err.strip() == "plush-opt: interrupted (SIGINT)"
 
 
+def test_ctrl_c_while_the_handlers_are_put_back_changes_nothing(monkeypatch, capsys):
+    """A Ctrl-C that lands while main() restores the signal handlers (the
+    command done) neither escapes as a traceback nor changes the exit code."""
+    import plush_opt.apps.cli as cli
+    plain, fired = signal.signal, []
+
+    def signal_then_interrupt(signum, handler):
+        old = plain(signum, handler)
+        if handler is signal.default_int_handler and not fired:     # (the restore, not the set-up)
+            fired.append(signum)
+            raise KeyboardInterrupt
+        return old
+    monkeypatch.setattr(cli.signal, "signal", signal_then_interrupt)
+    assert cli.main([]) == 0            # (a bare command prints the overview)
+    monkeypatch.undo()
+    assert fired
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert capsys.readouterr().err == ""
+
+
+def test_ctrl_c_while_an_error_is_reported_is_exit_130(monkeypatch, capsys):
+    """A Ctrl-C that lands after the command's own handling (while its error
+    is described) still ends as one line and exit 130."""
+    import plush_opt.apps.cli as cli
+
+    def interrupted(exc):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "describe_error", interrupted)
+    assert cli.main(["solve", "no-such-file.yaml"]) == 130
+    assert capsys.readouterr().err.strip() == "plush-opt: interrupted (SIGINT)"
+
+
 def test_interrupted_demo_exits_130(tmp_path, monkeypatch, capsys):
     import plush_opt.apps.demo as demo
 

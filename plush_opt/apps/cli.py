@@ -81,6 +81,16 @@ def overview(parser: argparse.ArgumentParser) -> str:
 
 def main(argv=None) -> int:
     previous = handle_signals()      # first: a signal during start-up (imports, parsing) ends quietly too
+    try:
+        try:
+            return _command(argv)
+        except KeyboardInterrupt as exc:     # one that arrived after the command's own handling
+            return _interrupted(exc)
+    finally:
+        _restore_handlers(previous)
+
+
+def _command(argv) -> int:
     args = None
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
@@ -92,23 +102,35 @@ def main(argv=None) -> int:
         _check_output_folders(args)
         return args.func(args)
     except KeyboardInterrupt as exc:
-        name, code = interrupt_status(exc)
-        print(f"plush-opt: interrupted ({name})", file=sys.stderr)
-        return code
+        return _interrupted(exc)
     except Exception as exc:  # noqa: BLE001 - every error ends as one line
         interrupt = _interrupt_behind(exc)
         if interrupt is not None:    # e.g. an import cut short inside a C module's start-up
-            name, code = interrupt_status(interrupt)
-            print(f"plush-opt: interrupted ({name})", file=sys.stderr)
-            return code
+            return _interrupted(interrupt)
         if args is None or args.debug:
             raise
         message, code = describe_error(exc)
         print(f"plush-opt: {one_line(message)}", file=sys.stderr)
         return code
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
+
+
+def _interrupted(exc: KeyboardInterrupt) -> int:
+    name, code = interrupt_status(exc)
+    print(f"plush-opt: interrupted ({name})", file=sys.stderr)
+    return code
+
+
+def _restore_handlers(previous: dict) -> None:
+    """The signal handlers from before :func:`main`. A signal that arrives
+    while they are put back (the command is done) changes nothing: its
+    exception is dropped and the restore goes on."""
+    for signum, handler in previous.items():
+        while True:
+            try:
+                signal.signal(signum, handler)
+                break
+            except KeyboardInterrupt:
+                continue
 
 
 def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
