@@ -60,8 +60,11 @@ BACKEND = _default_backend()
 # Above this many unknowns CHOLMOD's supernodal LL^T (dense BLAS on the
 # supernodes) beats its simplicial LDL^T on these meshes when the BLAS is an
 # optimised one (OpenBLAS, which `make` installs); below it the simplicial
-# factor is faster (the crossover: docs/benchmarks.md, "Large meshes").
-SUPERNODAL_MIN_DOFS = 25_000
+# factor is faster, its solves too (whole forward solves timed in both
+# modes: docs/benchmarks.md, "Large meshes"). The crossover moves with the
+# machine's caches and BLAS: 20,000-40,000 unknowns on one host, about
+# 70,000 on the one measured last.
+SUPERNODAL_MIN_DOFS = 70_000
 # ... or above this many Hessian entries per unknown at any size: finite
 # tendon attachments on a mesh much finer than their discs make each
 # tendon's Hessian block dense over all its discs' nodes, and there
