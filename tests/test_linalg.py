@@ -87,18 +87,18 @@ def test_backend_refuses_a_matrix_singular_to_round_off(backend, mode):
 
 @needs_both
 def test_cholmod_takes_supernodal_above_its_size(hessian, monkeypatch):
-    """``auto`` is simplicial below SUPERNODAL_MIN_DOFS unknowns and
-    supernodal from it on; both solve alike (to round-off)."""
+    """``auto`` is simplicial below SUPERNODAL_MIN_ENTRIES entries and
+    supernodal from there on; both solve alike (to round-off)."""
     b = np.ones(hessian.shape[0])
     small = Factorizer("cholmod")
     x_small = small.factor(hessian).solve(b)
     assert small.mode_used == "simplicial"
-    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DOFS", hessian.shape[0])
+    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_ENTRIES", hessian.nnz)
     large = Factorizer("cholmod")
     x_large = large.factor(hessian).solve(b)
     assert large.mode_used == "supernodal"
     assert np.linalg.norm(x_large - x_small) <= AGREE * np.linalg.norm(x_small)
-    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DOFS", 10 * hessian.shape[0])
+    monkeypatch.setattr(linalg, "SUPERNODAL_MIN_ENTRIES", 10 * hessian.nnz)
     monkeypatch.setattr(linalg, "SUPERNODAL_MIN_DENSITY", hessian.nnz / hessian.shape[0])
     dense = Factorizer("cholmod")
     dense.factor(hessian)

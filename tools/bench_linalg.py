@@ -6,12 +6,20 @@ Newton does).
     python tools/bench_linalg.py --modes --element P1 P2 --nodes 5000 10000 15000 20000 --repeats 12
 
 ``--modes`` compares CHOLMOD's simplicial LDL^T and supernodal LL^T instead
-(the crossover behind ``linalg.SUPERNODAL_MIN_DOFS``), of the assembled
+(the crossover behind ``linalg.SUPERNODAL_MIN_ENTRIES``), of the assembled
 Hessian; with ``--taken`` of the form Newton factors (a low-rank form: its
 sparse body and the Woodbury set-up), with ``--peer`` of the body under
 gravity without tendons (the ``plush-opt bench --peers`` problem):
 
-    python tools/bench_linalg.py --modes --taken --peer --problems gripper --nodes 10000 20000 30000 40000 ``--forms`` compares
+    python tools/bench_linalg.py --modes --taken --peer --problems gripper --nodes 10000 20000 30000 40000
+
+With ``--solves``, whole forward solves from rest in each mode instead
+(every factorisation and solve Newton takes; CPU time, medians; nnz(H):
+the entries of the matrix factored, the crossover's measure):
+
+    python tools/bench_linalg.py --modes --solves [--peer] [--element P2] --problems gripper --nodes 20000 30000 40000 --repeats 5
+
+``--forms`` compares
 the Hessian's forms with finite attachments (assembled, rank_one, split:
 docs/model.md, "The tendon terms as a low-rank update"; the crossover
 behind ``model.SPLIT_MIN_DISC_NODES``), and the split form through its
@@ -69,11 +77,10 @@ def _best_seconds(fns: dict, repeats: int) -> dict:
     return best
 
 
-def _hessian(name: str, nodes: int, element: str = "P1", taken: bool = False, peer: bool = False):
-    """(nodes, Hessian at a loaded equilibrium): assembled, or with
-    ``taken`` the form Newton factors (a low-rank form stays one); with
-    ``peer`` of the problem's body under gravity without tendons (the
-    ``bench --peers`` problem)."""
+def _loaded(name: str, nodes: int, element: str = "P1", peer: bool = False):
+    """(mesh, model, contraction): the problem on about ``nodes`` nodes at
+    a mid-range contraction; with ``peer`` its body under gravity without
+    tendons (the ``bench --peers`` problem)."""
     if peer:
         from plush_opt.apps.bench_peers import peer_problem
         _, mesh, prob = peer_problem(ROOT / "problems" / f"{name}.yaml", nodes, element)
@@ -82,7 +89,15 @@ def _hessian(name: str, nodes: int, element: str = "P1", taken: bool = False, pe
         scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
         mesh = mesh_for_nodes(scene, nodes)
         model = build_model(scene, mesh)
-    c = model.lower + CONTRACTION_FRACTION * (model.upper - model.lower)
+    return mesh, model, model.lower + CONTRACTION_FRACTION * (model.upper - model.lower)
+
+
+def _hessian(name: str, nodes: int, element: str = "P1", taken: bool = False, peer: bool = False):
+    """(nodes, Hessian at a loaded equilibrium): assembled, or with
+    ``taken`` the form Newton factors (a low-rank form stays one); with
+    ``peer`` of the problem's body under gravity without tendons (the
+    ``bench --peers`` problem)."""
+    mesh, model, c = _loaded(name, nodes, element, peer)
     eq = solve_equilibrium(model, c, options=EquilibriumOptions(eigenvalue=False))
     ev = model.evaluate(eq.x, c)
     return mesh.n_nodes, (ev.hessian_form if taken else ev.hessian)
@@ -138,6 +153,33 @@ def bench_modes(name: str, nodes: int, element: str, repeats: int, taken: bool =
             **_best_seconds(fns, repeats)}
 
 
+def bench_solves(name: str, nodes: int, element: str, repeats: int, peer: bool = False) -> dict:
+    """Whole forward solves from rest, every factorisation in each CHOLMOD
+    mode (its solves, the low-rank set-up and the pivot test included, as
+    Newton takes them): CPU seconds, median of ``repeats``, the modes in
+    turn, each mode's symbolic analysis done before the first timed solve."""
+    mesh, model, c = _loaded(name, nodes, element, peer)
+    options = EquilibriumOptions(eigenvalue=False)
+    plain = model.factorizer
+    by_mode = {mode: type(plain)("cholmod", mode, low_rank=plain.low_rank) for mode in ("simplicial", "supernodal")}
+    times = {mode: [] for mode in by_mode}
+    try:
+        for i in range(repeats + 1):
+            for mode, fz in by_mode.items():
+                model.factorizer = fz
+                t = time.process_time()
+                eq = solve_equilibrium(model, c, options=options)
+                if i:                              # (the first: the symbolic analysis)
+                    times[mode].append(time.process_time() - t)
+    finally:
+        model.factorizer = plain
+    H = model.evaluate(eq.x, c).hessian_form
+    label = " (gravity, no tendons)" if peer else ""
+    return {"problem": name + label, "element": element, "nodes": mesh.n_nodes, "dofs": model.n_dofs,
+            "nnz": H.body.nnz if isinstance(H, low_rank.LowRankHessian) else H.nnz,
+            **{mode: float(np.median(v)) for mode, v in times.items()}}
+
+
 def bench_forms(name: str, nodes: int, element: str, repeats: int) -> dict:
     """factor + solve of one Hessian in each form, at the same pose."""
     scene = load_scene(ROOT / "problems" / f"{name}.yaml").replace(element=element)
@@ -181,6 +223,13 @@ def main_forms(args):
 
 
 def main_modes(args):
+    if args.solves:
+        return _table(args, lambda *a: bench_solves(*a, peer=args.peer),
+                      "| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
+                      "simplicial / supernodal |",
+                      lambda r: (f"| {r['problem']} | {r['element']} | {r['nodes']} | {r['dofs']} | {r['nnz']} | "
+                                 f"{1e3 * r['simplicial']:.0f} | {1e3 * r['supernodal']:.0f} | "
+                                 f"{r['simplicial'] / r['supernodal']:.2f} |"))
     _table(args, lambda *a: bench_modes(*a, taken=args.taken, peer=args.peer),
            "| problem | element | nodes | unknowns | nnz(H) | simplicial (ms) | supernodal (ms) | "
            "simplicial / supernodal |",
@@ -201,6 +250,8 @@ def main(argv=None):
                     help="with --modes: the Hessian in the form Newton factors (a low-rank form: its body + Woodbury)")
     ap.add_argument("--peer", action="store_true",
                     help="with --modes: the problem's body under gravity without tendons (bench --peers)")
+    ap.add_argument("--solves", action="store_true",
+                    help="with --modes: whole forward solves from rest in each mode (CPU time, medians)")
     args = ap.parse_args(argv)
     if args.modes:
         return main_modes(args)

@@ -324,7 +324,7 @@ def _factor_lines(rows) -> list[str]:
         return []
     lines = ["", "## Factorisation: simplicial against supernodal", "",
              "One numeric factorisation of the Hessian (symbolic analysis reused). `auto` "
-             "(what the model takes) is supernodal from linalg.SUPERNODAL_MIN_DOFS unknowns on.", "",
+             "(what the model takes) is supernodal from linalg.SUPERNODAL_MIN_ENTRIES entries on.", "",
              "| problem | element | nodes | simplicial [ms] | supernodal [ms] | simplicial / supernodal | auto |",
              "|---|---|---|---|---|---|---|"]
     for r in rows:

@@ -57,14 +57,15 @@ def _default_backend() -> str:
 BACKEND = _default_backend()
 
 
-# Above this many unknowns CHOLMOD's supernodal LL^T (dense BLAS on the
-# supernodes) beats its simplicial LDL^T on these meshes when the BLAS is an
-# optimised one (OpenBLAS, which `make` installs); below it the simplicial
-# factor is faster, its solves too (whole forward solves timed in both
-# modes: docs/benchmarks.md, "Large meshes"). The crossover moves with the
-# machine's caches and BLAS: 20,000-40,000 unknowns on one host, about
-# 70,000 on the one measured last.
-SUPERNODAL_MIN_DOFS = 70_000
+# From this many entries of the matrix factored CHOLMOD's supernodal LL^T
+# (dense BLAS on the supernodes) beats its simplicial LDL^T on these meshes
+# when the BLAS is an optimised one (OpenBLAS, which `make` installs); below
+# it the simplicial factor is faster, its solves too. Counted in entries, not
+# unknowns: a P2 row holds about 30, a P1 row 14-20, and whole forward solves
+# timed in both modes cross over between 1.0 and 1.4 million entries for both
+# (docs/benchmarks.md, "Large meshes"). The crossover moves with the
+# machine's caches and BLAS.
+SUPERNODAL_MIN_ENTRIES = 1_200_000
 # ... or above this many Hessian entries per unknown at any size: finite
 # tendon attachments on a mesh much finer than their discs make each
 # tendon's Hessian block dense over all its discs' nodes, and there
@@ -77,7 +78,7 @@ SUPERNODAL_MIN_DENSITY = 150
 # factorisation floor"); AMD where CHOLMOD was built without METIS, and
 # for the simplicial factor (no faster there).
 SUPERNODAL_ORDERING = "metis"
-#: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_DOFS)
+#: CHOLMOD factorisation modes: "auto" picks by size (SUPERNODAL_MIN_ENTRIES)
 CHOLMOD_MODES = ("auto", "simplicial", "supernodal")
 #: how a LowRankHessian is factored: its sparse part and Woodbury, or its
 #: augmented matrix (:func:`augmented_factor`)
@@ -123,9 +124,9 @@ class Factorizer:
     symbolic analysis are computed on the first call and reused for every
     later matrix with the same pattern.
     Both backends factor without pivoting. QDLDL is a simplicial LDL^T;
-    CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_DOFS`
-    unknowns (about twice as fast there as its supernodal LL^T) and a
-    supernodal LL^T above, or where the matrix has more than
+    CHOLMOD is a simplicial LDL^T below :data:`SUPERNODAL_MIN_ENTRIES`
+    matrix entries (up to about twice as fast there as its supernodal
+    LL^T) and a supernodal LL^T from there on, or where the matrix has more than
     :data:`SUPERNODAL_MIN_DENSITY` entries per unknown (BLAS-3 on dense
     supernodes wins on large meshes and on dense tendon blocks).
     The matrix counts as positive definite when every pivot of D exceeds
@@ -181,7 +182,7 @@ class Factorizer:
             self.mode_used = self.mode
             if self.mode == "auto":
                 dense = H.nnz >= SUPERNODAL_MIN_DENSITY * H.shape[0]
-                big = H.shape[0] >= SUPERNODAL_MIN_DOFS
+                big = H.nnz >= SUPERNODAL_MIN_ENTRIES
                 self.mode_used = "supernodal" if big or dense else "simplicial"
             self._symbolic = _analyze(H, self.mode_used)
         try:
