@@ -355,12 +355,14 @@ def test_transfer_pose_carries_a_quadratic_field_between_p2_meshes():
 
 
 @pytest.mark.parametrize("element", ["P1", "P2"])
-def test_kernels_compiled_with_their_loop_compute_what_the_per_element_calls_do(element):
-    """From COMPILE_MAPPED_MIN elements the mapped kernel runs as a compiled loop in chunks:
-    the same numbers, to the last bit, as one call per element."""
-    from plush_opt.fem.mapped import COMPILE_MAPPED_MIN, Mapped
+@pytest.mark.parametrize("count", ["least", 2000, 2100])
+def test_kernels_compiled_with_their_loop_compute_what_the_per_element_calls_do(element, count):
+    """From COMPILE_MAPPED_MIN elements the mapped kernel runs as a compiled loop in chunks
+    (one padded chunk of each size, several small ones): the same numbers, to the last
+    bit, as one call per element."""
+    from plush_opt.fem.mapped import COMPILE_MAPPED_MIN, COMPILED_CHUNKS, Mapped
     kernels = elements.named(element).kernels
-    count = COMPILE_MAPPED_MIN
+    count = COMPILE_MAPPED_MIN if count == "least" else count
     rng = np.random.default_rng(3)
     rest = [0.0, 0.0, 1.0, 0.0, 0.0, 1.0] + ([0.5, 0.0, 0.5, 0.5, 0.0, 0.5] if element == "P2" else [])
     xe = np.array(rest) + rng.uniform(-0.05, 0.05, (count, len(rest)))
@@ -369,5 +371,16 @@ def test_kernels_compiled_with_their_loop_compute_what_the_per_element_calls_do(
     for name, n_out in (("psi", 1), ("psi_grad", 2), ("psi_derivs", 3)):
         whole = Mapped(kernels[name], count, consts, kernels.symbolic[name])
         per_element = Mapped(kernels[name], count, consts)
+        assert whole.chunk in COMPILED_CHUNKS          # (the compiled loop)
         for a, b in zip(whole(xe, n_out), per_element(xe, n_out)):
             assert np.all(np.isfinite(a)) and np.array_equal(a, b)
+
+
+def test_the_compiled_loop_takes_the_chunk_that_costs_least():
+    """A small mesh is not padded to the large chunk; a large one is cut into large chunks."""
+    from plush_opt.fem.mapped import COMPILED_CHUNKS, chunk_for
+    small, large = min(COMPILED_CHUNKS), max(COMPILED_CHUNKS)
+    assert chunk_for(300) == small          # one small chunk, not one large one mostly padding
+    assert chunk_for(1800) == large         # one large chunk, not four small ones
+    assert chunk_for(large + 52) == small   # five small ones, not two large ones half padding
+    assert chunk_for(60_000) == large

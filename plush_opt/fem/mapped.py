@@ -4,12 +4,12 @@ conversion per call).
 
 Below :data:`COMPILE_MAPPED_MIN` columns the kernel (already compiled on
 its own, plush_opt/base/kernels.py) is mapped and called once per column.
-From there on a compiled loop over :data:`COMPILED_CHUNK` columns does the
-work in chunks: one C call per chunk instead of one per column, several
-times faster for the elastic kernels (docs/benchmarks.md), with the same
-arithmetic per column. The chunk is fixed so that one library per
-kernel serves every mesh size; the last chunk is padded with copies of
-the last column and its results dropped.
+From there on a compiled loop over a chunk of columns does the work: one C
+call per chunk instead of one per column, several times faster for the
+elastic kernels (docs/benchmarks.md), with the same arithmetic per
+column. The chunk is one of :data:`COMPILED_CHUNKS`, so that a few
+libraries per kernel serve every mesh size; the last chunk is padded with
+copies of the last column and its results dropped.
 """
 
 from __future__ import annotations
@@ -21,12 +21,24 @@ import numpy as np
 
 from ..base.kernels import compiled
 
-#: from this many columns the compiled loop pays for its one-off build
-#: (a fraction of a second per kernel, then cached on disk)
-COMPILE_MAPPED_MIN = 2000
-#: columns per call of the compiled loop: large enough that the call's
-#: overhead vanishes, small enough that padding the last chunk costs little
-COMPILED_CHUNK = 2048
+#: from this many columns the compiled loop beats one call per column, its
+#: last chunk's padding included (its build, a fraction of a second per
+#: kernel and chunk, is done once and cached on disk)
+COMPILE_MAPPED_MIN = 256
+#: the compiled loop's chunks (columns per call): a small one for small
+#: meshes, where padding one large chunk would cost more than the calls
+#: saved, and a large one where the call's overhead vanishes
+COMPILED_CHUNKS = (512, 2048)
+#: one call of the compiled loop costs about what this many columns do (the
+#: arguments and results set per chunk, for the P1 elastic kernels: four
+#: chunks of 512 took about a quarter longer than one of 2,048)
+CHUNK_CALL_COLUMNS = 190
+
+
+def chunk_for(count: int) -> int:
+    """The chunk of :data:`COMPILED_CHUNKS` whose padded columns and calls
+    cost least for ``count`` columns."""
+    return min(COMPILED_CHUNKS, key=lambda c: math.ceil(count / c) * (c + CHUNK_CALL_COLUMNS))
 
 
 class Mapped:
@@ -47,10 +59,11 @@ class Mapped:
         if count == 0:              # CasADi maps over no columns with an error: nothing to evaluate
             return
         if symbolic is not None and count >= COMPILE_MAPPED_MIN:
-            loop = symbolic.map(COMPILED_CHUNK, "serial")
+            chunk = chunk_for(count)
+            loop = symbolic.map(chunk, "serial")
             built = compiled(loop)
             if built is not loop:   # (no compiler: the per-column calls below)
-                self.fn, self.chunk = built, COMPILED_CHUNK
+                self.fn, self.chunk = built, chunk
         if self.fn is None:
             self.fn = fn.map(count, "serial")
         self.chunks = math.ceil(count / self.chunk)
