@@ -172,8 +172,8 @@ class AccurateSolve:
         fold = fold_at(self.scene, at, used)
         lost = None if fold is not None else \
             min((lv for lv in at if not lv.on_branch and finer(lv, used)), key=lambda lv: lv.cost, default=None)
-        met, estimate = lost is None and fold is None and used.meets(self.tol), \
-            None if lost is not None or fold is not None else _number(used.bound)
+        clean = lost is None and fold is None        # (a level off the branch, or a fold: nothing estimated)
+        met, estimate = (used.meets(self.tol), _number(used.bound)) if clean else (False, None)
         cross = p2 = None
         via = used if used.bound_via is None else at[used.bound_via]
         if met and (used.element, via.element) != (CHECK_ELEMENT, CHECK_ELEMENT):
