@@ -497,7 +497,8 @@ def add_bench_parser(sub) -> None:
     p.add_argument("--inverse-max-nodes", type=int, default=None, metavar="N",
                    help="skip the inverse solves on meshes above N nodes (they take minutes at 30,000)")
     p.add_argument("--repeats", type=int, default=5, help="repeats per timing (median taken)")
-    p.add_argument("--out", type=Path, required=True, help="output folder for bench.md and bench.json")
+    p.add_argument("--out", type=Path, default=Path("out/bench"),
+                   help="output folder for bench.md and bench.json (peers.*, contact.*); default out/bench")
     p.add_argument("--contact", action="store_true",
                    help="measure what contact costs instead (contact.md, contact.json): a slab on the floor "
                         "against it pinned, at --sizes (node counts), and hexapod_stand's control iterate")
