@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import datetime
 import platform
 import sys
 import time
@@ -217,7 +218,7 @@ independently of the solver (admissible pose, relative residual within
 
 Iterations are Newton or IPOPT iterations for forward solves, accepted
 iterates for method 1, IPOPT iterations for the bilevel method. Times are
-wall-clock seconds on the machine that generated the page ({machine}) and
+wall-clock seconds on the machine that generated the page ({machine}, {date}) and
 vary between runs; control runs are capped at {budget:g} s.
 """
 
@@ -225,7 +226,8 @@ vary between runs; control runs are capped at {budget:g} s.
 def render(rows: list[dict], scenes: list[Path], seconds: float) -> str:
     """The page: ``rows`` of ``scenes``, made in ``seconds`` (wall)."""
     mentions, defects = test_index(ROOT / "tests" / "hard")
-    out = [INTRO.format(machine=f"{platform.machine()}, Python {platform.python_version()}",
+    date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    out = [INTRO.format(machine=f"{platform.machine()}, Python {platform.python_version()}", date=date,
                         budget=CONTROL_BUDGET_S)]
     out.append("## Summary\n")
     out.append("| scene | method | setting | outcome | status | iterations | time (s) |")

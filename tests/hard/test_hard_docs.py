@@ -5,6 +5,7 @@ runs themselves are exercised by the other tests of this folder)."""
 from __future__ import annotations
 
 import importlib.util
+import re
 
 import pytest
 
@@ -46,7 +47,6 @@ def test_the_generator_renders_headers_tests_and_known_defects():
 
 
 def test_every_promise_names_tests_that_exist():
-    import re
     text = DOC.read_text()
     section = text[text.index("## Promises"):text.index("## Regenerating")]
     files = {"faults": ROOT / "tests" / "test_faults.py",
@@ -68,3 +68,43 @@ def tool_keeps(tool, text) -> bool:
         old = Path(tmp, "robustness.md")
         old.write_text(text)
         return "## Promises" in tool.keep_promises("# Robustness\n## Regenerating\n", old)
+
+
+def _table(text: str) -> list[list[str]]:
+    """The cells of the page's summary table, row by row."""
+    lines = text[text.index("## Summary"):text.index("## Known defects")].splitlines()
+    return [[c.strip() for c in line.strip().strip("|").split("|")] for line in lines[4:] if line.startswith("| ")]
+
+
+def _same_words(doc: str, code: str) -> bool:
+    """Whether ``doc`` and ``code`` differ only in numbers that round-off
+    moves: within 1e-3 relative, or both below 1e-12 (an objective at its
+    round-off floor)."""
+    number = re.compile(r"-?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+    if number.sub("#", doc) != number.sub("#", code):
+        return False
+    for a, b in zip(number.findall(doc), number.findall(code)):
+        x, y = float(a), float(b)
+        if not (abs(x - y) <= 1e-3 * max(abs(x), abs(y)) or max(abs(x), abs(y)) < 1e-12):
+            return False
+    return True
+
+
+@pytest.mark.slow
+def test_the_summary_table_is_what_the_code_gives_now():
+    """Each row's scene, method, setting, outcome and status words as the
+    generator makes them now (numbers within round-off), and its iteration
+    count: Newton's and the control loop's exactly, IPOPT's within a
+    fifth (its path moves with the platform's round-off); only the times
+    are the run's own. Regenerate the page when this fails."""
+    tool = _tool()
+    doc = _table(DOC.read_text())
+    rows = [r for path in sorted(HARD.glob("*.yaml")) for r in tool.rows_for(path)]
+    assert len(doc) == len(rows), "docs/robustness.md: regenerate (rows added or removed)"
+    for cells, r in zip(doc, rows):
+        where = f"docs/robustness.md row {cells[:3]}"
+        code = [r["scene"], r["method"], r["setting"], r["outcome"], r["status"].replace("|", "/")]
+        assert all(_same_words(a, b) for a, b in zip(cells[:5], code)), f"{where}: the code now gives {code}"
+        shown, now = int(cells[5]), r["iterations"]
+        slack = 0.2 * max(shown, now) if "ipopt" in r["method"].lower() else 0
+        assert abs(shown - now) <= slack, f"{where}: {now} iterations now, the page says {shown}"
