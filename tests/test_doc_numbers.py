@@ -32,14 +32,13 @@ def test_every_block_is_in_the_docs_and_every_expensive_one_is_dated():
 
 
 def test_a_roundoff_block_is_current_within_its_tolerances_only():
-    """The friction sweep's counts move with the factoriser's round-off (358
-    and 580 evaluations with QDLDL and CHOLMOD): --check takes them within a
-    factor 2, its decimals within 1e-3, its words and other numbers exactly."""
-    old = "at 1,033 nodes: 287 factorisations and 580 evaluations; loop area 3.8778 mm^2."
+    """The numbers of a block that the factoriser's round-off moves (the
+    friction sweep's loop area, O at an iteration limit): --check takes its
+    decimals within 1e-3, its words and whole numbers exactly."""
+    old = "at 1,033 nodes: every step converged and checked; loop area 3.8778 mm^2; O = 9.976."
     same = doc_numbers._same_up_to_roundoff
-    assert same(old, "at 1,033 nodes: 265 factorisations and 358 evaluations; loop area 3.8785 mm^2.")
-    assert not same(old, "at 1,018 nodes: 225 factorisations and 289 evaluations; loop area 4.7744 mm^2.")
-    assert not same(old, "at 1,033 nodes: 287 factorisations and 580 evaluations; loop area 3.8878 mm^2.")
-    assert not same(old, "at 1,034 nodes: 287 factorisations and 580 evaluations; loop area 3.8778 mm^2.")
-    assert not same(old, "at 1,033 nodes: 287 factorisations and 1,300 evaluations; loop area 3.8778 mm^2.")
-    assert not same(old, "at 1,033 nodes: 287 factorisations and 580 evaluations; 2 of 20 steps converged.")
+    assert same(old, "at 1,033 nodes: every step converged and checked; loop area 3.8785 mm^2; O = 9.977.")
+    assert not same(old, "at 1,018 nodes: every step converged and checked; loop area 4.7744 mm^2; O = 9.976.")
+    assert not same(old, "at 1,033 nodes: every step converged and checked; loop area 3.8878 mm^2; O = 9.976.")
+    assert not same(old, "at 1,034 nodes: every step converged and checked; loop area 3.8778 mm^2; O = 9.976.")
+    assert not same(old, "at 1,033 nodes: 2 of 20 steps converged; loop area 3.8778 mm^2; O = 9.976.")
