@@ -93,8 +93,8 @@ def _tool_commands():
                 yield page.name, number, f"python {m.group(1)}{m.group(2)}"
 
 
-COMMANDS = sorted(set(_commands()))
-TOOL_COMMANDS = sorted(set(_tool_commands()))
+COMMANDS = sorted(c for c in set(_commands()) if _arguments(c[2]) is not None)
+TOOL_COMMANDS = sorted(c for c in set(_tool_commands()) if _arguments(c[2], c[2].split()[1]) is not None)
 
 
 def test_the_docs_give_commands():
@@ -104,8 +104,6 @@ def test_the_docs_give_commands():
 @pytest.mark.parametrize("page, line, command", COMMANDS, ids=[f"{p}:{n}" for p, n, _ in COMMANDS])
 def test_a_documented_command_parses(page, line, command, capsys):
     args = _arguments(command)
-    if args is None:
-        pytest.skip("a synopsis")
     try:
         build_parser().parse_args(args)
     except SystemExit as exc:
@@ -124,8 +122,6 @@ def test_the_docs_give_tool_commands():
 def test_a_documented_tool_command_parses(page, line, command, monkeypatch, capsys):
     tool = command.split()[1]
     args = _arguments(command, tool)
-    if args is None:
-        pytest.skip("a synopsis")
     assert (ROOT / tool).is_file(), f"{page}:{line}: no {tool}"
     if "argparse" not in (ROOT / tool).read_text():
         assert not args, f"{page}:{line}: {tool} takes no arguments"
