@@ -3,8 +3,7 @@ README and docs/ give a user to type parses as written (issue 35: a quoted
 sweep without its required --out failed with exit 2). Commands are the
 lines of shell blocks and the backticked ones that name a file (a tool's:
 any); synopses (``[...]``, ``A|B``, ``...``, placeholders in capitals such
-as FILE or TOL) and bare mentions of a command or an option are not
-commands. A tool is run up to its argument parser and stopped there."""
+as FILE or TOL) and bare mentions of a command or an option are left out. A tool is run up to its argument parser and stopped there."""
 
 import argparse
 import re
@@ -75,9 +74,10 @@ def _arguments(command: str, program: str = "plush-opt") -> list[str] | None:
 def _commands():
     for page in PAGES:
         text = page.read_text()
-        for m in _INLINE.finditer(_prose(text)):
+        prose = _prose(text)
+        for m in _INLINE.finditer(prose):
             if re.search(r"\.(yaml|json|csv)\b|/", m.group(1).split("plush-opt", 1)[1]):
-                yield page.name, text[:m.start()].count("\n") + 1, " ".join(m.group(1).split())
+                yield page.name, prose[:m.start()].count("\n") + 1, " ".join(m.group(1).split())
         for number, line in _shell_lines(text):
             if re.match(r"(?:[A-Z_]+=\S+ )*(?:\.venv/bin/)?plush-opt ", line):
                 yield page.name, number, " ".join(line.split())
@@ -86,7 +86,8 @@ def _commands():
 def _tool_commands():
     for page in PAGES:
         text = page.read_text()
-        lines = [(text[:m.start()].count("\n") + 1, m.group(1)) for m in re.finditer(r"`([^`]+)`", _prose(text))]
+        prose = _prose(text)
+        lines = [(prose[:m.start()].count("\n") + 1, m.group(1)) for m in re.finditer(r"`([^`]+)`", prose)]
         for number, line in [*lines, *_shell_lines(text)]:
             m = _TOOL.fullmatch(" ".join(line.split()))
             if m:
