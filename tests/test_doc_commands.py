@@ -3,7 +3,8 @@ README and docs/ give a user to type parses as written (issue 35: a quoted
 sweep without its required --out failed with exit 2). Commands are the
 lines of shell blocks and the backticked ones that name a file (a tool's:
 any); synopses (``[...]``, ``A|B``, ``...``, placeholders in capitals such
-as FILE or TOL) and bare mentions of a command or an option are left out. A tool is run up to its argument parser and stopped there."""
+as FILE or TOL) and bare mentions of a command or an option are left out.
+A tool is run up to its argument parser and stopped there."""
 
 import argparse
 import re
